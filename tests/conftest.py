@@ -1,0 +1,34 @@
+"""Shared fixtures: seeded generators, hypothesis profiles, and transducers of realistic size."""
+
+import zlib
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, settings
+
+from wtml.physics import LumpedTransducer
+
+settings.register_profile("ci", max_examples=60, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("thorough", max_examples=1000, deadline=None)
+settings.load_profile("ci")
+
+
+@pytest.fixture
+def rng(request):
+    """A generator seeded from the test's name: reproducible, different per test."""
+    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+
+
+MACRO = LumpedTransducer.from_resonance(c0=7.27e-9, phi=1e-5, m=2e-5, f0=36.0, q=30.0,
+                                        tan_delta=0.02)
+"""Macro-size bimorph: Ze ~ 1e5-1e6 Ω around 36 Hz."""
+
+MICRO = LumpedTransducer.from_resonance(c0=5e-12, phi=2e-7, m=2e-8, f0=400.0, q=50.0,
+                                        tan_delta=0.01)
+"""Micro-size bimorph with a small electrode: Ze ~ 1e7-1e9 Ω over 20-800 Hz."""
+
+
+@pytest.fixture(params=["macro", "micro"])
+def transducer(request):
+    return {"macro": MACRO, "micro": MICRO}[request.param]

@@ -1,0 +1,15 @@
+"""Physical constants and literal types shared across wtml (SI units throughout)."""
+
+from typing import Literal
+
+EPSILON_0 = 8.8541878128e-12
+"""Vacuum permittivity, in F/m."""
+
+GRAVITY = 9.80665
+"""Standard gravity, in m/s²."""
+
+SignRule = Literal["continuity", "re_t11_positive"]
+"""How the overall sign of a calibrated T is fixed (see ``wtml.physics.calibration``)."""
+
+CantileverModel = Literal["beam", "quasi_static"]
+"""Point-impedance model of a calibration cantilever (see ``wtml.physics.loads.cantilever``)."""

@@ -5,8 +5,9 @@ Three methods, each returning a :class:`Calibration` (T on a frequency grid, wit
 - :func:`calibrate_least_squares`: electrical data only, under n >= 4 loads of known Zm
   (Eqs. 3.42–3.47). Per frequency, each load gives one complex row
   ``Zm x1 + Zm Ze x2 + x3 = Ze`` with ``x1 = t11/t22``, ``x2 = -t21/t22``, ``x3 = t12/t22``
-  (a clamped load, ``Zm = inf``, gives the row ``x1 + Ze x2 = 0``). The columns are scaled
-  to unit norm before an SVD solve (``Zm ~ 1e-3`` against ``Ze ~ 1e5–1e9`` would otherwise
+  (a clamped load, ``Zm = inf``, gives the row ``x1 + Ze x2 = 0``). Rows are weighted so that
+  a relative error of Ze weighs the same in each (a second pass, with x2 from the first), and
+  the columns are scaled to unit norm before an SVD solve (``Zm ~ 1e-3`` against ``Ze ~ 1e5–1e9`` would otherwise
   give condition numbers near 1e16 and silent garbage); the condition number of the scaled
   system and the relative residual are kept per frequency, and a load set whose condition
   number exceeds ``max_condition`` is refused. Then ``t22 = ±1/sqrt(x1 + x2 x3)`` (det T = 1),
@@ -65,8 +66,9 @@ class Calibration:
         omega: the grid in rad/s, shape ``(n_freq,)``; NaN where it was not given.
         condition: condition number of the column-scaled least-squares system per frequency,
             shape ``(n_freq,)`` (NaN for the direct methods).
-        residual: relative residual ``|A x - b| / |b|`` per frequency, shape ``(n_freq,)``
-            (NaN for the direct methods, and 0 up to rounding when n_loads = 3).
+        residual: RMS over loads of the weighted residuals, in units of relative Ze error,
+            per frequency, shape ``(n_freq,)``: about ``sqrt((n_loads - 3)/n_loads)`` times
+            the relative noise of Ze when the loads' Zm are right (NaN for direct methods).
         method: ``"least_squares"``, ``"free_clamped"`` or ``"open_short"``.
         sign_rule: the rule that fixed the overall sign (``"measured"`` for direct methods).
         n_loads: loads used (0 for the direct methods).
@@ -161,6 +163,39 @@ def _fix_sign(t22: np.ndarray, x1: np.ndarray, sign_rule: SignRule) -> np.ndarra
     return out
 
 
+def _solve_scaled(a: np.ndarray, b: np.ndarray, row_weight: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares ``min |W (A x - b)|`` per frequency with unit-norm columns.
+
+    Args:
+        a: ``(n_freq, n_loads, 3)``; b: ``(n_freq, n_loads)``; row_weight: ``(n_freq, n_loads)``.
+
+    Returns:
+        ``x`` of shape ``(n_freq, 3)`` and the condition number of the weighted, column-scaled
+        system, shape ``(n_freq,)`` (inf when it is rank deficient).
+    """
+    aw, bw = a * row_weight[..., None], b * row_weight
+    scale = np.linalg.norm(aw, axis=1)  # (n_freq, 3)
+    if np.any(scale == 0):
+        raise CalibrationError("a column of the calibration system is zero: "
+                               "the load set has no free, finite or clamped variety")
+    u, s, vh = np.linalg.svd(aw / scale[:, None, :], full_matrices=False)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        condition = np.where(s[:, -1] > 0, s[:, 0] / s[:, -1], np.inf)
+        y = np.einsum("fji,fj->fi", np.conj(vh), np.einsum("fji,fj->fi", np.conj(u), bw) / s)
+    return y / scale, condition
+
+
+def _check_condition(condition: np.ndarray, max_condition: float) -> None:
+    worst = int(np.argmax(np.where(np.isnan(condition), np.inf, condition)))
+    if not condition[worst] <= max_condition:
+        raise CalibrationError(
+            f"loads too alike to calibrate: condition number {condition[worst]:.3g} at "
+            f"frequency index {worst} exceeds max_condition={max_condition:.3g}; use loads "
+            "whose impedances differ more (e.g. contact points farther apart) or raise "
+            "max_condition knowing that T's relative error is about condition x noise")
+
+
 def calibrate_least_squares(zm, ze, omega=None, *, max_condition: float = 1e4,
                             sign_rule: SignRule = "continuity") -> Calibration:
     """Calibrate T from electrical impedances measured under known loads.
@@ -204,23 +239,20 @@ def calibrate_least_squares(zm, ze, omega=None, *, max_condition: float = 1e4,
                   np.where(clamped, ze, zm_f * ze),
                   np.where(clamped, 0.0, 1.0)], axis=-1).transpose(1, 0, 2)
     b = np.where(clamped, 0.0, ze).T
-    scale = np.linalg.norm(a, axis=1)  # (n_freq, 3)
-    if np.any(scale == 0):
-        raise CalibrationError("a column of the calibration system is zero: "
-                               "the load set has no free, finite or clamped variety")
-    u, s, vh = np.linalg.svd(a / scale[:, None, :], full_matrices=False)
-    condition = s[:, 0] / s[:, -1]
-    worst = int(np.argmax(condition))
-    if not condition[worst] <= max_condition:
-        raise CalibrationError(
-            f"loads too alike to calibrate: condition number {condition[worst]:.3g} at "
-            f"frequency index {worst} exceeds max_condition={max_condition:.3g}; use loads "
-            "whose impedances differ more (e.g. contact points farther apart) or raise "
-            "max_condition knowing that T's relative error is about condition x noise")
-    y = np.einsum("fji,fj->fi", np.conj(vh),
-                  np.einsum("fji,fj->fi", np.conj(u), b) / s)
-    x = y / scale
-    residual = np.linalg.norm(np.einsum("fij,fj->fi", a, x) - b, axis=1) / np.linalg.norm(b, axis=1)
+    # rows are weighted to equal noise: a relative error δ on Ze moves row i's residual by
+    # |Ze_i (Zm_i x2 - 1)| δ (|Ze_i x2| δ for a clamped row); x2 comes from a first solve
+    # with rows of equal norm
+    equal_rows = 1.0 / np.linalg.norm(np.concatenate([a, b[..., None]], -1), axis=-1)
+    x, condition = _solve_scaled(a, b, equal_rows)
+    _check_condition(condition, 1 / np.finfo(float).eps)  # only a rank-deficient set fails here
+    ze_t = ze.T
+    gain = np.abs(ze_t) * np.where(clamped.T, np.abs(x[:, 1:2]), np.abs(zm_f.T * x[:, 1:2] - 1))
+    weight = 1.0 / np.maximum(gain, np.finfo(float).tiny)
+    x, condition = _solve_scaled(a, b, weight)
+    _check_condition(condition, max_condition)
+    # weighted residuals are in units of relative Ze error: their RMS estimates the noise
+    residual = np.sqrt(np.mean(np.abs(weight * (np.einsum("fij,fj->fi", a, x) - b)) ** 2,
+                               axis=1))
     x1, x2, x3 = x[:, 0], x[:, 1], x[:, 2]
     t22 = _fix_sign(1.0 / np.sqrt(x1 + x2 * x3), x1, sign_rule)
     t = np.empty((n_freq, 2, 2), dtype=complex)

@@ -225,7 +225,11 @@ def tip_mass(omega, mass) -> np.ndarray:
 
 
 def det_error(t: np.ndarray) -> np.ndarray:
-    """Health figure ``|det T - 1|`` (0 for a reciprocal T), shape ``(...)``."""
+    """Health figure ``|det T - 1|`` (0 for a reciprocal T), shape ``(...)``.
+
+    Its rounding floor is about ``eps (|t11 t22| + |t12 t21|)``, which for SI elements of a
+    real transducer (``t11 ~ 1e5``, ``t22 ~ 1``) is ~1e-11, not 1e-16.
+    """
     t11, t12, t21, t22 = elements(t)
     return np.abs(t11 * t22 - t12 * t21 - 1.0)
 

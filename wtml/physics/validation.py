@@ -23,7 +23,7 @@ def check_range(name: str, value, low: float, high: float, *, unit: str = "",
         right = ")" if high_open else "]"
         unit_txt = f" {unit}" if unit else ""
         raise ValueError(
-            f"{name} must be in {left}{low:g}, {high:g}{right}{unit_txt}; got {worst!r}"
+            f"{name} must be in {left}{low:g}, {high:g}{right}{unit_txt}; got {float(worst):g}"
             + (f" ({int(bad.sum())} values out of range)" if bad.sum() > 1 else "")
         )
     return arr

@@ -137,10 +137,11 @@ class CantileverPoint(Load):
         jump = 1.0 / (ei * beta**3)  # unit force: w''' jumps by F/EI, scaled by 1/β³
         # clamped at 0: y(0) = [0, 0, c, d]; free at L: rows 2, 3 of y(L) vanish
         m = k2[..., 2:4, :] @ k1[..., :, 2:4]
-        rhs = -jump * k2[..., 2:4, 3]
+        rhs = -jump[..., None] * k2[..., 2:4, 3]
         det = m[..., 0, 0] * m[..., 1, 1] - m[..., 0, 1] * m[..., 1, 0]
-        c = (rhs[..., 0] * m[..., 1, 1] - m[..., 0, 1] * rhs[..., 1]) / det
-        d = (m[..., 0, 0] * rhs[..., 1] - m[..., 1, 0] * rhs[..., 0]) / det
-        w = k1[..., 0, 2] * c + k1[..., 0, 3] * d
-        with np.errstate(divide="ignore"):
-            return 1.0 / (1j * omega * w)
+        # Cramer's rule, w(d) = w_num / det; Zm = F/(jω w) = det/(jω w_num) is exactly 0 at
+        # a natural frequency of the strip (det = 0) instead of a division by zero
+        c_num = rhs[..., 0] * m[..., 1, 1] - m[..., 0, 1] * rhs[..., 1]
+        d_num = m[..., 0, 0] * rhs[..., 1] - m[..., 1, 0] * rhs[..., 0]
+        w_num = k1[..., 0, 2] * c_num + k1[..., 0, 3] * d_num
+        return det / (1j * omega * w_num)

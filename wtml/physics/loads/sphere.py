@@ -55,8 +55,8 @@ def fluid_from_zm(zm, radius, omega, *, on_invalid: Literal["raise", "nan"] = "r
         radius: sphere radius in m, broadcastable.
         omega: angular frequency in rad/s, broadcastable.
         on_invalid: ``"raise"`` (default) raises for any Zm that no Newtonian fluid produces
-            (``Re Zm <= 0``, or a boundary-layer term ``s < 0`` meaning ``Im Zm`` too small
-            against ``Re Zm``); ``"nan"`` returns NaN there instead (for noisy batches).
+            (``Re Zm <= 0``, a boundary-layer term ``s < 0``, or ``Im Zm <= s``, which
+            would need a density <= 0); ``"nan"`` returns NaN there instead (for noisy batches).
 
     Returns:
         ``(eta, rho)`` in Pa·s and kg/m³, the broadcast shape.
@@ -78,8 +78,10 @@ def fluid_from_zm(zm, radius, omega, *, on_invalid: Literal["raise", "nan"] = "r
         eta = np.where(quad_b >= 0, 2 * x**2 / (quad_b + root), (root - quad_b) / (2 * quad_a))
         s = x - 6 * np.pi * radius * eta
         rho = s**2 / (18 * np.pi**2 * radius**4 * omega * eta)
-    # s >= 0 within rounding of X (s is a difference of X and aη)
-    invalid = ~np.isfinite(zm) | (x <= 0) | (s < -8 * np.finfo(float).eps * np.abs(x))
+    # s >= 0 and Bρ = Y - s > 0, each within the rounding of the difference that makes it
+    tol = 8 * np.finfo(float).eps
+    invalid = (~np.isfinite(zm) | (x <= 0) | (s < -tol * np.abs(x))
+               | (y - s <= -tol * np.abs(y)))
     if np.any(invalid):
         if on_invalid == "raise":
             n = int(np.count_nonzero(invalid))
@@ -88,7 +90,8 @@ def fluid_from_zm(zm, radius, omega, *, on_invalid: Literal["raise", "nan"] = "r
                 f"zm cannot be the load of a sphere in a Newtonian fluid at {n} of "
                 f"{invalid.size} points (first at flat index {first}: "
                 f"zm={np.broadcast_to(zm, invalid.shape).ravel()[first]!r}); a fluid load "
-                "needs Re Zm > 0 and Im Zm - (2/3)πR³ωρ = Re Zm - 6πRη >= 0"
+                "needs Re Zm > 0, a boundary-layer term s = Re Zm - 6πRη >= 0 and a positive "
+                "density, Im Zm - s > 0"
             )
         eta = np.where(invalid, np.nan, eta)
         rho = np.where(invalid, np.nan, rho)

@@ -18,7 +18,8 @@ from wtml.physics import (
 from wtml.physics.loads import MassSpringDamper
 from wtml.signals import complex_noise
 
-GRID = {"macro": 2 * np.pi * np.linspace(20, 60, 81), "micro": 2 * np.pi * np.linspace(20, 800, 157)}
+GRID = {"macro": 2 * np.pi * np.linspace(20, 60, 81),
+        "micro": 2 * np.pi * np.linspace(20, 800, 157)}
 TABLE_3_4 = [MassSpringDamper(m, k, c) for m, k, c in (
     (0, 0, 0), (6.1e-5, 2.5, 1.0e-2), (6.2e-5, 2.6, 1.1e-2), (6.3e-5, 2.7, 1.2e-2),
     (6.4e-5, 2.8, 1.3e-2))]

@@ -108,7 +108,8 @@ def format_report(result: WalkthroughResult, *, noise: float, repeats: int) -> s
         f"Ze noise: {100 * noise:.3g} % relative (complex Gaussian) per measurement, "
         f"mean of {repeats}",
         f"Calibration: {cal.n_loads} loads (free + {cal.n_loads - 1} contacts), "
-        f"condition number {cal.condition[0]:.3g}, relative residual {cal.residual[0]:.2e}, "
+        f"condition number {cal.condition[0]:.3g}, "
+        f"residual {cal.residual[0]:.2e} (relative Ze units), "
         f"|det T - 1| = {cal.det_error()[0]:.1e}",
         "T relative error vs the simulated transducer: "
         + ", ".join(f"t{i + 1}{j + 1} {abs(t[i, j] / result.t_true[0, i, j] - 1):.2e}"

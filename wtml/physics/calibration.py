@@ -7,10 +7,10 @@ Three methods, each returning a :class:`Calibration` (T on a frequency grid, wit
   ``Zm x1 + Zm Ze x2 + x3 = Ze`` with ``x1 = t11/t22``, ``x2 = -t21/t22``, ``x3 = t12/t22``
   (a clamped load, ``Zm = inf``, gives the row ``x1 + Ze x2 = 0``). Rows are weighted so that
   a relative error of Ze weighs the same in each (a second pass, with x2 from the first), and
-  the columns are scaled to unit norm before an SVD solve (``Zm ~ 1e-3`` against ``Ze ~ 1e5–1e9`` would otherwise
-  give condition numbers near 1e16 and silent garbage); the condition number of the scaled
-  system and the relative residual are kept per frequency, and a load set whose condition
-  number exceeds ``max_condition`` is refused. Then ``t22 = ±1/sqrt(x1 + x2 x3)`` (det T = 1),
+  the columns are scaled to unit norm before an SVD solve (``Zm ~ 1e-3`` against
+  ``Ze ~ 1e5–1e9`` would otherwise give condition numbers up to 1e16 and silent garbage); the
+  condition number of the scaled system and the residual are kept per frequency, and a load
+  set whose condition number exceeds ``max_condition`` is refused. Then ``t22 = ±1/sqrt(x1 + x2 x3)`` (det T = 1),
   ``t11 = x1 t22``, ``t21 = -x2 t22``, ``t12 = x3 t22``.
 - :func:`calibrate_free_clamped`: ``t12 = E/V``, ``t22 = I/V`` with a free tip (F = 0);
   ``t11 = E/F``, ``t21 = I/F`` with a clamped tip (V = 0) (Eqs. 3.2–3.5).

@@ -13,15 +13,19 @@ from scipy.signal import firwin, lfilter
 from wtml.physics.validation import check_range
 
 
-def split_bands(x, sample_rate: float, cutoff: float, numtaps: int = 401
-                ) -> tuple[np.ndarray, np.ndarray, int]:
+def split_bands(x, sample_rate: float, cutoff: float, numtaps: int = 401,
+                window=("kaiser", 10.0)) -> tuple[np.ndarray, np.ndarray, int]:
     """Split ``x`` (shape ``(..., n)``) at ``cutoff`` Hz into low and high bands.
 
     Args:
         x: real samples.
         sample_rate: Hz.
         cutoff: Hz, in (0, Nyquist).
-        numtaps: odd FIR length.
+        numtaps: odd FIR length; the transition band is about ``6.4 sample_rate / numtaps``
+            wide with the default window.
+        window: scipy window for ``firwin``; Kaiser β = 10 gives ~100 dB of stop band and
+            ~1e-5 of pass-band ripple, so a 9.5 V whisking tone leaks < 0.1 mV into the
+            touch band.
 
     Returns:
         ``(low, high, delay)``, both bands of the shape of ``x``, delayed by ``delay`` samples.
@@ -30,7 +34,7 @@ def split_bands(x, sample_rate: float, cutoff: float, numtaps: int = 401
                 high_open=True)
     if numtaps < 3 or numtaps % 2 == 0:
         raise ValueError(f"numtaps must be odd and >= 3, got {numtaps}")
-    low_taps = firwin(numtaps, cutoff, fs=sample_rate)
+    low_taps = firwin(numtaps, cutoff, fs=sample_rate, window=window)
     high_taps = -low_taps
     delay = (numtaps - 1) // 2
     high_taps[delay] += 1.0

@@ -10,8 +10,8 @@ Three methods, each returning a :class:`Calibration` (T on a frequency grid, wit
   the columns are scaled to unit norm before an SVD solve (``Zm ~ 1e-3`` against
   ``Ze ~ 1e5–1e9`` would otherwise give condition numbers up to 1e16 and silent garbage); the
   condition number of the scaled system and the residual are kept per frequency, and a load
-  set whose condition number exceeds ``max_condition`` is refused. Then ``t22 = ±1/sqrt(x1 + x2 x3)`` (det T = 1),
-  ``t11 = x1 t22``, ``t21 = -x2 t22``, ``t12 = x3 t22``.
+  set whose condition number exceeds ``max_condition`` is refused. Then
+  ``t22 = ±1/sqrt(x1 + x2 x3)`` (det T = 1), ``t11 = x1 t22``, ``t21 = -x2 t22``, ``t12 = x3 t22``.
 - :func:`calibrate_free_clamped`: ``t12 = E/V``, ``t22 = I/V`` with a free tip (F = 0);
   ``t11 = E/F``, ``t21 = I/F`` with a clamped tip (V = 0) (Eqs. 3.2–3.5).
 - :func:`calibrate_open_short`: tip driven mechanically; ``t21 = -V/E``, ``t22 = F/E`` with the

@@ -35,6 +35,12 @@ def test_cli_prints_the_table(capsys):
     assert "| validation |     80 |" in out and "thesis 1.28 %" in out
 
 
+def test_cli_plot(tmp_path, capsys):
+    png = tmp_path / "walk.png"
+    assert main(["walkthrough", "--plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+
 def test_cli_bad_input_is_a_clear_error(capsys):
     assert main(["walkthrough", "--noise", "3"]) == 2
     assert "relative_sigma must be in [0, 1]; got 3" in capsys.readouterr().err

@@ -14,6 +14,11 @@ def _walkthrough(args: argparse.Namespace) -> int:
     result = run_walkthrough(frequency_hz=args.frequency, noise=args.noise,
                              repeats=args.repeats, seed=args.seed)
     print(format_report(result, noise=args.noise, repeats=args.repeats))
+    if args.plot:
+        from wtml.walkthrough import plot_walkthrough
+
+        plot_walkthrough(result, args.plot)
+        print(f"plot: {args.plot}")
     return 0
 
 
@@ -34,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     walk.add_argument("--repeats", type=int, default=5,
                       help="measurements averaged per load (default 5, as in the thesis)")
     walk.add_argument("--seed", type=int, default=0)
+    walk.add_argument("--plot", metavar="PNG", help="also save a plot of Zm and errors here")
     walk.set_defaults(func=_walkthrough)
     return parser
 

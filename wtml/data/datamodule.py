@@ -1,0 +1,69 @@
+"""Tensors for training: shards split by index into train, validation and test."""
+
+from __future__ import annotations
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from wtml.data.shards import DatasetError, dataset_scene, load_shards, read_manifest
+from wtml.scenes import to_dict
+
+
+def split_shards(n_shards: int, val_shards: int, test_shards: int) -> dict[str, list[int]]:
+    """Fixed split by shard index: test = the last ``test_shards``, val = the ones before."""
+    if n_shards < val_shards + test_shards + 1:
+        raise DatasetError(f"{n_shards} shards cannot give {val_shards} validation and "
+                           f"{test_shards} test shards and still train")
+    train_end = n_shards - val_shards - test_shards
+    return {"train": list(range(train_end)),
+            "val": list(range(train_end, train_end + val_shards)),
+            "test": list(range(train_end + val_shards, n_shards))}
+
+
+def fluid_tensors(arrays: dict[str, np.ndarray]) -> tuple[torch.Tensor, ...]:
+    """``(ze_re, ze_im, targets)`` float32; targets are ``(log10 η, ρ)``, shape ``(n, 2)``."""
+    ze = arrays["ze"]
+    targets = np.stack([np.log10(arrays["eta"]), arrays["rho"]], -1)
+    return tuple(torch.tensor(a, dtype=torch.float32) for a in (ze.real, ze.imag, targets))
+
+
+class FluidDataModule(L.LightningDataModule):
+    """Fluid shards for :class:`wtml.decoders.fluid.FluidDecoder`.
+
+    Args:
+        data_dir: a dataset folder made by ``wtml generate``.
+        batch_size: samples per batch.
+        val_shards, test_shards: how many of the last shards to hold out.
+    """
+
+    def __init__(self, data_dir: str, batch_size: int = 256, val_shards: int = 1,
+                 test_shards: int = 1) -> None:
+        super().__init__()
+        self.data_dir = data_dir
+        self.batch_size = batch_size
+        manifest = read_manifest(data_dir)
+        self.split = split_shards(manifest["n_shards"], val_shards, test_shards)
+        self.scene = dataset_scene(data_dir)
+        self.scene_dict = to_dict(self.scene)
+        self._data: dict[str, TensorDataset] = {}
+
+    def _dataset(self, split: str) -> TensorDataset:
+        if split not in self._data:
+            self._data[split] = TensorDataset(
+                *fluid_tensors(load_shards(self.data_dir, self.split[split])))
+        return self._data[split]
+
+    def train_tensors(self) -> tuple[torch.Tensor, ...]:
+        """The whole training split, for normalisation statistics."""
+        return self._dataset("train").tensors
+
+    def train_dataloader(self) -> DataLoader:
+        return DataLoader(self._dataset("train"), batch_size=self.batch_size, shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return DataLoader(self._dataset("val"), batch_size=4096)
+
+    def test_dataloader(self) -> DataLoader:
+        return DataLoader(self._dataset("test"), batch_size=4096)

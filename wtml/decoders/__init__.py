@@ -1,0 +1,1 @@
+"""Decoders: plain nn.Modules (exported) and their LightningModules (trained)."""

@@ -1,0 +1,152 @@
+"""Fluid decoder: Ze on the sweep grid -> (η, ρ).
+
+:class:`FluidNet` is the plain module that is exported: calibrated T -> Zm (by hand, real
+arithmetic) -> ``asinh(Zm / z_scale)`` standardised -> MLP -> (log10 η, ρ) de-standardised.
+All normalisation lives in buffers, so the ONNX graph takes raw Ze. :class:`FluidDecoder` is
+its LightningModule: it builds the net from the data module's scene and training statistics
+at ``setup`` and rebuilds its shape from the checkpoint when loaded.
+"""
+
+from __future__ import annotations
+
+import lightning as L
+import numpy as np
+import torch
+from torch import nn
+
+from wtml.decoders.layers import ZmFromZe
+from wtml.decoders.mlp import MLP
+
+
+class FluidNet(nn.Module):
+    """Ze -> (η in Pa·s, ρ in kg/m³).
+
+    Args:
+        t_cal: calibrated T on the grid, complex ``(n_freq, 2, 2)``.
+        z_scale: the asinh knee in N·s/m (Zm well below it is linear, above logarithmic).
+        hidden: widths of the hidden layers.
+
+    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` float32 in Ω -> ``eta (batch,)``,
+    ``rho (batch,)``.
+    """
+
+    def __init__(self, t_cal: np.ndarray, z_scale: float, hidden: list[int]) -> None:
+        super().__init__()
+        n_freq = np.asarray(t_cal).shape[0]
+        self.zm = ZmFromZe(t_cal)
+        self.register_buffer("z_scale", torch.tensor(float(z_scale)))
+        self.register_buffer("feature_mean", torch.zeros(2 * n_freq))
+        self.register_buffer("feature_std", torch.ones(2 * n_freq))
+        self.register_buffer("target_mean", torch.zeros(2))
+        self.register_buffer("target_std", torch.ones(2))
+        self.mlp = MLP(2 * n_freq, hidden, 2)
+
+    def features(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
+        zm_re, zm_im = self.zm(ze_re, ze_im)
+        x = torch.cat([torch.asinh(zm_re / self.z_scale), torch.asinh(zm_im / self.z_scale)], -1)
+        return x
+
+    def forward_normalized(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
+        """Standardised (log10 η, ρ), shape ``(batch, 2)``: what the loss sees."""
+        x = (self.features(ze_re, ze_im) - self.feature_mean) / self.feature_std
+        return self.mlp(x)
+
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        y = self.forward_normalized(ze_re, ze_im) * self.target_std + self.target_mean
+        return torch.pow(10.0, y[:, 0]), y[:, 1]
+
+    @torch.no_grad()
+    def fit_normalization(self, ze_re: torch.Tensor, ze_im: torch.Tensor,
+                          targets: torch.Tensor) -> None:
+        """Set feature and target statistics from training data (targets: log10 η, ρ)."""
+        x = self.features(ze_re, ze_im)
+        self.feature_mean.copy_(x.mean(0))
+        self.feature_std.copy_(x.std(0).clamp_min(1e-6))
+        self.target_mean.copy_(targets.mean(0))
+        self.target_std.copy_(targets.std(0).clamp_min(1e-6))
+
+
+class FluidDecoder(L.LightningModule):
+    """Trains :class:`FluidNet` on a ``FluidDataModule`` (MSE on standardised log10 η, ρ).
+
+    Args:
+        hidden: hidden layer widths.
+        lr: peak learning rate (one-cycle schedule over the run).
+        weight_decay: AdamW weight decay.
+    """
+
+    def __init__(self, hidden: list[int] | None = None, lr: float = 3e-3,
+                 weight_decay: float = 1e-5) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.hidden = list(hidden or [256, 256, 256])
+        self.net: FluidNet | None = None
+        self.scene: dict | None = None
+
+    def _build(self, t_cal: np.ndarray, z_scale: float) -> None:
+        self.net = FluidNet(t_cal, z_scale, self.hidden)
+
+    def setup(self, stage: str) -> None:
+        if self.net is not None:
+            return
+        dm = self.trainer.datamodule
+        self._build(dm.scene.calibrated_t(), 0.01 * dm.scene.reference_zm())
+        self.scene = dm.scene_dict
+        ze_re, ze_im, targets = dm.train_tensors()
+        self.net.fit_normalization(ze_re, ze_im, targets)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["wtml"] = {"scene": self.scene, "n_freq": self.net.mlp.n_in // 2}
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        info = checkpoint["wtml"]
+        self.scene = info["scene"]
+        if self.net is None:  # shapes only: the state dict brings the values
+            n = info["n_freq"]
+            self._build(np.tile(np.eye(2, dtype=complex), (n, 1, 1)), 1.0)
+
+    def _step(self, batch, stage: str) -> torch.Tensor:
+        ze_re, ze_im, target = batch
+        y = (target - self.net.target_mean) / self.net.target_std
+        loss = nn.functional.mse_loss(self.net.forward_normalized(ze_re, ze_im), y)
+        self.log(f"{stage}_loss", loss, prog_bar=stage == "val", on_epoch=True,
+                 on_step=False, batch_size=len(target))
+        return loss
+
+    def training_step(self, batch, batch_idx):
+        return self._step(batch, "train")
+
+    def validation_step(self, batch, batch_idx):
+        self._step(batch, "val")
+
+    def test_step(self, batch, batch_idx):
+        self._step(batch, "test")
+
+    def configure_optimizers(self):
+        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr,
+                                weight_decay=self.hparams.weight_decay)
+        sched = torch.optim.lr_scheduler.OneCycleLR(
+            opt, max_lr=self.hparams.lr, total_steps=self.trainer.estimated_stepping_batches)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+
+def load_fluid_net(checkpoint: str) -> tuple[FluidNet, dict]:
+    """The trained :class:`FluidNet` (eval mode) and its scene mapping from a checkpoint."""
+    module = FluidDecoder.load_from_checkpoint(checkpoint, map_location="cpu")
+    return module.net.eval(), module.scene
+
+
+class TorchFluid:
+    """A :class:`FluidNet` behind the predict interface (``wtml.interface.FluidPredictor``)."""
+
+    name = "decoder torch"
+
+    def __init__(self, net: FluidNet) -> None:
+        self.net = net.eval()
+
+    @torch.no_grad()
+    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
+        ze = np.asarray(ze)
+        eta, rho = self.net(torch.tensor(ze.real, dtype=torch.float32),
+                            torch.tensor(ze.imag, dtype=torch.float32))
+        return {"eta": eta.numpy().astype(float), "rho": rho.numpy().astype(float)}

@@ -1,0 +1,33 @@
+"""Scenes: typed, validated descriptions of one experiment, and their generators."""
+
+from pathlib import Path
+
+from wtml.scenes.config import SceneError, config_hash, load_yaml, to_dict
+from wtml.scenes.fluid import FluidScene
+
+SCENES = {"fluid": FluidScene}
+"""Scene classes by task name."""
+
+
+def load_scene(path: str | Path) -> FluidScene:
+    """Load a scene YAML; its ``task`` key picks the scene class (default ``fluid``)."""
+    import yaml
+
+    try:
+        task = (yaml.safe_load(Path(path).read_text()) or {}).get("task", "fluid")
+    except (OSError, yaml.YAMLError, AttributeError) as err:
+        raise SceneError(f"{path}: cannot read a scene: {err}") from err
+    if task not in SCENES:
+        raise SceneError(f"{path}: task: must be one of {sorted(SCENES)}, got {task!r}")
+    return load_yaml(SCENES[task], path)
+
+
+def scene_from_dict(data: dict) -> FluidScene:
+    """Rebuild a scene from the mapping stored in a manifest."""
+    from wtml.scenes.config import build
+
+    return build(SCENES[data.get("task", "fluid")], data)
+
+
+__all__ = ["SCENES", "FluidScene", "SceneError", "config_hash", "load_scene", "scene_from_dict",
+           "to_dict"]

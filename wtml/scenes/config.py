@@ -1,0 +1,122 @@
+"""Frozen, validated config dataclasses loaded from YAML, with errors that name the key path.
+
+A field's allowed range lives in its metadata (:func:`bounded`); :func:`build` walks a mapping
+into nested dataclasses, refusing unknown keys, missing keys and out-of-range values with a
+:class:`SceneError` such as ``excitation.n_freq: must be in [2, 4096], got 1``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class SceneError(ValueError):
+    """A scene file with an unknown key, a missing key or a value out of range."""
+
+
+def bounded(low: float, high: float, *, default: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field whose value (or each element of a pair) must lie in [low, high]."""
+    return dataclasses.field(default=default, metadata={"range": (low, high)})
+
+
+def one_of(*choices: str, default: Any = dataclasses.MISSING) -> Any:
+    """A string field restricted to ``choices``."""
+    return dataclasses.field(default=default, metadata={"choices": choices})
+
+
+def _check_number(path: str, value: Any, low: float, high: float, kind: type) -> float | int:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise SceneError(f"{path}: must be a number in [{low:g}, {high:g}], got {value!r}")
+    if kind is int and float(value) != int(value):
+        raise SceneError(f"{path}: must be an integer in [{low:g}, {high:g}], got {value!r}")
+    if not low <= value <= high:  # NaN fails too
+        raise SceneError(f"{path}: must be in [{low:g}, {high:g}], got {value!r}")
+    return kind(value)
+
+
+def _convert(path: str, hint: Any, value: Any, meta: Mapping) -> Any:
+    if dataclasses.is_dataclass(hint):
+        return build(hint, value, path)
+    origin = typing.get_origin(hint)
+    if origin is tuple:  # a (low, high) pair of floats
+        low, high = meta.get("range", (-float("inf"), float("inf")))
+        if not isinstance(value, list | tuple) or len(value) != 2:
+            raise SceneError(f"{path}: must be a [low, high] pair within [{low:g}, {high:g}], "
+                             f"got {value!r}")
+        pair = tuple(_check_number(f"{path}[{k}]", v, low, high, float)
+                     for k, v in enumerate(value))
+        if pair[0] > pair[1]:
+            raise SceneError(f"{path}: low {pair[0]:g} is above high {pair[1]:g}")
+        return pair
+    if origin is dict or hint is dict:
+        if not isinstance(value, Mapping):
+            raise SceneError(f"{path}: must be a mapping, got {value!r}")
+        return dict(value)
+    if hint is str:
+        choices = meta.get("choices")
+        if not isinstance(value, str) or (choices and value not in choices):
+            allowed = f"one of {list(choices)}" if choices else "a string"
+            raise SceneError(f"{path}: must be {allowed}, got {value!r}")
+        return value
+    if hint in (int, float):
+        low, high = meta.get("range", (-float("inf"), float("inf")))
+        return _check_number(path, value, low, high, hint)
+    raise TypeError(f"{path}: unsupported field type {hint!r}")
+
+
+def build(cls: type, data: Any, path: str = "") -> Any:
+    """Build dataclass ``cls`` from a mapping, validating every key (see module docstring)."""
+    where = path or cls.__name__
+    if not isinstance(data, Mapping):
+        raise SceneError(f"{where}: must be a mapping, got {type(data).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    hints = typing.get_type_hints(cls)
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise SceneError(f"{path + '.' if path else ''}{unknown[0]}: unknown key; "
+                         f"allowed keys here: {sorted(fields)}")
+    kwargs = {}
+    for name, f in fields.items():
+        key_path = f"{path}.{name}" if path else name
+        if name not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise SceneError(f"{key_path}: missing")
+            continue
+        kwargs[name] = _convert(key_path, hints[name], data[name], f.metadata)
+    obj = cls(**kwargs)
+    check = getattr(obj, "check", None)
+    if check is not None:
+        check(path)
+    return obj
+
+
+def load_yaml(cls: type, path: str | Path) -> Any:
+    """Read a YAML file into dataclass ``cls``; errors name the file and the key path."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise SceneError(f"{path}: cannot read: {err}") from err
+    try:
+        return build(cls, data)
+    except SceneError as err:
+        raise SceneError(f"{path}: {err}") from None
+
+
+def to_dict(obj: Any) -> dict:
+    """The plain mapping a config was built from (tuples as lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(obj)))
+
+
+def config_hash(obj: Any) -> str:
+    """sha256 of the canonical JSON of a config: the identity of a scene."""
+    blob = json.dumps(to_dict(obj), sort_keys=True, separators=(",", ":")).encode()
+    return hashlib.sha256(blob).hexdigest()

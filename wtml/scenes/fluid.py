@@ -1,0 +1,175 @@
+"""The fluid scene: a sphere on the whisker tip oscillating in glycerol–water (thesis §6).
+
+Only what the scene names is built: the lumped preset's T once per frequency, cascaded with
+the sphere's tip mass (a load at the tip needs the 2×2 matrix of the free structure and
+nothing more), the Stokes sphere load per sample, then the calibration error and the noise.
+
+Calibration error (nuisance): the device's calibrated T is not its true T. Per sample, the load
+that the calibrated T reports is ``(1 + α) Zm + β Zref`` instead of ``Zm``: a gain error α and
+an offset β (complex, each component Gaussian with std ``calibration_error/√2``), ``Zref`` the
+magnitude of water's load at the band centre. This is an error two-port on the mechanical side
+(reciprocal after scaling), the same kind of error the thesis's validation loads show
+(Zm within 1.28 %). The simulated measurement is ``Ze = ze_from_zm(T_cal, (1+α) Zm + β Zref)``,
+so the calibrated classical path sees exactly that error, and the decoder sees the same Ze.
+Noise: complex Gaussian on Ze with relative std ``noise.ze_relative``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wtml.physics import cascade, tip_mass, ze_from_zm
+from wtml.physics.fluids import glycerol_water, water
+from wtml.physics.loads import stokes_sphere
+from wtml.physics.lumped import LumpedTransducer
+from wtml.physics.presets import PRESETS
+from wtml.scenes.config import SceneError, bounded, one_of
+from wtml.signals import complex_noise
+
+_LUMPED_FIELDS = ("c0", "phi", "k", "m", "c", "tan_delta")
+
+
+@dataclass(frozen=True)
+class TransducerSpec:
+    """Which lumped preset, and any of its parameters overridden (SI units)."""
+
+    preset: str = one_of(*PRESETS, default="fluid")
+    overrides: dict = field(default_factory=dict)
+
+    def check(self, path: str) -> None:
+        for key, value in self.overrides.items():
+            if key not in _LUMPED_FIELDS:
+                raise SceneError(f"{path}.overrides.{key}: unknown parameter; allowed: "
+                                 f"{list(_LUMPED_FIELDS)}")
+            if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+                raise SceneError(f"{path}.overrides.{key}: must be a number >= 0, got {value!r}")
+        try:
+            self.build()
+        except ValueError as err:
+            raise SceneError(f"{path}.overrides: {err}") from None
+
+    def build(self) -> LumpedTransducer:
+        base = PRESETS[self.preset]()
+        params = {k: getattr(base, k) for k in _LUMPED_FIELDS} | dict(self.overrides)
+        return LumpedTransducer(**params)
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """A stepped sweep: ``n_freq`` points from ``f_start_hz`` to ``f_stop_hz``."""
+
+    f_start_hz: float = bounded(0.1, 1e5, default=90.0)
+    f_stop_hz: float = bounded(0.1, 1e5, default=120.0)
+    n_freq: int = bounded(1, 4096, default=31)
+    amplitude_v: float = bounded(1e-6, 1e3, default=3.0)
+
+    def check(self, path: str) -> None:
+        if self.f_stop_hz < self.f_start_hz:
+            raise SceneError(f"{path}.f_stop_hz: {self.f_stop_hz:g} is below f_start_hz "
+                             f"{self.f_start_hz:g}")
+
+    @property
+    def frequency_hz(self) -> np.ndarray:
+        """The grid in Hz, shape ``(n_freq,)``."""
+        return np.linspace(self.f_start_hz, self.f_stop_hz, self.n_freq)
+
+    @property
+    def omega(self) -> np.ndarray:
+        """The grid in rad/s, shape ``(n_freq,)``."""
+        return 2 * np.pi * self.frequency_hz
+
+
+@dataclass(frozen=True)
+class SphereSpec:
+    """The sphere on the tip: radius in mm, density in kg/m³ (glass 2500)."""
+
+    radius_mm: float = bounded(0.01, 10.0, default=1.9)
+    density: float = bounded(100.0, 25000.0, default=2500.0)
+
+    @property
+    def radius(self) -> float:
+        return self.radius_mm * 1e-3
+
+    @property
+    def mass(self) -> float:
+        return self.density * 4 / 3 * np.pi * self.radius**3
+
+
+@dataclass(frozen=True)
+class FluidRange:
+    """Glycerol–water specimens: volume fraction and temperature, sampled uniformly."""
+
+    volume_fraction: tuple[float, float] = bounded(0.0, 1.0, default=(0.0, 1.0))
+    temperature_c: tuple[float, float] = bounded(0.0, 100.0, default=(15.0, 40.0))
+
+
+@dataclass(frozen=True)
+class NoiseSpec:
+    """Relative std of the complex Gaussian noise on each Ze."""
+
+    ze_relative: float = bounded(0.0, 0.1, default=1e-4)
+
+
+@dataclass(frozen=True)
+class NuisanceSpec:
+    """Relative size of the calibration error (module docstring)."""
+
+    calibration_error: float = bounded(0.0, 0.2, default=0.01)
+
+
+@dataclass(frozen=True)
+class FluidScene:
+    """A fluid-property scene (``configs/scenes/fluid.yaml``)."""
+
+    name: str = "fluid"
+    task: str = one_of("fluid", default="fluid")
+    seed: int = bounded(0, 2**32 - 1, default=0)
+    samples: int = bounded(1, 10**8, default=20000)
+    shards: int = bounded(1, 10**5, default=8)
+    transducer: TransducerSpec = field(default_factory=TransducerSpec)
+    excitation: SweepSpec = field(default_factory=SweepSpec)
+    sphere: SphereSpec = field(default_factory=SphereSpec)
+    fluid: FluidRange = field(default_factory=FluidRange)
+    noise: NoiseSpec = field(default_factory=NoiseSpec)
+    nuisance: NuisanceSpec = field(default_factory=NuisanceSpec)
+
+    def check(self, path: str) -> None:
+        if self.shards > self.samples:
+            raise SceneError(f"{path + '.' if path else ''}shards: {self.shards} shards for "
+                             f"{self.samples} samples; must be <= samples")
+
+    def calibrated_t(self) -> np.ndarray:
+        """The device's calibrated T (whisker and sphere) on the grid, ``(n_freq, 2, 2)``."""
+        omega = self.excitation.omega
+        t_w = self.transducer.build().transduction_matrix(omega)
+        return cascade(t_w, tip_mass(omega, self.sphere.mass))
+
+    def reference_zm(self) -> float:
+        """``Zref``: |Zm| of water at 25 °C at the band centre, in N·s/m."""
+        omega = self.excitation.omega
+        return float(np.abs(stokes_sphere(*water(25.0), self.sphere.radius,
+                                          0.5 * (omega[0] + omega[-1]))))
+
+    def simulate(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """``n`` samples.
+
+        Returns:
+            ``ze`` (n, n_freq) complex128 in Ω; targets ``eta`` (n,) Pa·s, ``rho`` (n,)
+            kg/m³; nuisance ``volume_fraction``, ``temperature_c`` (n,), ``cal_gain``,
+            ``cal_offset`` (n,) complex (α and β).
+        """
+        t_cal = self.calibrated_t()  # once per frequency for every sample
+        omega = self.excitation.omega
+        cv = rng.uniform(*self.fluid.volume_fraction, n)
+        temp = rng.uniform(*self.fluid.temperature_c, n)
+        eta, rho = glycerol_water(cv, temp)
+        zm = stokes_sphere(eta[:, None], rho[:, None], self.sphere.radius, omega)
+        sigma = self.nuisance.calibration_error / np.sqrt(2)
+        alpha = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
+        beta = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
+        zm_seen = (1 + alpha[:, None]) * zm + beta[:, None] * self.reference_zm()
+        ze = complex_noise(ze_from_zm(t_cal, zm_seen), self.noise.ze_relative, rng)
+        return {"ze": ze, "eta": eta, "rho": rho, "volume_fraction": cv,
+                "temperature_c": temp, "cal_gain": alpha, "cal_offset": beta}

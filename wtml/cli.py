@@ -1,24 +1,97 @@
-"""The ``wtml`` console script. Subcommands grow with the decoding tasks."""
+"""The ``wtml`` console script.
+
+Subcommands: ``walkthrough`` (the thesis's calibration), ``generate``, ``evaluate``,
+``export``, ``predict``, ``bench fluid`` and ``pipeline`` (all of them in a row).
+Training runs through LightningCLI: ``python train.py fit --config configs/fluid.yaml``.
+"""
 
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 
 from wtml import __version__
 
 
 def _walkthrough(args: argparse.Namespace) -> int:
-    from wtml.walkthrough import format_report, run_walkthrough
+    from wtml.walkthrough import format_report, plot_walkthrough, run_walkthrough
 
     result = run_walkthrough(frequency_hz=args.frequency, noise=args.noise,
                              repeats=args.repeats, seed=args.seed)
     print(format_report(result, noise=args.noise, repeats=args.repeats))
     if args.plot:
-        from wtml.walkthrough import plot_walkthrough
-
         plot_walkthrough(result, args.plot)
         print(f"plot: {args.plot}")
+    return 0
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from wtml.data import generate
+    from wtml.scenes import load_scene
+
+    m = generate(load_scene(args.config), args.out, shards=args.shards, shard=args.shard,
+                 progress=not args.quiet)
+    state = "complete" if m["complete"] else f"{len(m['shards'])}/{m['n_shards']} shards"
+    print(f"{args.out}: {m['samples']} samples, {m['n_shards']} shards, {state}, "
+          f"scene {m['scene_hash'][:12]}")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from wtml.baselines import ClassicalFluid
+    from wtml.bench.accuracy import by_decade, format_decades, relative_errors
+    from wtml.data import dataset_scene, load_shards, read_manifest
+    from wtml.data.datamodule import split_shards
+    from wtml.decoders.fluid import TorchFluid, load_fluid_net
+
+    manifest = read_manifest(args.data)
+    data = load_shards(args.data, split_shards(manifest["n_shards"], 1, 1)["test"])
+    scene = dataset_scene(args.data)
+    net, _ = load_fluid_net(args.checkpoint)
+    for p in (TorchFluid(net), ClassicalFluid(scene.calibrated_t(), scene.excitation.omega,
+                                              scene.sphere.radius)):
+        err = relative_errors(p.predict(data["ze"]), data["eta"], data["rho"])
+        print(format_decades(f"{p.name} on the test shard of {args.data}",
+                             by_decade(err, data["eta"])) + "\n")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from wtml.runtime.export import export_fluid
+
+    for kind, path in export_fluid(args.checkpoint, args.out).items():
+        print(f"{kind}: {path}")
+    return 0
+
+
+def _predict(args: argparse.Namespace) -> int:
+    from wtml.pipeline import format_predictions
+    from wtml.runtime.predict import predict_file
+
+    rows = predict_file(args.model, args.input)
+    if args.out:
+        with open(args.out, "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        print(f"{len(rows)} predictions written to {args.out}")
+    else:
+        print(format_predictions(rows))
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from wtml.bench.fluid import run_bench
+
+    print(run_bench(args.data, args.checkpoint, args.model, args.out, threads=args.threads))
+    return 0
+
+
+def _pipeline(args: argparse.Namespace) -> int:
+    from wtml.pipeline import run_pipeline
+
+    run_pipeline(max_epochs=args.max_epochs)
     return 0
 
 
@@ -28,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Decoding a piezoelectric whisker transducer: physics, decoders, devices.")
     parser.add_argument("--version", action="version", version=f"wtml {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
     walk = sub.add_parser(
         "walkthrough",
         help="simulate the thesis's calibration of the macro WT and print Table 4.3/4.4",
@@ -41,6 +115,44 @@ def build_parser() -> argparse.ArgumentParser:
     walk.add_argument("--seed", type=int, default=0)
     walk.add_argument("--plot", metavar="PNG", help="also save a plot of Zm and errors here")
     walk.set_defaults(func=_walkthrough)
+
+    gen = sub.add_parser("generate", help="simulate a scene into dataset shards (resumable)")
+    gen.add_argument("--config", required=True, help="scene YAML, e.g. configs/scenes/fluid.yaml")
+    gen.add_argument("--out", required=True, help="dataset folder, e.g. datasets/fluid")
+    gen.add_argument("--shards", type=int, help="number of shards (default: the scene's)")
+    gen.add_argument("--shard", type=int, help="make only this shard (parallel jobs)")
+    gen.add_argument("--quiet", action="store_true", help="no progress bar")
+    gen.set_defaults(func=_generate)
+
+    ev = sub.add_parser("evaluate", help="accuracy by viscosity decade, decoder vs classical")
+    ev.add_argument("--checkpoint", required=True)
+    ev.add_argument("--data", required=True, help="dataset folder (its test shard is used)")
+    ev.set_defaults(func=_evaluate)
+
+    ex = sub.add_parser("export", help="checkpoint -> model.onnx and classical.onnx")
+    ex.add_argument("--checkpoint", required=True)
+    ex.add_argument("--out", required=True, help="folder, e.g. export/fluid")
+    ex.set_defaults(func=_export)
+
+    pr = sub.add_parser("predict", help="η and ρ from measured Ze (or e(t), i(t)) with ONNX")
+    pr.add_argument("--model", required=True, help="an export folder")
+    pr.add_argument("--input", required=True, help=".npz or .csv (see wtml.runtime.predict)")
+    pr.add_argument("--out", help="write a CSV here instead of printing")
+    pr.set_defaults(func=_predict)
+
+    be = sub.add_parser("bench", help="speed and accuracy of every method, side by side")
+    be_sub = be.add_subparsers(dest="task", metavar="TASK", required=True)
+    bf = be_sub.add_parser("fluid", help="the fluid slice")
+    bf.add_argument("--data", default="datasets/fluid")
+    bf.add_argument("--checkpoint", default="runs/fluid/checkpoints/last.ckpt")
+    bf.add_argument("--model", default="export/fluid")
+    bf.add_argument("--out", default="runs/fluid/bench")
+    bf.add_argument("--threads", type=int, default=2)
+    bf.set_defaults(func=_bench)
+
+    pl = sub.add_parser("pipeline", help="the main job: generate, train, export, predict, bench")
+    pl.add_argument("--max-epochs", type=int, help="override the training config's epochs")
+    pl.set_defaults(func=_pipeline)
     return parser
 
 
@@ -52,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return args.func(args)
-    except ValueError as err:  # bad input: say what, not a traceback
+    except (ValueError, FileNotFoundError) as err:  # bad input: say what, not a traceback
         print(f"wtml {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -1,0 +1,1 @@
+"""Device runtime: ONNX export, onnxruntime sessions, the predict entry."""

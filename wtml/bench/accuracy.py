@@ -17,7 +17,8 @@ def relative_errors(pred: dict[str, np.ndarray], eta: np.ndarray, rho: np.ndarra
 def by_decade(err: dict[str, np.ndarray], eta: np.ndarray) -> list[dict]:
     """Rows per η decade (only decades with samples) and one for all: n, median, p95."""
     rows = []
-    bins = [(lo, hi, f"{lo:.0e}-{hi:.0e}") for lo, hi in zip(DECADES[:-1], DECADES[1:], strict=True)]
+    edges = zip(DECADES[:-1], DECADES[1:], strict=True)
+    bins = [(lo, hi, f"{lo:.0e}-{hi:.0e}") for lo, hi in edges]
     for lo, hi, label in bins + [(0.0, np.inf, "all")]:
         sel = (eta >= lo) & (eta < hi)
         if sel.any():

@@ -51,7 +51,8 @@ class FluidNet(nn.Module):
         x = (self.features(ze_re, ze_im) - self.feature_mean) / self.feature_std
         return self.mlp(x)
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
         y = self.forward_normalized(ze_re, ze_im) * self.target_std + self.target_mean
         return torch.pow(10.0, y[:, 0]), y[:, 1]
 

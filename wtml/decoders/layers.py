@@ -27,7 +27,8 @@ class ZmFromZe(nn.Module):
             self.register_buffer(f"{name}_re", torch.tensor(t[:, i, j].real, dtype=torch.float32))
             self.register_buffer(f"{name}_im", torch.tensor(t[:, i, j].imag, dtype=torch.float32))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
         num_re = self.t22_re * ze_re - self.t22_im * ze_im - self.t12_re
         num_im = self.t22_re * ze_im + self.t22_im * ze_re - self.t12_im
         den_re = self.t11_re - (self.t21_re * ze_re - self.t21_im * ze_im)

@@ -41,7 +41,8 @@ class ClassicalFluidNet(nn.Module):
         pinv = band_pseudo_inverse(np.asarray(omega, float), radius)[:2]  # rows η, ρ
         self.register_buffer("pinv", torch.tensor(pinv.T, dtype=torch.float32))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
         zm_re, zm_im = self.zm(ze_re, ze_im)
         u = torch.cat([zm_re, zm_im], -1) @ self.pinv
         return u[:, 0], u[:, 1]

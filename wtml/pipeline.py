@@ -73,11 +73,7 @@ def run_pipeline(*, scene_path: str = "configs/scenes/fluid.yaml",
     if _checkpoint_matches(ckpt, manifest["scene_hash"]):
         args += ["--ckpt_path", str(ckpt)]
     _say("train: python train.py " + " ".join(args))
-    argv, sys.argv = sys.argv, ["train.py"]  # LightningCLI reads args, not our argv
-    try:
-        cli_main(args)
-    finally:
-        sys.argv = argv
+    cli_main(args)
 
     _say(f"export: wtml export --checkpoint {ckpt} --out {model}")
     for kind, path in export_fluid(ckpt, model).items():

@@ -21,5 +21,12 @@ def cli_main(args: list[str] | None = None, run: bool = True) -> LightningCLI:
         "enable_progress_bar": sys.stderr.isatty() and not os.environ.get("CI"),
         "enable_model_summary": False,
     }
-    return LightningCLI(subclass_mode_model=True, subclass_mode_data=True,
-                        trainer_defaults=trainer_defaults, args=args, run=run)
+    if args is None:
+        return LightningCLI(subclass_mode_model=True, subclass_mode_data=True,
+                            trainer_defaults=trainer_defaults, run=run)
+    argv, sys.argv = sys.argv, sys.argv[:1]  # LightningCLI reads ``args``, not our argv
+    try:
+        return LightningCLI(subclass_mode_model=True, subclass_mode_data=True,
+                            trainer_defaults=trainer_defaults, args=args, run=run)
+    finally:
+        sys.argv = argv

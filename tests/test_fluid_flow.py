@@ -3,6 +3,7 @@ export, ONNX parity with torch and numpy, and ``wtml predict`` on every input fo
 
 import csv
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -13,6 +14,8 @@ import torch
 from lightning.pytorch.callbacks import Callback
 
 from wtml.baselines import ClassicalFluid
+from wtml.bench.bounds import fluid_crlb
+from wtml.bench.fluid import run_bench
 from wtml.cli import main
 from wtml.data import generate, load_shards
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
@@ -207,3 +210,26 @@ def test_predict_refuses_bad_input(flow, tmp_path):
     (tmp_path / "x.txt").write_text("1")
     model = str(tmp / "export")
     assert main(["predict", "--model", model, "--input", str(tmp_path / "x.txt")]) == 2
+
+
+def test_bench_reports_every_method(flow, tmp_path):
+    tmp, ckpt = flow
+    report = run_bench(tmp / "data", ckpt, tmp / "export", tmp_path, latency_repeats=5,
+                       throughput_repeats=1)
+    for name in ("classical numpy", "classical ONNX", "decoder torch", "decoder ONNX",
+                 "Cramér–Rao bound"):
+        assert f"| {name}" in report
+    exact = re.search(r"max relative error η (\S+), ρ (\S+)\.\s", report)
+    assert float(exact[1].rstrip(",")) <= 1e-9 and float(exact[2]) <= 1e-9
+    assert (tmp_path / "report.md").read_text() == report
+    assert (tmp_path / "error_vs_latency.png").stat().st_size > 10_000
+
+
+def test_crlb_scales_with_noise_and_grows_with_calibration_error():
+    eta, rho = np.array([1e-3, 1e-1]), np.array([1000.0, 1200.0])
+    quiet = fluid_crlb(build(FluidScene, {"nuisance": {"calibration_error": 0.0}}), eta, rho)
+    loud = fluid_crlb(build(FluidScene, {"nuisance": {"calibration_error": 0.0},
+                                         "noise": {"ze_relative": 2e-4}}), eta, rho)
+    np.testing.assert_allclose(loud["eta"], 2 * quiet["eta"], rtol=1e-3)  # linear in σ
+    cal = fluid_crlb(build(FluidScene, {}), eta, rho)
+    assert np.all(cal["eta"] > 10 * quiet["eta"]) and np.all(cal["rho"] > quiet["rho"])

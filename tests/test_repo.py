@@ -12,7 +12,7 @@ def readme_commands():
 
 def test_readme_opens_with_main_job_and_test_commands():
     main_job, tests = readme_commands()[:2]
-    assert main_job.endswith("wtml walkthrough") and "-c constraints.txt" in main_job
+    assert main_job.endswith("wtml pipeline") and "-c constraints.txt" in main_job
     assert tests.endswith("python -m pytest")
 
 

@@ -61,8 +61,8 @@ def classical_exactness(scene, n: int = 2000) -> dict[str, float]:
 
 
 def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Path,
-              out: str | Path, *, threads: int = 2, latency_repeats: int = 500,
-              throughput_repeats: int = 10) -> str:
+              out: str | Path, *, threads: int = 2, latency_repeats: int = 2000,
+              throughput_repeats: int = 30) -> str:
     """Run the benchmark; writes ``report.md`` and ``error_vs_latency.png`` under ``out`` and
     returns the report text."""
     torch.set_num_threads(threads)

@@ -10,15 +10,14 @@ import csv
 import sys
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from wtml.bench.fluid import run_bench
-from wtml.data import generate, load_shards, read_manifest
+from wtml.data import dataset_scene, generate, load_shards, read_manifest
 from wtml.data.datamodule import split_shards
 from wtml.runtime.export import export_fluid
 from wtml.runtime.predict import predict_file
-from wtml.scenes import load_scene
+from wtml.scenes import config_hash, load_scene, scene_from_dict
 from wtml.training import cli_main
 
 
@@ -30,8 +29,6 @@ def _checkpoint_matches(ckpt: Path, scene_hash: str) -> bool:
     if not ckpt.exists():
         return False
     info = torch.load(ckpt, map_location="cpu", weights_only=False).get("wtml", {})
-    from wtml.scenes import config_hash, scene_from_dict
-
     return bool(info.get("scene")) and config_hash(scene_from_dict(info["scene"])) == scene_hash
 
 
@@ -39,7 +36,7 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> None:
     """A few test-shard measurements as a CSV that ``wtml predict`` reads."""
     manifest = read_manifest(data_dir)
     data = load_shards(data_dir, split_shards(manifest["n_shards"], 1, 1)["test"])
-    freq = load_scene_grid(data_dir)
+    freq = dataset_scene(data_dir).excitation.frequency_hz
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["sample", "frequency_hz", "ze_real", "ze_imag", "true_eta_pa_s",
@@ -48,12 +45,6 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> None:
             for f, z in zip(freq, data["ze"][s], strict=True):
                 w.writerow([s, repr(float(f)), repr(float(z.real)), repr(float(z.imag)),
                             repr(float(data["eta"][s])), repr(float(data["rho"][s]))])
-
-
-def load_scene_grid(data_dir: Path) -> np.ndarray:
-    from wtml.data import dataset_scene
-
-    return dataset_scene(data_dir).excitation.frequency_hz
 
 
 def run_pipeline(*, scene_path: str = "configs/scenes/fluid.yaml",

@@ -26,6 +26,13 @@ def _walkthrough(args: argparse.Namespace) -> int:
     return 0
 
 
+def _presets(args: argparse.Namespace) -> int:
+    from wtml.physics.beam_presets import fidelity_table, format_fidelity
+
+    print(format_fidelity(fidelity_table()))
+    return 0
+
+
 def _generate(args: argparse.Namespace) -> int:
     from wtml.data import generate
     from wtml.scenes import load_scene
@@ -115,6 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
     walk.add_argument("--seed", type=int, default=0)
     walk.add_argument("--plot", metavar="PNG", help="also save a plot of Zm and errors here")
     walk.set_defaults(func=_walkthrough)
+
+    pre = sub.add_parser("presets", help="the beam presets against the thesis (fidelity table)")
+    pre.set_defaults(func=_presets)
 
     gen = sub.add_parser("generate", help="simulate a scene into dataset shards (resumable)")
     gen.add_argument("--config", required=True, help="scene YAML, e.g. configs/scenes/fluid.yaml")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from wtml.data import DatasetError, generate, load_shards, read_manifest
-from wtml.data.datamodule import FluidDataModule, split_shards
+from wtml.data.datamodule import ShardDataModule, split_shards
 from wtml.data.shards import shard_sizes
 from wtml.scenes import FluidScene
 from wtml.scenes.config import build
@@ -71,7 +71,7 @@ def test_split_by_shard_and_datamodule(tmp_path):
     with pytest.raises(DatasetError, match="cannot give"):
         split_shards(2, 1, 1)
     generate(SCENE, tmp_path, progress=False)
-    dm = FluidDataModule(str(tmp_path), batch_size=32)
+    dm = ShardDataModule(str(tmp_path), batch_size=32)
     ze_re, ze_im, y = dm.train_tensors()
     assert ze_re.shape == (200, 31) and y.shape == (200, 2)
     np.testing.assert_allclose(10 ** y[:, 0].double().numpy(),

@@ -22,7 +22,7 @@ from wtml.decoders.fluid import TorchFluid, load_fluid_net
 from wtml.decoders.layers import ZmFromZe
 from wtml.physics import zm_from_ze
 from wtml.runtime.export import ClassicalFluidNet
-from wtml.runtime.predict import InputError, OnnxFluid, predict_file
+from wtml.runtime.predict import InputError, OnnxModel, predict_file
 from wtml.scenes import FluidScene
 from wtml.scenes.config import build
 from wtml.signals import sample_times, tone
@@ -106,10 +106,10 @@ def test_decoder_onnx_matches_torch(flow):
     net, _ = load_fluid_net(str(ckpt))
     ze = load_shards(tmp / "data", [3])["ze"]
     torch_pred = TorchFluid(net).predict(ze)
-    onnx_pred = OnnxFluid(tmp / "export/model.onnx").predict(ze)
+    onnx_pred = OnnxModel(tmp / "export/model.onnx").predict(ze)
     for k in ("eta", "rho"):
         np.testing.assert_allclose(onnx_pred[k], torch_pred[k], rtol=1e-5)
-    one = OnnxFluid(tmp / "export/model.onnx").predict(ze[:1])
+    one = OnnxModel(tmp / "export/model.onnx").predict(ze[:1])
     np.testing.assert_allclose(one["eta"], torch_pred["eta"][:1], rtol=1e-5)
 
 
@@ -136,7 +136,7 @@ def test_classical_onnx_float32_matches_numpy_float64(flow):
         p = np.abs(numpy_path.pinv[row])
         bound = 1.5 * (dzm @ p) + 64 * eps32 * (x @ p)
         assert np.all(np.abs(got[key] - ref[key]) <= bound), key
-    onnx_pred = OnnxFluid(tmp / "export/classical.onnx").predict(ze)
+    onnx_pred = OnnxModel(tmp / "export/classical.onnx").predict(ze)
     for key in ("eta", "rho"):
         scale = np.abs(ref[key]).max()
         np.testing.assert_allclose(onnx_pred[key], got[key], rtol=1e-5, atol=1e-6 * scale)
@@ -185,7 +185,7 @@ def test_predict_every_input_format_agrees(flow, tmp_path, capsys):
                 assert a[key] == pytest.approx(b[key], rel=1e-5), (name, key)
     model = str(tmp / "export")
     assert main(["predict", "--model", model, "--input", str(tmp_path / "m.csv")]) == 0
-    assert "eta decoder (Pa·s)" in capsys.readouterr().out
+    assert "eta_decoder (Pa*s)" in capsys.readouterr().out
 
 
 def test_predict_refuses_bad_input(flow, tmp_path):

@@ -65,9 +65,9 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from wtml.runtime.export import export_fluid
+    from wtml.runtime.export import export_model
 
-    for kind, path in export_fluid(args.checkpoint, args.out).items():
+    for kind, path in export_model(args.checkpoint, args.out).items():
         print(f"{kind}: {path}")
     return 0
 

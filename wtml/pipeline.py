@@ -15,7 +15,7 @@ import torch
 from wtml.bench.fluid import run_bench
 from wtml.data import dataset_scene, generate, load_shards, read_manifest
 from wtml.data.datamodule import split_shards
-from wtml.runtime.export import export_fluid
+from wtml.runtime.export import export_model
 from wtml.runtime.predict import predict_file
 from wtml.scenes import config_hash, load_scene, scene_from_dict
 from wtml.training import cli_main
@@ -67,7 +67,7 @@ def run_pipeline(*, scene_path: str = "configs/scenes/fluid.yaml",
     cli_main(args)
 
     _say(f"export: wtml export --checkpoint {ckpt} --out {model}")
-    for kind, path in export_fluid(ckpt, model).items():
+    for kind, path in export_model(ckpt, model).items():
         print(f"{kind}: {path}")
 
     sample = model / "sample_input.csv"
@@ -85,11 +85,11 @@ def run_pipeline(*, scene_path: str = "configs/scenes/fluid.yaml",
 
 
 def format_predictions(rows: list[dict]) -> str:
-    """The prediction rows as an aligned table with units."""
-    lines = ["sample  eta decoder (Pa·s)  rho decoder (kg/m³)  eta classical (Pa·s)  "
-             "rho classical (kg/m³)"]
+    """Prediction rows as an aligned table, units in the headers."""
+    keys = list(rows[0])
+    width = [max(len(k), 12) for k in keys]
+    lines = ["  ".join(k.rjust(w) for k, w in zip(keys, width, strict=True))]
     for r in rows:
-        lines.append(f"{r['sample']:6d}  {r['eta_decoder_pa_s']:18.4e}  "
-                     f"{r['rho_decoder_kg_m3']:19.1f}  {r['eta_classical_pa_s']:20.4e}  "
-                     f"{r['rho_classical_kg_m3']:21.1f}")
+        lines.append("  ".join((f"{r[k]:d}" if k == "sample" else f"{r[k]:.5g}").rjust(w)
+                               for k, w in zip(keys, width, strict=True)))
     return "\n".join(lines)

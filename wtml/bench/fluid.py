@@ -22,7 +22,7 @@ from wtml.bench.bounds import fluid_crlb
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
-from wtml.runtime.predict import OnnxFluid
+from wtml.runtime.predict import OnnxModel
 from wtml.scenes.fluid import NoiseSpec, NuisanceSpec
 
 
@@ -76,9 +76,9 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
     net, _ = load_fluid_net(str(checkpoint))
     predictors = [
         ClassicalFluid(scene.calibrated_t(), scene.excitation.omega, scene.sphere.radius),
-        OnnxFluid(Path(model_dir) / "classical.onnx", threads=threads),
+        OnnxModel(Path(model_dir) / "classical.onnx", threads=threads),
         TorchFluid(net),
-        OnnxFluid(Path(model_dir) / "model.onnx", threads=threads),
+        OnnxModel(Path(model_dir) / "model.onnx", threads=threads),
     ]
     big = np.resize(ze, (4096, ze.shape[1]))
     results = []

@@ -22,15 +22,22 @@ def split_shards(n_shards: int, val_shards: int, test_shards: int) -> dict[str, 
             "test": list(range(train_end + val_shards, n_shards))}
 
 
-def fluid_tensors(arrays: dict[str, np.ndarray]) -> tuple[torch.Tensor, ...]:
-    """``(ze_re, ze_im, targets)`` float32; targets are ``(log10 η, ρ)``, shape ``(n, 2)``."""
+TARGETS = {
+    "fluid": lambda a: np.stack([np.log10(a["eta"]), a["rho"]], -1),  # log10 Pa·s, kg/m³
+    "radial": lambda a: a["distance"][:, None],  # m from the tip
+}
+"""The training targets of each task, shape ``(n, n_targets)``."""
+
+
+def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor, ...]:
+    """``(ze_re, ze_im, targets)`` float32 for a task's arrays (targets as in ``TARGETS``)."""
     ze = arrays["ze"]
-    targets = np.stack([np.log10(arrays["eta"]), arrays["rho"]], -1)
-    return tuple(torch.tensor(a, dtype=torch.float32) for a in (ze.real, ze.imag, targets))
+    return tuple(torch.tensor(a, dtype=torch.float32)
+                 for a in (ze.real, ze.imag, TARGETS[task](arrays)))
 
 
-class FluidDataModule(L.LightningDataModule):
-    """Fluid shards for :class:`wtml.decoders.fluid.FluidDecoder`.
+class ShardDataModule(L.LightningDataModule):
+    """Any task's shards, for its LightningModule (``wtml.decoders``).
 
     Args:
         data_dir: a dataset folder made by ``wtml generate``.
@@ -52,7 +59,7 @@ class FluidDataModule(L.LightningDataModule):
     def _dataset(self, split: str) -> TensorDataset:
         if split not in self._data:
             self._data[split] = TensorDataset(
-                *fluid_tensors(load_shards(self.data_dir, self.split[split])))
+                *task_tensors(load_shards(self.data_dir, self.split[split]), self.scene.task))
         return self._data[split]
 
     def train_tensors(self) -> tuple[torch.Tensor, ...]:

@@ -10,11 +10,11 @@ at ``setup`` and rebuilds its shape from the checkpoint when loaded.
 
 from __future__ import annotations
 
-import lightning as L
 import numpy as np
 import torch
 from torch import nn
 
+from wtml.decoders.base import DecoderModule
 from wtml.decoders.layers import ZmFromZe
 from wtml.decoders.mlp import MLP
 
@@ -70,8 +70,8 @@ class FluidNet(nn.Module):
         self.target_std.copy_(targets.std(0).clamp_min(1e-6))
 
 
-class FluidDecoder(L.LightningModule):
-    """Trains :class:`FluidNet` on a ``FluidDataModule`` (MSE on standardised log10 η, ρ).
+class FluidDecoder(DecoderModule):
+    """Trains :class:`FluidNet` on a ``ShardDataModule`` (MSE on standardised log10 η, ρ).
 
     Args:
         hidden: hidden layer widths.
@@ -81,58 +81,30 @@ class FluidDecoder(L.LightningModule):
 
     def __init__(self, hidden: list[int] | None = None, lr: float = 3e-3,
                  weight_decay: float = 1e-5) -> None:
-        super().__init__()
+        super().__init__(lr, weight_decay)
         self.save_hyperparameters()
         self.hidden = list(hidden or [128, 128])
-        self.net: FluidNet | None = None
-        self.scene: dict | None = None
-
-    def _build(self, t_cal: np.ndarray, z_scale: float) -> None:
-        self.net = FluidNet(t_cal, z_scale, self.hidden)
 
     def setup(self, stage: str) -> None:
         if self.net is not None:
             return
         dm = self.trainer.datamodule
-        self._build(dm.scene.calibrated_t(), 0.01 * dm.scene.reference_zm())
+        self.net = FluidNet(dm.scene.calibrated_t(), 0.01 * dm.scene.reference_zm(), self.hidden)
         self.scene = dm.scene_dict
         ze_re, ze_im, targets = dm.train_tensors()
         self.net.fit_normalization(ze_re, ze_im, targets)
 
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint["wtml"] = {"scene": self.scene, "n_freq": self.net.mlp.n_in // 2}
+    def net_shape(self) -> dict:
+        return {"n_freq": self.net.mlp.n_in // 2}
 
-    def on_load_checkpoint(self, checkpoint: dict) -> None:
-        info = checkpoint["wtml"]
-        self.scene = info["scene"]
-        if self.net is None:  # shapes only: the state dict brings the values
-            n = info["n_freq"]
-            placeholder = np.array([[1, 0], [1, 1]], dtype=complex)  # any T with t21 != 0
-            self._build(np.tile(placeholder, (n, 1, 1)), 1.0)
+    def build_from_checkpoint(self, shape: dict) -> None:
+        placeholder = np.array([[1, 0], [1, 1]], dtype=complex)  # any T with t21 != 0
+        self.net = FluidNet(np.tile(placeholder, (shape["n_freq"], 1, 1)), 1.0, self.hidden)
 
-    def _step(self, batch, stage: str) -> torch.Tensor:
+    def loss(self, batch) -> torch.Tensor:
         ze_re, ze_im, target = batch
         y = (target - self.net.target_mean) / self.net.target_std
-        loss = nn.functional.mse_loss(self.net.forward_normalized(ze_re, ze_im), y)
-        self.log(f"{stage}_loss", loss, prog_bar=stage == "val", on_epoch=True,
-                 on_step=False, batch_size=len(target))
-        return loss
-
-    def training_step(self, batch, batch_idx):
-        return self._step(batch, "train")
-
-    def validation_step(self, batch, batch_idx):
-        self._step(batch, "val")
-
-    def test_step(self, batch, batch_idx):
-        self._step(batch, "test")
-
-    def configure_optimizers(self):
-        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr,
-                                weight_decay=self.hparams.weight_decay)
-        sched = torch.optim.lr_scheduler.OneCycleLR(
-            opt, max_lr=self.hparams.lr, total_steps=self.trainer.estimated_stepping_batches)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+        return nn.functional.mse_loss(self.net.forward_normalized(ze_re, ze_im), y)
 
 
 def load_fluid_net(checkpoint: str) -> tuple[FluidNet, dict]:

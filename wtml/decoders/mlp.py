@@ -7,12 +7,13 @@ from torch import nn
 
 
 class MLP(nn.Module):
-    """``n_in -> hidden... -> n_out`` with SiLU activations.
+    """``n_in -> hidden... -> n_out`` with an activation (SiLU by default).
 
     Forward: ``(batch, n_in)`` -> ``(batch, n_out)``.
     """
 
-    def __init__(self, n_in: int, hidden: list[int], n_out: int) -> None:
+    def __init__(self, n_in: int, hidden: list[int], n_out: int,
+                 activation: type[nn.Module] = nn.SiLU) -> None:
         super().__init__()
         if n_in < 1 or n_out < 1 or any(h < 1 for h in hidden):
             raise ValueError(f"MLP sizes must be >= 1, got {n_in}, {hidden}, {n_out}")
@@ -20,7 +21,7 @@ class MLP(nn.Module):
         layers: list[nn.Module] = []
         width = n_in
         for h in hidden:
-            layers += [nn.Linear(width, h), nn.SiLU()]
+            layers += [nn.Linear(width, h), activation()]
             width = h
         layers.append(nn.Linear(width, n_out))
         self.layers = nn.Sequential(*layers)

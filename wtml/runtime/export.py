@@ -1,9 +1,12 @@
 """Checkpoint -> ONNX: the decoder and, beside it, the classical path as its own graph.
 
 Both graphs take ``ze_re, ze_im`` (float32, ``(batch, n_freq)``, Ω, dynamic batch) and return
-``eta`` (Pa·s) and ``rho`` (kg/m³), each ``(batch,)``. The metadata of each model carries
-what a device needs: names and units, the frequency grid, the scene and its hash, the
-package version. A device needs onnxruntime only.
+the task's outputs, each ``(batch,)``: fluid ``eta`` (Pa·s) and ``rho`` (kg/m³); radial
+``distance`` (m from the tip) and ``sigma`` (m, the decoder's own uncertainty; 0 where it has
+none). The fluid classical graph is calibrated T -> Zm -> band least squares; the radial one
+is the thesis's classical decoder, the 9th-degree polynomial of d in Im Ze. The metadata of
+each model carries what a device needs: names and units, the frequency grid, the scene and
+its hash, the package version. A device needs onnxruntime only.
 """
 
 from __future__ import annotations
@@ -24,8 +27,9 @@ from wtml.decoders.layers import ZmFromZe
 from wtml.scenes import config_hash, scene_from_dict
 
 INPUTS = ("ze_re", "ze_im")
-OUTPUTS = ("eta", "rho")
-UNITS = {"ze_re": "ohm", "ze_im": "ohm", "eta": "Pa*s", "rho": "kg/m^3"}
+OUTPUTS = {"fluid": ("eta", "rho"), "radial": ("distance", "sigma")}
+UNITS = {"ze_re": "ohm", "ze_im": "ohm", "eta": "Pa*s", "rho": "kg/m^3", "distance": "m",
+         "sigma": "m"}
 
 
 class ClassicalFluidNet(nn.Module):
@@ -48,6 +52,29 @@ class ClassicalFluidNet(nn.Module):
         return u[:, 0], u[:, 1]
 
 
+class PolynomialNet(nn.Module):
+    """A fitted ``PolynomialRadial`` (standardise, powers, linear) in Horner form, returning
+    ``(distance, zeros)``."""
+
+    def __init__(self, poly) -> None:
+        super().__init__()
+        scaler, _, linear = (step for _, step in poly.model.steps)
+        self.part = poly.part
+        self.register_buffer("mean", torch.tensor(float(scaler.mean_[0])))
+        self.register_buffer("scale", torch.tensor(float(scaler.scale_[0])))
+        coef = np.array(linear.coef_, dtype=float)
+        coef[0] += linear.intercept_
+        self.register_buffer("coef", torch.tensor(coef, dtype=torch.float32))
+
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        x = ((ze_re if self.part == "real" else ze_im)[:, 0] - self.mean) / self.scale
+        y = torch.zeros_like(x) + self.coef[-1]
+        for c in range(len(self.coef) - 2, -1, -1):
+            y = y * x + self.coef[c]
+        return y, torch.zeros_like(y)
+
+
 def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]) -> None:
     example = (torch.ones(2, n_freq), torch.ones(2, n_freq))
     batch = torch.export.Dim("batch", min=1)
@@ -55,7 +82,8 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
         # both inputs share the one batch dimension, which the exporter remarks on
         warnings.filterwarnings("ignore", message=r"# The axis name: batch will not be used")
         torch.onnx.export(module.eval(), example, str(path), input_names=list(INPUTS),
-                          output_names=list(OUTPUTS), dynamo=True, external_data=False,
+                          output_names=json.loads(metadata["outputs"]), dynamo=True,
+                          external_data=False,
                           dynamic_shapes={"ze_re": {0: batch}, "ze_im": {0: batch}},
                           verbose=False)
     model = onnx.load(str(path))
@@ -65,25 +93,43 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
     onnx.save(model, str(path))
 
 
-def export_fluid(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
-    """Write ``model.onnx`` (decoder) and ``classical.onnx`` into ``out``; returns the paths."""
-    net, scene_dict = load_fluid_net(str(checkpoint))
-    scene = scene_from_dict(scene_dict)
+def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
+    """Write ``model.onnx`` (decoder) and ``classical.onnx`` for the checkpoint's task into
+    ``out``; returns the paths."""
+    info = torch.load(str(checkpoint), map_location="cpu", weights_only=False).get("wtml")
+    if not info or not info.get("scene"):
+        raise ValueError(f"{checkpoint}: not a wtml checkpoint (no scene inside)")
+    scene = scene_from_dict(info["scene"])
+    task = scene.task
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    freq = (scene.excitation.frequency_hz if task == "fluid"
+            else np.asarray(scene.excitation.frequencies_hz))
     meta = {
         "wtml_version": __version__,
-        "task": "fluid",
+        "task": task,
         "inputs": json.dumps(list(INPUTS)),
-        "outputs": json.dumps(list(OUTPUTS)),
+        "outputs": json.dumps(list(OUTPUTS[task])),
         "units": json.dumps(UNITS),
-        "frequency_hz": json.dumps(scene.excitation.frequency_hz.tolist()),
-        "scene": json.dumps(scene_dict, sort_keys=True),
+        "frequency_hz": json.dumps(freq.tolist()),
+        "scene": json.dumps(info["scene"], sort_keys=True),
         "scene_hash": config_hash(scene),
     }
+    if task == "fluid":
+        net, _ = load_fluid_net(str(checkpoint))
+        classical = ClassicalFluidNet(scene.calibrated_t(), scene.excitation.omega,
+                                      scene.sphere.radius)
+        label = "classical"
+    else:
+        from wtml.baselines.radial import PolynomialRadial
+        from wtml.decoders.radial import load_radial_net
+
+        net, _ = load_radial_net(str(checkpoint))
+        train = scene.simulate(20000, np.random.default_rng([scene.seed, 10**6]))
+        classical = PolynomialNet(PolynomialRadial("imag").fit(train["ze"], train["distance"]))
+        label = "polynomial 9 in Im Ze"  # fitted on 20000 fresh samples of the scene
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
-    n_freq = scene.excitation.n_freq
-    _export(net, n_freq, paths["decoder"], meta | {"kind": "decoder"})
-    classical = ClassicalFluidNet(scene.calibrated_t(), scene.excitation.omega, scene.sphere.radius)
-    _export(classical, n_freq, paths["classical"], meta | {"kind": "classical"})
+    n_freq = len(freq)
+    _export(net, n_freq, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"})
+    _export(classical, n_freq, paths["classical"], meta | {"kind": "classical", "label": label})
     return paths

@@ -1,4 +1,4 @@
-"""Run exported fluid models with onnxruntime on measured data.
+"""Run exported models with onnxruntime on measured data.
 
 Input files (one or many measurements on the model's frequency grid):
 
@@ -26,8 +26,9 @@ class InputError(ValueError):
     """An input file that does not fit the model."""
 
 
-class OnnxFluid:
-    """An exported fluid model behind the predict interface.
+class OnnxModel:
+    """An exported wtml model (decoder or classical path) behind the predict interface:
+    ``predict(ze) -> {output name: (n,) array}``, names and units from its metadata.
 
     Args:
         path: ``model.onnx`` or ``classical.onnx``.
@@ -40,16 +41,19 @@ class OnnxFluid:
         opts.inter_op_num_threads = 1
         self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
         self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
-        if self.metadata.get("task") != "fluid":
-            raise InputError(f"{path}: not a wtml fluid model (task {self.metadata.get('task')!r})")
+        if "task" not in self.metadata or "frequency_hz" not in self.metadata:
+            raise InputError(f"{path}: not a wtml model (no task or frequency grid in metadata)")
+        self.task = self.metadata["task"]
         self.frequency_hz = np.array(json.loads(self.metadata["frequency_hz"]))
-        self.name = f"{self.metadata['kind']} ONNX"
+        self.outputs = json.loads(self.metadata["outputs"])
+        self.units = json.loads(self.metadata["units"])
+        self.name = f"{self.metadata.get('label', self.metadata['kind'])} ONNX"
 
     def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
         ze = np.asarray(ze)
-        eta, rho = self.session.run(None, {"ze_re": ze.real.astype(np.float32),
-                                           "ze_im": ze.imag.astype(np.float32)})
-        return {"eta": eta.astype(float), "rho": rho.astype(float)}
+        values = self.session.run(None, {"ze_re": ze.real.astype(np.float32),
+                                         "ze_im": ze.imag.astype(np.float32)})
+        return {k: v.astype(float) for k, v in zip(self.outputs, values, strict=True)}
 
 
 def _from_npz(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -124,14 +128,17 @@ def read_input(path: str | Path, frequency_hz: np.ndarray) -> np.ndarray:
 
 
 def predict_file(model_dir: str | Path, input_path: str | Path) -> list[dict[str, float]]:
-    """Decoder and classical predictions side by side, one row per measurement."""
+    """Decoder and classical predictions side by side, one row per measurement; keys are
+    ``{output}_{decoder|classical} ({unit})``."""
     model_dir = Path(model_dir)
-    decoder = OnnxFluid(model_dir / "model.onnx")
-    classical = OnnxFluid(model_dir / "classical.onnx")
+    decoder = OnnxModel(model_dir / "model.onnx")
+    classical = OnnxModel(model_dir / "classical.onnx")
     if decoder.metadata["scene_hash"] != classical.metadata["scene_hash"]:
         raise InputError(f"{model_dir}: model.onnx and classical.onnx come from different scenes")
     ze = read_input(input_path, decoder.frequency_hz)
-    d, c = decoder.predict(ze), classical.predict(ze)
-    return [{"sample": k, "eta_decoder_pa_s": d["eta"][k], "rho_decoder_kg_m3": d["rho"][k],
-             "eta_classical_pa_s": c["eta"][k], "rho_classical_kg_m3": c["rho"][k]}
-            for k in range(len(ze))]
+    rows: list[dict[str, float]] = [{"sample": k} for k in range(len(ze))]
+    for label, model in (("decoder", decoder), ("classical", classical)):
+        for key, values in model.predict(ze).items():
+            for k, v in enumerate(values):
+                rows[k][f"{key}_{label} ({model.units[key]})"] = float(v)
+    return rows

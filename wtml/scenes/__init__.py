@@ -4,12 +4,13 @@ from pathlib import Path
 
 from wtml.scenes.config import SceneError, config_hash, load_yaml, to_dict
 from wtml.scenes.fluid import FluidScene
+from wtml.scenes.radial import RadialScene
 
-SCENES = {"fluid": FluidScene}
+SCENES = {"fluid": FluidScene, "radial": RadialScene}
 """Scene classes by task name."""
 
 
-def load_scene(path: str | Path) -> FluidScene:
+def load_scene(path: str | Path) -> FluidScene | RadialScene:
     """Load a scene YAML; its ``task`` key picks the scene class (default ``fluid``)."""
     import yaml
 
@@ -22,12 +23,12 @@ def load_scene(path: str | Path) -> FluidScene:
     return load_yaml(SCENES[task], path)
 
 
-def scene_from_dict(data: dict) -> FluidScene:
+def scene_from_dict(data: dict) -> FluidScene | RadialScene:
     """Rebuild a scene from the mapping stored in a manifest."""
     from wtml.scenes.config import build
 
     return build(SCENES[data.get("task", "fluid")], data)
 
 
-__all__ = ["SCENES", "FluidScene", "SceneError", "config_hash", "load_scene", "scene_from_dict",
-           "to_dict"]
+__all__ = ["SCENES", "FluidScene", "RadialScene", "SceneError", "config_hash", "load_scene",
+           "scene_from_dict", "to_dict"]

@@ -46,6 +46,13 @@ def _convert(path: str, hint: Any, value: Any, meta: Mapping) -> Any:
     if dataclasses.is_dataclass(hint):
         return build(hint, value, path)
     origin = typing.get_origin(hint)
+    if origin is tuple and typing.get_args(hint)[-1] is Ellipsis:  # a list of floats
+        low, high = meta.get("range", (-float("inf"), float("inf")))
+        if not isinstance(value, list | tuple):
+            raise SceneError(f"{path}: must be a list of numbers in [{low:g}, {high:g}], "
+                             f"got {value!r}")
+        return tuple(_check_number(f"{path}[{k}]", v, low, high, float)
+                     for k, v in enumerate(value))
     if origin is tuple:  # a (low, high) pair of floats
         low, high = meta.get("range", (-float("inf"), float("inf")))
         if not isinstance(value, list | tuple) or len(value) != 2:

@@ -1,0 +1,110 @@
+"""The radial scene: a contact on the shaft of the micro whisker (thesis §5.3).
+
+The contact is on the shaft, not at the tip, so the scene needs the beam model
+(``wtml.physics.beam``): the preset's dynamic stiffness is inverted once per frequency and every
+contact (position, stiffness) is a rank-one update of it. The tip is free, so the measured
+quantity is the free-tip Ze of the contacted structure. Tip-load scenes keep the 2×2 path.
+
+Nuisance: the contact stiffness, log-uniform over a stated range (default 1e3–1e5 N/m, the
+Hertzian stiffness of a steel pin on the 50 µm whisker; the whisker's own stiffness at the
+contact ranges from ~2e-3 N/m at the tip to ~50 N/m 3.2 mm from it, so the contact is stiff
+but not rigid, and its stiffness shifts Ze by more than the noise), and complex Gaussian noise
+on Ze. The invalid-contact variant
+(§5.5.4: a protrusion touching the shaft while the tip is free) is the same physics at the
+thesis's three distances: ``contact.distances_um: [500, 1500, 2500]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wtml.physics.beam_presets import PRESETS, build
+from wtml.scenes.config import SceneError, bounded, one_of
+from wtml.signals import complex_noise
+
+
+@dataclass(frozen=True)
+class ToneSpec:
+    """Excitation frequencies in Hz (the thesis: 420 Hz alone) and amplitude in V."""
+
+    frequencies_hz: tuple[float, ...] = bounded(1.0, 1e5, default=(420.0,))
+    amplitude_v: float = bounded(1e-6, 1e3, default=0.02)
+
+    def check(self, path: str) -> None:
+        if not self.frequencies_hz:
+            raise SceneError(f"{path}.frequencies_hz: needs at least one frequency")
+
+    @property
+    def omega(self) -> np.ndarray:
+        return 2 * np.pi * np.asarray(self.frequencies_hz)
+
+
+@dataclass(frozen=True)
+class ContactSpec:
+    """Where and how stiffly the shaft is touched: distance from the tip in µm, uniform over
+    ``distance_um`` (or drawn from ``distances_um`` when given); stiffness in N/m,
+    log-uniform over ``stiffness``."""
+
+    distance_um: tuple[float, float] = bounded(0.0, 1e5, default=(0.0, 3200.0))
+    distances_um: tuple[float, ...] = bounded(0.0, 1e5, default=())
+    stiffness: tuple[float, float] = bounded(1e-3, 1e9, default=(1e3, 1e5))
+
+
+@dataclass(frozen=True)
+class RadialNoise:
+    """Relative std of the complex Gaussian noise on each Ze."""
+
+    ze_relative: float = bounded(0.0, 0.1, default=2e-5)
+
+
+@dataclass(frozen=True)
+class RadialScene:
+    """A radial-location scene (``configs/scenes/radial.yaml``)."""
+
+    name: str = "radial"
+    task: str = one_of("radial", default="radial")
+    seed: int = bounded(0, 2**32 - 1, default=0)
+    samples: int = bounded(1, 10**8, default=24000)
+    shards: int = bounded(1, 10**5, default=8)
+    preset: str = one_of(*PRESETS, default="micro")
+    excitation: ToneSpec = field(default_factory=ToneSpec)
+    contact: ContactSpec = field(default_factory=ContactSpec)
+    noise: RadialNoise = field(default_factory=RadialNoise)
+
+    def check(self, path: str) -> None:
+        pre = path + "." if path else ""
+        if self.shards > self.samples:
+            raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
+                             "must be <= samples")
+        whisker = 1e6 * build(self.preset).segments[-1].length
+        for key, values in (("distance_um", self.contact.distance_um),
+                            ("distances_um", self.contact.distances_um)):
+            if values and max(values) >= whisker:
+                raise SceneError(f"{pre}contact.{key}: must stay below the whisker length "
+                                 f"{whisker:g} µm, got {max(values):g}")
+
+    def transducer(self):
+        """The preset's beam model (built once per call)."""
+        return build(self.preset)
+
+    def ze_of(self, distance: np.ndarray, stiffness: np.ndarray, transducer=None) -> np.ndarray:
+        """Noise-free free-tip Ze (Ω) for contacts at ``distance`` (m from the tip) with
+        ``stiffness`` (N/m), shape ``(n, n_freq)``."""
+        tr = transducer or self.transducer()
+        t = tr.contact_transduction_matrix(self.excitation.omega, tr.length - distance,
+                                           stiffness)
+        return t[..., 0, 1] / t[..., 1, 1]
+
+    def simulate(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """``n`` samples: ``ze`` (n, n_freq) complex Ω, target ``distance`` (n,) in m,
+        nuisance ``stiffness`` (n,) in N/m."""
+        c = self.contact
+        if c.distances_um:
+            d = 1e-6 * rng.choice(np.asarray(c.distances_um), n)
+        else:
+            d = 1e-6 * rng.uniform(*c.distance_um, n)
+        k = np.exp(rng.uniform(*np.log(c.stiffness), n))
+        ze = complex_noise(self.ze_of(d, k), self.noise.ze_relative, rng)
+        return {"ze": ze, "distance": d, "stiffness": k}

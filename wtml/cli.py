@@ -95,10 +95,22 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pipeline(args: argparse.Namespace) -> int:
-    from wtml.pipeline import run_pipeline
+def _bench_radial(args: argparse.Namespace) -> int:
+    from wtml.bench.radial import run_bench
 
-    run_pipeline(max_epochs=args.max_epochs)
+    print(run_bench(args.data, args.checkpoint, args.thesis_checkpoint, args.model,
+                    args.thesis_model, args.out, invalid_dir=args.invalid,
+                    threads=args.threads))
+    return 0
+
+
+def _pipeline(args: argparse.Namespace) -> int:
+    from wtml.pipeline import run_pipeline, run_radial
+
+    if args.task in ("fluid", "all"):
+        run_pipeline(max_epochs=args.max_epochs)
+    if args.task in ("radial", "all"):
+        run_radial(max_epochs=args.max_epochs)
     return 0
 
 
@@ -160,8 +172,22 @@ def build_parser() -> argparse.ArgumentParser:
     bf.add_argument("--threads", type=int, default=2)
     bf.set_defaults(func=_bench)
 
+    br = be_sub.add_parser("radial", help="the radial slice")
+    br.add_argument("--data", default="datasets/radial")
+    br.add_argument("--invalid", default="datasets/radial_invalid",
+                    help="the invalid-contact dataset (thesis §5.5.4)")
+    br.add_argument("--checkpoint", default="runs/radial/checkpoints/last.ckpt")
+    br.add_argument("--thesis-checkpoint", default="runs/radial_thesis/checkpoints/last.ckpt")
+    br.add_argument("--model", default="export/radial")
+    br.add_argument("--thesis-model", default="export/radial_thesis")
+    br.add_argument("--out", default="runs/radial/bench")
+    br.add_argument("--threads", type=int, default=2)
+    br.set_defaults(func=_bench_radial)
+
     pl = sub.add_parser("pipeline", help="the main job: generate, train, export, predict, bench")
-    pl.add_argument("--max-epochs", type=int, help="override the training config's epochs")
+    pl.add_argument("task", nargs="?", choices=["all", "fluid", "radial"], default="all",
+                    help="which slice (default: both)")
+    pl.add_argument("--max-epochs", type=int, help="override the training configs' epochs")
     pl.set_defaults(func=_pipeline)
     return parser
 

@@ -9,7 +9,6 @@ with a perfect calibration.
 from __future__ import annotations
 
 import platform
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -19,34 +18,12 @@ import torch
 from wtml.baselines import ClassicalFluid
 from wtml.bench.accuracy import by_decade, format_decades, relative_errors
 from wtml.bench.bounds import fluid_crlb
+from wtml.bench.timing import latency_p50, throughput
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
 from wtml.runtime.predict import OnnxModel
 from wtml.scenes.fluid import NoiseSpec, NuisanceSpec
-
-
-def latency_p50(predictor, ze_one: np.ndarray, repeats: int) -> float:
-    """Median seconds of one ``predict`` call at batch 1."""
-    for _ in range(20):
-        predictor.predict(ze_one)
-    times = np.empty(repeats)
-    for k in range(repeats):
-        t0 = time.perf_counter()
-        predictor.predict(ze_one)
-        times[k] = time.perf_counter() - t0
-    return float(np.median(times))
-
-
-def throughput(predictor, ze_batch: np.ndarray, repeats: int) -> float:
-    """Samples per second at the batch size of ``ze_batch`` (median over repeats)."""
-    predictor.predict(ze_batch)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        predictor.predict(ze_batch)
-        times.append(time.perf_counter() - t0)
-    return len(ze_batch) / float(np.median(times))
 
 
 def classical_exactness(scene, n: int = 2000) -> dict[str, float]:

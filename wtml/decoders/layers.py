@@ -41,3 +41,38 @@ class ZmFromZe(nn.Module):
         inv_re, inv_im = d_re / mag2, -d_im / mag2  # 1 / (Ze - c)
         return (self.a_re + self.b_re * inv_re - self.b_im * inv_im,
                 self.a_im + self.b_re * inv_im + self.b_im * inv_re)
+
+
+class StandardPolynomial(nn.Module):
+    """``p((x - mean) / scale)`` in Horner form, coefficients lowest degree first: the
+    scikit-learn pipeline (StandardScaler, PolynomialFeatures, LinearRegression) of
+    ``wtml.baselines.radial.PolynomialRadial`` as an exportable layer.
+
+    Args:
+        degree: polynomial degree (the buffers are set by :meth:`load_pipeline`).
+
+    Forward: ``x (batch,)`` -> ``(batch,)``.
+    """
+
+    def __init__(self, degree: int) -> None:
+        super().__init__()
+        self.register_buffer("mean", torch.tensor(0.0))
+        self.register_buffer("scale", torch.tensor(1.0))
+        self.register_buffer("coef", torch.zeros(degree + 1))
+
+    @torch.no_grad()
+    def load_pipeline(self, pipeline) -> StandardPolynomial:
+        scaler, _, linear = (step for _, step in pipeline.steps)
+        coef = np.array(linear.coef_, dtype=float)
+        coef[0] += linear.intercept_
+        self.mean.fill_(float(scaler.mean_[0]))
+        self.scale.fill_(float(scaler.scale_[0]))
+        self.coef.copy_(torch.tensor(coef, dtype=torch.float32))
+        return self
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        u = (x - self.mean) / self.scale
+        y = torch.zeros_like(u) + self.coef[-1]
+        for c in range(self.coef.shape[0] - 2, -1, -1):
+            y = y * u + self.coef[c]
+        return y

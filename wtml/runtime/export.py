@@ -23,7 +23,7 @@ from torch import nn
 from wtml import __version__
 from wtml.baselines.fluid_classical import band_pseudo_inverse
 from wtml.decoders.fluid import load_fluid_net
-from wtml.decoders.layers import ZmFromZe
+from wtml.decoders.layers import StandardPolynomial, ZmFromZe
 from wtml.scenes import config_hash, scene_from_dict
 
 INPUTS = ("ze_re", "ze_im")
@@ -53,25 +53,16 @@ class ClassicalFluidNet(nn.Module):
 
 
 class PolynomialNet(nn.Module):
-    """A fitted ``PolynomialRadial`` (standardise, powers, linear) in Horner form, returning
-    ``(distance, zeros)``."""
+    """A fitted ``PolynomialRadial`` as a graph: ``(distance, zeros)`` from Ze."""
 
     def __init__(self, poly) -> None:
         super().__init__()
-        scaler, _, linear = (step for _, step in poly.model.steps)
         self.part = poly.part
-        self.register_buffer("mean", torch.tensor(float(scaler.mean_[0])))
-        self.register_buffer("scale", torch.tensor(float(scaler.scale_[0])))
-        coef = np.array(linear.coef_, dtype=float)
-        coef[0] += linear.intercept_
-        self.register_buffer("coef", torch.tensor(coef, dtype=torch.float32))
+        self.poly = StandardPolynomial(poly.model.steps[1][1].degree).load_pipeline(poly.model)
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:
-        x = ((ze_re if self.part == "real" else ze_im)[:, 0] - self.mean) / self.scale
-        y = torch.zeros_like(x) + self.coef[-1]
-        for c in range(len(self.coef) - 2, -1, -1):
-            y = y * x + self.coef[c]
+        y = self.poly((ze_re if self.part == "real" else ze_im)[:, 0])
         return y, torch.zeros_like(y)
 
 

@@ -27,7 +27,9 @@ from wtml.signals import complex_noise
 
 @dataclass(frozen=True)
 class ToneSpec:
-    """Excitation frequencies in Hz (the thesis: 420 Hz alone) and amplitude in V."""
+    """Excitation frequencies in Hz and amplitude in V. The first frequency is the one the
+    thesis's decoder and the polynomials use (420 Hz in the thesis); the others form a band
+    around it for decoders that use more."""
 
     frequencies_hz: tuple[float, ...] = bounded(1.0, 1e5, default=(420.0,))
     amplitude_v: float = bounded(1e-6, 1e3, default=0.02)

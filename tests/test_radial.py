@@ -1,0 +1,144 @@
+"""The radial slice: its scene on the beam model, baselines, bound, decoders, export, bench."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from wtml.baselines.radial import InversionRadial, PolynomialRadial
+from wtml.bench.bounds import radial_crlb
+from wtml.bench.radial import generation_throughput, run_bench
+from wtml.cli import main
+from wtml.data import generate, load_shards
+from wtml.decoders.layers import StandardPolynomial
+from wtml.decoders.radial import RadialNet, TorchRadial, load_radial_net
+from wtml.physics import ze_from_zm
+from wtml.runtime.predict import OnnxModel, predict_file
+from wtml.scenes import RadialScene, SceneError, load_scene
+from wtml.scenes.config import build
+from wtml.training import cli_main
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = build(RadialScene, {"samples": 1600, "shards": 4})
+
+
+def test_shipped_scenes_load_and_bad_values_are_named(tmp_path):
+    scene = load_scene(ROOT / "configs/scenes/radial.yaml")
+    assert scene.excitation.frequencies_hz[0] == 420.0 and scene.preset == "micro"
+    invalid = load_scene(ROOT / "configs/scenes/radial_invalid.yaml")
+    assert invalid.contact.distances_um == (500.0, 1500.0, 2500.0)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("task: radial\ncontact:\n  distance_um: [0, 6000]\n")
+    with pytest.raises(SceneError, match=r"contact.distance_um: must stay below the whisker"):
+        load_scene(bad)
+    bad.write_text("task: radial\nexcitation:\n  frequencies_hz: [420, -1]\n")
+    with pytest.raises(SceneError, match=r"excitation.frequencies_hz\[1\]: must be in"):
+        load_scene(bad)
+
+
+def test_contact_at_the_tip_is_the_tip_load_of_the_two_port():
+    """The beam path with the contact at d = 0 equals the 2×2 path with Zm = k/(jω)."""
+    scene = SMALL
+    tr = scene.transducer()
+    k = np.array([1e3, 3e4])
+    ze_beam = scene.ze_of(np.zeros(2), k, tr)
+    omega = scene.excitation.omega
+    ze_matrix = ze_from_zm(tr.transduction_matrix(omega), k[:, None] / (1j * omega))
+    np.testing.assert_allclose(ze_beam, ze_matrix, rtol=1e-9)
+
+
+def test_inversion_recovers_noise_free_contacts():
+    scene = build(RadialScene, {"noise": {"ze_relative": 0.0}})
+    inv = InversionRadial(scene)
+    d = np.array([100e-6, 1234e-6, 3000e-6])  # on the 1 µm grid
+    ks = np.geomspace(*scene.contact.stiffness, 17)[[0, 8, 16]]  # on the stiffness grid
+    np.testing.assert_allclose(inv.predict(scene.ze_of(d, ks))["distance"], d, atol=0.05e-6)
+    # between grid points, within one grid step
+    off = d + 0.5e-6
+    np.testing.assert_allclose(inv.predict(scene.ze_of(off, ks))["distance"], off, atol=1e-6)
+
+
+def test_polynomial_layer_matches_scikit_learn(rng):
+    data = SMALL.simulate(2000, rng)
+    poly = PolynomialRadial("imag").fit(data["ze"], data["distance"])
+    layer = StandardPolynomial(9).load_pipeline(poly.model)
+    got = layer(torch.tensor(data["ze"][:, 0].imag, dtype=torch.float32)).double().numpy()
+    np.testing.assert_allclose(got, poly.predict(data["ze"])["distance"], atol=0.05e-6)
+
+
+def test_crlb_grows_with_noise_at_most_linearly():
+    """Doubling σ quarters the data's information; the prior on ln k stays, so the bound grows,
+    by at most 2x (exactly 2x only where the prior does not matter)."""
+    d, k = np.array([0.2e-3, 1.6e-3, 3e-3]), np.array([1e4, 1e4, 1e4])
+    quiet = radial_crlb(SMALL, d, k)
+    loud = radial_crlb(build(RadialScene, {"noise": {"ze_relative": 4e-5}}), d, k)
+    assert np.all(loud > 1.2 * quiet) and np.all(loud <= 2 * quiet * (1 + 1e-6))
+    assert np.all(quiet > 0) and np.all(quiet < 20e-6)
+
+
+def test_radial_net_options():
+    net = RadialNet(5, [8], "sigmoid", uncertainty=False, used_frequencies=1)
+    d, s = net(torch.ones(3, 5), torch.ones(3, 5))
+    assert d.shape == s.shape == (3,) and torch.all(s == 0)
+    with pytest.raises(ValueError, match="used_frequencies"):
+        RadialNet(5, [8], used_frequencies=6)
+    with pytest.raises(ValueError, match="activation"):
+        RadialNet(5, [8], activation="tanh")
+
+
+def test_generation_throughput_is_reported():
+    gen = generation_throughput(SMALL, n=500)
+    assert gen["beam"] > 0 and gen["matrix"] > 0
+
+
+@pytest.fixture(scope="module")
+def radial_flow(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("radial")
+    generate(SMALL, tmp / "data", progress=False)
+    invalid = build(RadialScene, {"samples": 60, "shards": 1,
+                                  "contact": {"distances_um": [500.0, 1500.0, 2500.0]}})
+    generate(invalid, tmp / "invalid", progress=False)
+    cwd = os.getcwd()
+    os.chdir(tmp)
+    try:
+        for name in ("radial", "radial_thesis"):
+            cli_main(["fit", "--config", str(ROOT / f"configs/{name}.yaml"),
+                      "--data.init_args.data_dir", str(tmp / "data"),
+                      "--trainer.max_epochs", "2", "--trainer.log_every_n_steps", "1"])
+            assert main(["export", "--checkpoint", f"runs/{name}/checkpoints/last.ckpt",
+                         "--out", f"export/{name}"]) == 0
+    finally:
+        os.chdir(cwd)
+    return tmp
+
+
+def test_radial_onnx_matches_torch_and_predict_reads_it(radial_flow, tmp_path):
+    tmp = radial_flow
+    ze = load_shards(tmp / "data", [3])["ze"]
+    for name in ("radial", "radial_thesis"):
+        net, _ = load_radial_net(str(tmp / f"runs/{name}/checkpoints/last.ckpt"))
+        ref = TorchRadial(net).predict(ze)
+        got = OnnxModel(tmp / f"export/{name}/model.onnx").predict(ze)
+        np.testing.assert_allclose(got["distance"], ref["distance"], rtol=1e-5, atol=1e-9)
+    poly = OnnxModel(tmp / "export/radial/classical.onnx")
+    assert poly.name == "polynomial 9 in Im Ze ONNX"
+    np.savez(tmp_path / "m.npz", frequency_hz=np.array(SMALL.excitation.frequencies_hz), ze=ze[:2])
+    rows = predict_file(tmp / "export/radial", tmp_path / "m.npz")
+    assert len(rows) == 2 and "distance_decoder (m)" in rows[0] and "sigma_decoder (m)" in rows[0]
+
+
+def test_radial_bench_reports_every_method(radial_flow, tmp_path):
+    tmp = radial_flow
+    report = run_bench(tmp / "data", tmp / "runs/radial/checkpoints/last.ckpt",
+                       tmp / "runs/radial_thesis/checkpoints/last.ckpt", tmp / "export/radial",
+                       tmp / "export/radial_thesis", tmp_path, invalid_dir=tmp / "invalid",
+                       latency_repeats=5, throughput_repeats=1)
+    for name in ("thesis 2-10-1 torch", "thesis 2-10-1 ONNX", "ours torch", "ours ONNX",
+                 "polynomial 9 in Re Ze", "polynomial 9 in Im Ze", "polynomial Im Ze ONNX",
+                 "physics inversion"):
+        assert f"| {name} |" in report
+    assert "d = 1.5 mm" in report and "Generation: beam path" in report
+    for png in ("error_vs_latency.png", "error_vs_d.png"):
+        assert (tmp_path / png).stat().st_size > 10_000

@@ -1,0 +1,180 @@
+"""``wtml bench radial``: every radial method on one held-out set, in one run.
+
+Thesis decoder (2-10-1 sigmoid) and ours, each in torch and ONNX; the polynomials in Re Ze and
+Im Ze (numpy, and Im Ze as the exported classical ONNX); the physics inversion. For each:
+RMSE, max error and RMSE / CRLB by range of d, p50 latency at batch 1 and throughput at batch
+4096; the invalid-contact variant (thesis §5.5.4); generation throughput of the beam path
+against the 2×2 path. Writes ``report.md``, ``error_vs_latency.png`` and ``error_vs_d.png``.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wtml.baselines.radial import InversionRadial, PolynomialRadial
+from wtml.bench.bounds import radial_crlb
+from wtml.bench.timing import latency_p50, throughput
+from wtml.data.datamodule import split_shards
+from wtml.data.shards import dataset_scene, load_shards, read_manifest
+from wtml.decoders.radial import TorchRadial, load_radial_net
+from wtml.physics import ze_from_zm
+from wtml.runtime.predict import OnnxModel
+
+BINS_UM = (0, 800, 1600, 2400, 3200)
+
+
+def _rows(err: np.ndarray, d: np.ndarray, crlb: np.ndarray) -> list[dict]:
+    rows = []
+    edges = list(zip(BINS_UM[:-1], BINS_UM[1:], strict=True)) + [(BINS_UM[0], BINS_UM[-1])]
+    for lo, hi in edges:
+        sel = (d >= lo * 1e-6) & (d <= hi * 1e-6)
+        rmse = float(np.sqrt(np.mean(err[sel] ** 2)))
+        rows.append({"range": f"{lo}-{hi} µm" if (lo, hi) != edges[-1] else "all",
+                     "rmse": rmse, "max": float(np.abs(err[sel]).max()),
+                     "ratio": rmse / float(np.sqrt(np.mean(crlb[sel] ** 2)))})
+    return rows
+
+
+def generation_throughput(scene, n: int = 20000) -> dict[str, float]:
+    """Samples/s of Ze for contacts on the shaft (beam path) and, on the same structure, for
+    loads at the tip (2×2 path: T once per frequency, then the bilinear map)."""
+    rng = np.random.default_rng(0)
+    d = 1e-6 * rng.uniform(*scene.contact.distance_um, n)
+    k = np.exp(rng.uniform(*np.log(scene.contact.stiffness), n))
+    tr = scene.transducer()
+    t0 = time.perf_counter()
+    scene.ze_of(d, k, tr)
+    beam = n / (time.perf_counter() - t0)
+    t0 = time.perf_counter()
+    t = tr.transduction_matrix(scene.excitation.omega)
+    ze_from_zm(t, k[:, None] / (1j * scene.excitation.omega))
+    matrix = n / (time.perf_counter() - t0)
+    return {"beam": beam, "matrix": matrix}
+
+
+def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_dir, out, *,
+              invalid_dir=None, threads: int = 2, latency_repeats: int = 2000,
+              throughput_repeats: int = 30) -> str:
+    """Run the radial benchmark; returns the report (also written under ``out``)."""
+    torch.set_num_threads(threads)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    manifest = read_manifest(data_dir)
+    scene = dataset_scene(data_dir)
+    split = split_shards(manifest["n_shards"], 1, 1)
+    train, test = load_shards(data_dir, split["train"]), load_shards(data_dir, split["test"])
+    ze, d = test["ze"], test["distance"]
+    crlb = radial_crlb(scene, d, test["stiffness"])
+    ours, _ = load_radial_net(str(checkpoint))
+    thesis, _ = load_radial_net(str(thesis_checkpoint))
+    methods = [
+        TorchRadial(thesis, "thesis 2-10-1 torch"),
+        _named(OnnxModel(Path(thesis_model_dir) / "model.onnx", threads), "thesis 2-10-1 ONNX"),
+        TorchRadial(ours, "ours torch"),
+        _named(OnnxModel(Path(model_dir) / "model.onnx", threads), "ours ONNX"),
+        PolynomialRadial("real").fit(train["ze"], train["distance"]),
+        PolynomialRadial("imag").fit(train["ze"], train["distance"]),
+        _named(OnnxModel(Path(model_dir) / "classical.onnx", threads), "polynomial Im Ze ONNX"),
+        InversionRadial(scene),
+    ]
+    big = np.resize(ze, (4096, ze.shape[1]))
+    results = []
+    for m in methods:
+        err = m.predict(ze)["distance"] - d
+        results.append({"name": m.name, "err": err, "rows": _rows(err, d, crlb),
+                        "latency": latency_p50(m, ze[:1], latency_repeats),
+                        "throughput": throughput(m, big, throughput_repeats)})
+    gen = generation_throughput(scene)
+    best_poly = min(r["rows"][-1]["rmse"] for r in results if r["name"].startswith("polynomial"))
+    lines = [
+        "# wtml bench radial", "",
+        f"Dataset `{data_dir}` (scene `{manifest['scene_hash'][:12]}`), test shard(s) "
+        f"{split['test']}, {len(d)} samples; {scene.preset} preset (beam model) at "
+        f"{list(scene.excitation.frequencies_hz)} Hz; noise {scene.noise.ze_relative:g} "
+        f"relative on Ze; contact stiffness {scene.contact.stiffness[0]:g}–"
+        f"{scene.contact.stiffness[1]:g} N/m (log-uniform nuisance).",
+        f"Machine: {platform.machine()}; torch and onnxruntime with {threads} threads; latency "
+        f"= p50 of {latency_repeats} calls at batch 1; throughput = median of "
+        f"{throughput_repeats} calls at batch 4096. CRLB rms over the set: "
+        f"{1e6 * np.sqrt(np.mean(crlb**2)):.2f} µm.", "",
+        "| method | RMSE | max error | RMSE / CRLB | vs best polynomial | p50 latency | "
+        "throughput |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        a = r["rows"][-1]
+        lines.append(f"| {r['name']} | {1e6 * a['rmse']:.2f} µm | {1e6 * a['max']:.1f} µm | "
+                     f"{a['ratio']:.2f} | {best_poly / a['rmse']:.2f}× | "
+                     f"{1e6 * r['latency']:.1f} µs | {r['throughput']:.3g} /s |")
+    lines += ["", "## RMSE by range of d (µm) and RMSE / CRLB", "",
+              "| method | " + " | ".join(row["range"] for row in results[0]["rows"]) + " |",
+              "|---|" + "---|" * len(results[0]["rows"])]
+    for r in results:
+        lines.append(f"| {r['name']} | " + " | ".join(
+            f"{1e6 * row['rmse']:.2f} ({row['ratio']:.1f}×)" for row in r["rows"]) + " |")
+    if invalid_dir is not None:
+        lines += ["", "## Invalid contacts (thesis §5.5.4: 1.8 %, 0.33 %, 0.12 %)", "",
+                  _invalid(invalid_dir, [TorchRadial(ours, "ours"),
+                                         TorchRadial(thesis, "thesis 2-10-1")])]
+    lines += ["", f"Generation: beam path (shaft contacts) {gen['beam']:.3g} samples/s, 2×2 "
+              f"path (tip loads on the same structure) {gen['matrix']:.3g} samples/s "
+              f"(ratio {gen['matrix'] / gen['beam']:.1f})."]
+    report = "\n".join(lines)
+    (out / "report.md").write_text(report)
+    _plots(results, d, crlb, out)
+    return report
+
+
+def _named(model: OnnxModel, name: str) -> OnnxModel:
+    model.name = name
+    return model
+
+
+def _invalid(invalid_dir, models) -> str:
+    data = load_shards(invalid_dir)
+    lines = ["| method | " + " | ".join(f"d = {1e3 * v:.1f} mm" for v in
+                                        np.unique(data["distance"])) + " |",
+             "|---|" + "---|" * len(np.unique(data["distance"]))]
+    for m in models:
+        pred = m.predict(data["ze"])["distance"]
+        cells = []
+        for v in np.unique(data["distance"]):
+            sel = data["distance"] == v
+            cells.append(f"{100 * np.mean(np.abs(pred[sel] - v)) / v:.3f} %")
+        lines.append(f"| {m.name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _plots(results, d, crlb, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4), constrained_layout=True)
+    for r in results:
+        ax.scatter(1e6 * r["latency"], 1e6 * r["rows"][-1]["rmse"], label=r["name"])
+    ax.set(xscale="log", yscale="log", xlabel="p50 latency at batch 1 (µs)",
+           ylabel="RMSE (µm)", title="radial: error against latency")
+    ax.legend(fontsize=7)
+    fig.savefig(out / "error_vs_latency.png", dpi=120)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(7, 4), constrained_layout=True)
+    order = np.argsort(d)
+    edges = np.linspace(0, d.max(), 33)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    idx = np.digitize(d, edges[1:-1])
+    for r in results:
+        rms = [np.sqrt(np.mean(r["err"][idx == k] ** 2)) for k in range(len(centres))]
+        ax.plot(1e6 * centres, 1e6 * np.array(rms), label=r["name"])
+    ax.plot(1e6 * d[order], 1e6 * crlb[order], "k.", ms=1, alpha=0.3, label="CRLB (per sample)")
+    ax.set(yscale="log", xlabel="contact distance from the tip d (µm)", ylabel="RMS error (µm)",
+           title="radial: error against d")
+    ax.legend(fontsize=7)
+    fig.savefig(out / "error_vs_d.png", dpi=120)
+    plt.close(fig)

@@ -14,7 +14,6 @@ import torch
 from torch import nn
 
 from wtml.decoders.base import DecoderModule
-from wtml.decoders.layers import StandardPolynomial
 from wtml.decoders.mlp import MLP
 
 
@@ -28,20 +27,14 @@ class RadialNet(nn.Module):
         uncertainty: add the std head (otherwise the std output is 0).
         used_frequencies: use only the first this many frequencies (the thesis decoder: 1,
             the 420 Hz tone); all by default.
-        residual: learn the correction to the 9th-degree polynomial in Im Ze at the first
-            frequency (a layer inside the net) instead of d itself: the MLP then resolves a
-            ±20 µm residual, not a 3200 µm range, which float32 training does far better.
 
     Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` float32 Ω -> ``distance (batch,)``,
     ``sigma (batch,)``.
     """
 
     def __init__(self, n_freq: int, hidden: list[int], activation: str = "silu",
-                 uncertainty: bool = True, used_frequencies: int | None = None,
-                 residual: bool = False) -> None:
+                 uncertainty: bool = True, used_frequencies: int | None = None) -> None:
         super().__init__()
-        self.residual = residual
-        self.prior = StandardPolynomial(9)
         acts = {"sigmoid": nn.Sigmoid, "silu": nn.SiLU}
         if activation not in acts:
             raise ValueError(f"activation must be one of {sorted(acts)}, got {activation!r}")
@@ -66,28 +59,17 @@ class RadialNet(nn.Module):
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         y = self.forward_normalized(ze_re, ze_im)
         distance = y[:, 0] * self.target_std + self.target_mean
-        if self.residual:
-            distance = distance + self.prior(ze_im[:, 0])
         if self.uncertainty:
             return distance, torch.exp(y[:, 1]) * self.target_std
         return distance, torch.zeros_like(distance)
 
-    def target(self, ze_im: torch.Tensor, distance: torch.Tensor) -> torch.Tensor:
-        """What the MLP learns, standardised: d, or d minus the polynomial prior."""
-        if self.residual:
-            distance = distance - self.prior(ze_im[:, 0])
+    def target(self, distance: torch.Tensor) -> torch.Tensor:
+        """What the MLP learns: the standardised distance."""
         return (distance - self.target_mean) / self.target_std
 
     @torch.no_grad()
     def fit_normalization(self, ze_re: torch.Tensor, ze_im: torch.Tensor,
                           targets: torch.Tensor) -> None:
-        if self.residual:
-            from wtml.baselines.radial import PolynomialRadial
-
-            ze = ze_re[:, :1].double().numpy() + 1j * ze_im[:, :1].double().numpy()
-            self.prior.load_pipeline(
-                PolynomialRadial("imag").fit(ze, targets[:, 0].double().numpy()).model)
-            targets = targets - self.prior(ze_im[:, 0])[:, None]
         x = torch.cat([ze_re[:, :self.used], ze_im[:, :self.used]], -1)
         self.feature_mean.copy_(x.mean(0))
         self.feature_std.copy_(x.std(0).clamp_min(1e-12))
@@ -103,20 +85,19 @@ class RadialDecoder(DecoderModule):
         activation: ``"sigmoid"`` or ``"silu"``.
         uncertainty: predict a std as well.
         used_frequencies: only the first this many of the scene's frequencies (default all).
-        residual: learn the correction to the polynomial prior (see :class:`RadialNet`).
         lr, weight_decay: optimiser.
     """
 
     def __init__(self, hidden: list[int] | None = None, activation: str = "silu",
                  uncertainty: bool = True, used_frequencies: int | None = None,
-                 residual: bool = False, lr: float = 3e-3, weight_decay: float = 0.0) -> None:
+                 lr: float = 3e-3, weight_decay: float = 0.0) -> None:
         super().__init__(lr, weight_decay)
         self.save_hyperparameters()
         self.hidden = list(hidden or [64, 64])
 
     def _new(self, n_freq: int) -> RadialNet:
         return RadialNet(n_freq, self.hidden, self.hparams.activation, self.hparams.uncertainty,
-                         self.hparams.used_frequencies, self.hparams.residual)
+                         self.hparams.used_frequencies)
 
     def setup(self, stage: str) -> None:
         if self.net is not None:
@@ -135,7 +116,7 @@ class RadialDecoder(DecoderModule):
 
     def loss(self, batch) -> torch.Tensor:
         ze_re, ze_im, target = batch
-        y = self.net.target(ze_im, target[:, 0])
+        y = self.net.target(target[:, 0])
         out = self.net.forward_normalized(ze_re, ze_im)
         if not self.net.uncertainty:
             return nn.functional.mse_loss(out[:, 0], y)

@@ -5,9 +5,6 @@ from typing import Literal
 EPSILON_0 = 8.8541878128e-12
 """Vacuum permittivity, in F/m."""
 
-GRAVITY = 9.80665
-"""Standard gravity, in m/s²."""
-
 SignRule = Literal["continuity", "re_t11_positive"]
 """How the overall sign of a calibrated T is fixed (see ``wtml.physics.calibration``)."""
 

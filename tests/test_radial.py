@@ -103,10 +103,11 @@ def radial_flow(tmp_path_factory):
     cwd = os.getcwd()
     os.chdir(tmp)
     try:
-        for name in ("radial", "radial_thesis"):
+        for name, extra in (("radial", ["--model.init_args.coarse_epochs", "1"]),
+                            ("radial_thesis", [])):
             cli_main(["fit", "--config", str(ROOT / f"configs/{name}.yaml"),
                       "--data.init_args.data_dir", str(tmp / "data"),
-                      "--trainer.max_epochs", "2", "--trainer.log_every_n_steps", "1"])
+                      "--trainer.max_epochs", "2", "--trainer.log_every_n_steps", "1"] + extra)
             assert main(["export", "--checkpoint", f"runs/{name}/checkpoints/last.ckpt",
                          "--out", f"export/{name}"]) == 0
     finally:

@@ -100,7 +100,7 @@ def _bench_radial(args: argparse.Namespace) -> int:
 
     print(run_bench(args.data, args.checkpoint, args.thesis_checkpoint, args.model,
                     args.thesis_model, args.out, invalid_dir=args.invalid,
-                    threads=args.threads))
+                    threads=args.threads, max_samples=args.max_samples))
     return 0
 
 
@@ -182,6 +182,9 @@ def build_parser() -> argparse.ArgumentParser:
     br.add_argument("--thesis-model", default="export/radial_thesis")
     br.add_argument("--out", default="runs/radial/bench")
     br.add_argument("--threads", type=int, default=2)
+    br.add_argument("--max-samples", type=int, default=10000,
+                    help="benchmark the first this many test samples (the physics inversion "
+                         "runs ~900 samples/s)")
     br.set_defaults(func=_bench_radial)
 
     pl = sub.add_parser("pipeline", help="the main job: generate, train, export, predict, bench")

@@ -59,9 +59,7 @@ class InversionRadial:
 
     def __init__(self, scene, step: float = 2e-6, n_stiffness: int = 9, iterations: int = 1
                  ) -> None:
-        lo, hi = 1e-6 * np.array(scene.contact.distance_um)
-        if scene.contact.distances_um:
-            lo, hi = 0.0, 1e-6 * max(scene.contact.distances_um) * 1.2
+        lo, hi = scene.distance_range_m()
         self.scene, self.transducer = scene, scene.transducer()
         self.d_range, self.lnk_range = (lo, hi), np.log(scene.contact.stiffness)
         self.grid_d = np.arange(lo, hi + step / 2, step)

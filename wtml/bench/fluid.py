@@ -79,8 +79,9 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
         f"{len(ze)} samples; noise {scene.noise.ze_relative:g} relative on Ze, calibration "
         f"error {scene.nuisance.calibration_error:g} (gain and offset of Zm).",
         f"Machine: {platform.machine()}, {platform.processor() or 'cpu'}; torch and onnxruntime "
-        f"with {threads} threads; latency = p50 of {latency_repeats} calls at batch 1; "
-        f"throughput = median of {throughput_repeats} calls at batch 4096.",
+        f"with {threads} threads; latency = p50 of up to {latency_repeats} calls at batch 1; "
+        f"throughput = median of up to {throughput_repeats} calls at batch 4096 (each "
+        f"measurement stops after 3 s).",
         "",
         "| method | η median | η p95 | ρ median | ρ p95 | p50 latency, batch 1 | "
         "latency / classical numpy | throughput, batch 4096 |",

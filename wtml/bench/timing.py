@@ -1,4 +1,8 @@
-"""Timing of a predictor, the same way for every method: p50 latency and throughput."""
+"""Timing of a predictor, the same way for every method: p50 latency and throughput.
+
+Each measurement stops at its repeat count or once it has run ``budget_s`` seconds (at
+least 3 calls), so a slow method (the physics inversion takes ~5 s per call at batch 4096)
+does not hold up a benchmark; the median is robust to the count."""
 
 from __future__ import annotations
 
@@ -7,24 +11,24 @@ import time
 import numpy as np
 
 
-def latency_p50(predictor, ze_one: np.ndarray, repeats: int) -> float:
-    """Median seconds of one ``predict`` call at batch 1."""
-    for _ in range(20):
-        predictor.predict(ze_one)
-    times = np.empty(repeats)
-    for k in range(repeats):
+def _median_call(predictor, ze: np.ndarray, repeats: int, warmup: int, budget_s: float
+                 ) -> float:
+    for _ in range(warmup):
+        predictor.predict(ze)
+    times: list[float] = []
+    start = time.perf_counter()
+    while len(times) < repeats and (len(times) < 3 or time.perf_counter() - start < budget_s):
         t0 = time.perf_counter()
-        predictor.predict(ze_one)
-        times[k] = time.perf_counter() - t0
+        predictor.predict(ze)
+        times.append(time.perf_counter() - t0)
     return float(np.median(times))
 
 
-def throughput(predictor, ze_batch: np.ndarray, repeats: int) -> float:
-    """Samples per second at the batch size of ``ze_batch`` (median over repeats)."""
-    predictor.predict(ze_batch)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        predictor.predict(ze_batch)
-        times.append(time.perf_counter() - t0)
-    return len(ze_batch) / float(np.median(times))
+def latency_p50(predictor, ze_one: np.ndarray, repeats: int, budget_s: float = 3.0) -> float:
+    """Median seconds of one ``predict`` call at batch 1 (after 20 warm-up calls)."""
+    return _median_call(predictor, ze_one, repeats, 20, budget_s)
+
+
+def throughput(predictor, ze_batch: np.ndarray, repeats: int, budget_s: float = 3.0) -> float:
+    """Samples per second at the batch size of ``ze_batch`` (median over the calls)."""
+    return len(ze_batch) / _median_call(predictor, ze_batch, repeats, 1, budget_s)

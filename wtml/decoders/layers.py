@@ -76,3 +76,50 @@ class StandardPolynomial(nn.Module):
         for c in range(self.coef.shape[0] - 2, -1, -1):
             y = y * u + self.coef[c]
         return y
+
+
+class HermiteTable(nn.Module):
+    """A complex function of one real variable, tabulated on a uniform grid with its slopes,
+    read back by cubic Hermite interpolation in float32 real arithmetic (Floor, Gather and
+    polynomials: no complex tensors, exportable).
+
+    Args:
+        x0, step: the grid ``x0 + step * arange(n)`` (any unit; m for distances).
+        values, slopes: complex ``(n, n_col)`` numpy, f and df/dx on the grid (n >= 2).
+
+    Forward: ``x (batch,)`` (clamped to the grid) -> ``(f_re, f_im, df_re, df_im)``, each
+    ``(batch, n_col)``; the slope in units of f per unit of x.
+    """
+
+    def __init__(self, x0: float, step: float, values: np.ndarray, slopes: np.ndarray) -> None:
+        super().__init__()
+        values, slopes = np.asarray(values, complex), np.asarray(slopes, complex) * step
+        if values.ndim != 2 or values.shape != slopes.shape or len(values) < 2 or step <= 0:
+            raise ValueError(f"HermiteTable needs values and slopes of one shape (n >= 2, "
+                             f"n_col) and step > 0; got {values.shape}, {slopes.shape}, {step}")
+        self.n_col = values.shape[1]
+        self.x0, self.step, self.n = float(x0), float(step), len(values)
+        # rows: [Re f, Im f, Re f' h, Im f' h] side by side, one row per grid point
+        rows = np.concatenate([values.real, values.imag, slopes.real, slopes.imag], -1)
+        self.register_buffer("rows", torch.tensor(rows, dtype=torch.float32))
+
+    @classmethod
+    def empty(cls, x0: float, step: float, n: int, n_col: int) -> HermiteTable:
+        """A table of zeros with these shapes (a checkpoint's state dict brings the values)."""
+        zeros = np.zeros((n, n_col), complex)
+        return cls(x0, step, zeros, zeros)
+
+    def forward(self, x: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        u = ((x - self.x0) / self.step).clamp(0.0, self.n - 1.0)
+        i = torch.floor(u).clamp(max=self.n - 2)
+        t = (u - i)[:, None]
+        a, b = self.rows[i.long()], self.rows[i.long() + 1]
+        t2, t3 = t * t, t * t * t
+        h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, 3 * t2 - 2 * t3, t3 - t2
+        g00, g10, g11 = 6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, 3 * t2 - 2 * t  # their d/dt
+        n = self.n_col
+        f = h00 * a[:, :2 * n] + h10 * a[:, 2 * n:] + h01 * b[:, :2 * n] + h11 * b[:, 2 * n:]
+        df = (g00 * (a[:, :2 * n] - b[:, :2 * n]) + g10 * a[:, 2 * n:]
+              + g11 * b[:, 2 * n:]) / self.step
+        return f[:, :n], f[:, n:], df[:, :n], df[:, n:]

@@ -87,6 +87,17 @@ class RadialScene:
                 raise SceneError(f"{pre}contact.{key}: must stay below the whisker length "
                                  f"{whisker:g} µm, got {max(values):g}")
 
+    def distance_range_m(self) -> tuple[float, float]:
+        """The span of d (m from the tip) that decoders and inversions search: the scene's
+        range, or 0 to 1.2× the largest of its discrete distances (at most to the middle of
+        the rest of the whisker)."""
+        c = self.contact
+        if c.distances_um:
+            top = 1e-6 * max(c.distances_um)
+            whisker = build(self.preset).segments[-1].length
+            return 0.0, min(1.2 * top, (top + whisker) / 2)
+        return 1e-6 * c.distance_um[0], 1e-6 * c.distance_um[1]
+
     def transducer(self):
         """The preset's beam model (built once per call)."""
         return build(self.preset)

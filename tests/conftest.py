@@ -32,3 +32,26 @@ MICRO = LumpedTransducer.from_resonance(c0=5e-12, phi=2e-7, m=2e-8, f0=400.0, q=
 @pytest.fixture(params=["macro", "micro"])
 def transducer(request):
     return {"macro": MACRO, "micro": MICRO}[request.param]
+
+
+def generate_and_train(tmp_path, scene_yaml: str, config_yaml: str, *extra: str):
+    """Generate a shipped scene into ``tmp_path/data`` and train a shipped config on it from
+    ``tmp_path`` (its runs/ land there); returns the scene."""
+    import os
+    from pathlib import Path
+
+    from wtml.data import generate
+    from wtml.scenes import load_scene
+    from wtml.training import cli_main
+
+    root = Path(__file__).resolve().parents[1]
+    scene = load_scene(root / scene_yaml)
+    generate(scene, tmp_path / "data", progress=False)
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        cli_main(["fit", "--config", str(root / config_yaml),
+                  "--data.init_args.data_dir", str(tmp_path / "data"), *extra])
+    finally:
+        os.chdir(cwd)
+    return scene

@@ -8,34 +8,20 @@ estimator without the scene's prior (the 1 % η target is out of reach of any su
 under a 1 % calibration error: the bound itself is ~3.8 %, wtml/bench/bounds.py).
 """
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import generate_and_train
 
 from wtml.baselines import ClassicalFluid
 from wtml.bench.accuracy import relative_errors
 from wtml.bench.bounds import fluid_crlb
-from wtml.data import generate, load_shards
+from wtml.data import load_shards
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
-from wtml.scenes import load_scene
-from wtml.training import cli_main
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.slow
 def test_default_fluid_training_meets_the_reachable_targets(tmp_path):
-    scene = load_scene(ROOT / "configs/scenes/fluid.yaml")
-    generate(scene, tmp_path / "data", progress=False)
-    cwd = os.getcwd()
-    os.chdir(tmp_path)
-    try:
-        cli_main(["fit", "--config", str(ROOT / "configs/fluid.yaml"),
-                  "--data.init_args.data_dir", str(tmp_path / "data")])
-    finally:
-        os.chdir(cwd)
+    scene = generate_and_train(tmp_path, "configs/scenes/fluid.yaml", "configs/fluid.yaml")
     net, _ = load_fluid_net(str(tmp_path / "runs/fluid/checkpoints/last.ckpt"))
     test = load_shards(tmp_path / "data", [scene.shards - 1])
     med = {}

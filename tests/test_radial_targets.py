@@ -1,6 +1,6 @@
 """The radial slice at its default size: the issue's accuracy targets for our decoder.
 
-Slow (about two and a half minutes on 2 cores): ``pytest -m slow``. It generates the shipped
+Slow (about three and a half minutes on 2 cores): ``pytest -m slow``. It generates the shipped
 scene, trains ``configs/radial.yaml`` as shipped, and checks on the first 10000 test samples
 that our decoder's RMSE is within 1.5× the Cramér–Rao bound overall and in every 800 µm
 range of d (no region where it blows up, d near 0 included), and at least 5× below the best
@@ -8,34 +8,20 @@ range of d (no region where it blows up, d near 0 included), and at least 5× be
 normalised errors have a std within 10 % of 1.
 """
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import generate_and_train
 
 from wtml.baselines.radial import PolynomialRadial
 from wtml.bench.bounds import radial_crlb
 from wtml.bench.radial import BINS_UM
-from wtml.data import generate, load_shards
+from wtml.data import load_shards
 from wtml.decoders.radial import TorchRadial, load_radial_net
-from wtml.scenes import load_scene
-from wtml.training import cli_main
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.slow
 def test_default_radial_decoder_meets_the_targets(tmp_path):
-    scene = load_scene(ROOT / "configs/scenes/radial.yaml")
-    generate(scene, tmp_path / "data", progress=False)
-    cwd = os.getcwd()
-    os.chdir(tmp_path)
-    try:
-        cli_main(["fit", "--config", str(ROOT / "configs/radial.yaml"),
-                  "--data.init_args.data_dir", str(tmp_path / "data")])
-    finally:
-        os.chdir(cwd)
+    scene = generate_and_train(tmp_path, "configs/scenes/radial.yaml", "configs/radial.yaml")
     net, _ = load_radial_net(str(tmp_path / "runs/radial/checkpoints/last.ckpt"))
     train = load_shards(tmp_path / "data", list(range(scene.shards - 2)))
     test = {k: v[:10000] for k, v in load_shards(tmp_path / "data", [scene.shards - 1]).items()}

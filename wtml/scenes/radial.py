@@ -68,7 +68,7 @@ class RadialScene:
     name: str = "radial"
     task: str = one_of("radial", default="radial")
     seed: int = bounded(0, 2**32 - 1, default=0)
-    samples: int = bounded(1, 10**8, default=24000)
+    samples: int = bounded(1, 10**8, default=240000)
     shards: int = bounded(1, 10**5, default=8)
     preset: str = one_of(*PRESETS, default="micro")
     excitation: ToneSpec = field(default_factory=ToneSpec)

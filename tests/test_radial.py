@@ -143,3 +143,57 @@ def test_radial_bench_reports_every_method(radial_flow, tmp_path):
     assert "d = 1.5 mm" in report and "Generation: beam path" in report
     for png in ("error_vs_latency.png", "error_vs_d.png"):
         assert (tmp_path / png).stat().st_size > 10_000
+
+
+def test_pipeline_resumes_only_a_checkpoint_of_the_same_scene_and_model(radial_flow, tmp_path):
+    """The flow trained configs/radial.yaml with coarse_epochs overridden to 1: the shipped
+    config must not resume it, the same config with that override must, another scene not."""
+    import yaml
+
+    from wtml.data import read_manifest
+    from wtml.pipeline import checkpoint_matches
+
+    ckpt = radial_flow / "runs/radial/checkpoints/last.ckpt"
+    scene_hash = read_manifest(radial_flow / "data")["scene_hash"]
+    shipped = ROOT / "configs/radial.yaml"
+    assert not checkpoint_matches(ckpt, scene_hash, str(shipped))
+    cfg = yaml.safe_load(shipped.read_text())
+    cfg["model"]["init_args"]["coarse_epochs"] = 1
+    same = tmp_path / "same.yaml"
+    same.write_text(yaml.safe_dump(cfg))
+    assert checkpoint_matches(ckpt, scene_hash, str(same))
+    assert not checkpoint_matches(ckpt, "0" * 64, str(same))
+    assert not checkpoint_matches(tmp_path / "none.ckpt", scene_hash, str(same))
+
+
+# resuming into the run's own checkpoint folder is the point here; lightning remarks on it
+@pytest.mark.filterwarnings("ignore:Checkpoint directory .* exists and is not empty")
+def test_two_phase_training_resumes_in_its_refining_phase(radial_flow, tmp_path):
+    """A 3-epoch run (coarse 1, refine 2) interrupted after epoch 2 resumes from last.ckpt
+    with its schedule: the third epoch moves the refiner and leaves the coarse stage."""
+    import lightning as L
+
+    from wtml.data.datamodule import ShardDataModule
+    from wtml.decoders.radial import RadialDecoder
+
+    class StopAfterSecondEpoch(L.Callback):
+        def on_train_epoch_end(self, trainer, module):
+            trainer.should_stop = trainer.current_epoch == 1
+
+    def fit(*callbacks, ckpt_path=None):
+        L.seed_everything(0)
+        dm = ShardDataModule(str(radial_flow / "data"), batch_size=100)
+        model = RadialDecoder(hidden=[16], refine_hidden=[16], coarse_epochs=1)
+        saver = L.pytorch.callbacks.ModelCheckpoint(dirpath=tmp_path / "ckpt", filename="last")
+        trainer = L.Trainer(max_epochs=3, logger=False, enable_progress_bar=False,
+                            enable_model_summary=False, log_every_n_steps=1,
+                            callbacks=[saver, *callbacks])
+        trainer.fit(model, dm, ckpt_path=ckpt_path)
+        return torch.load(tmp_path / "ckpt/last.ckpt", map_location="cpu", weights_only=False)
+
+    before = fit(StopAfterSecondEpoch())
+    after = fit(ckpt_path=str(tmp_path / "ckpt/last.ckpt"))
+    assert before["epoch"] == 1 and after["epoch"] == 2
+    moved = {k for k, v in after["state_dict"].items()
+             if not torch.equal(v, before["state_dict"][k])}
+    assert moved and all(k.startswith("net.refine.") for k in moved)

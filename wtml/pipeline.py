@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
 
 from wtml.bench.fluid import run_bench
 from wtml.data import dataset_scene, generate, load_shards, read_manifest
@@ -27,11 +28,18 @@ def _say(text: str) -> None:
     print(f"\n== {text}", flush=True)
 
 
-def _checkpoint_matches(ckpt: Path, scene_hash: str) -> bool:
+def checkpoint_matches(ckpt: Path, scene_hash: str, config: str) -> bool:
+    """Whether ``ckpt`` can resume ``config`` on the dataset of ``scene_hash``: same scene,
+    and the model arguments of the config are those the checkpoint was made with (an edited
+    config starts afresh rather than failing on the old weights' shapes)."""
     if not ckpt.exists():
         return False
-    info = torch.load(ckpt, map_location="cpu", weights_only=False).get("wtml", {})
-    return bool(info.get("scene")) and config_hash(scene_from_dict(info["scene"])) == scene_hash
+    state = torch.load(ckpt, map_location="cpu", weights_only=False)
+    info, hparams = state.get("wtml", {}), state.get("hyper_parameters", {})
+    if not info.get("scene") or config_hash(scene_from_dict(info["scene"])) != scene_hash:
+        return False
+    wanted = yaml.safe_load(Path(config).read_text())["model"].get("init_args", {})
+    return all(hparams.get(key) == value for key, value in wanted.items())
 
 
 def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> None:
@@ -57,8 +65,10 @@ def _train(config: str, data: Path, ckpt: Path, scene_hash: str, max_epochs: int
     args = ["fit", "--config", config, "--data.init_args.data_dir", str(data)]
     if max_epochs is not None:
         args += ["--trainer.max_epochs", str(max_epochs)]
-    if _checkpoint_matches(ckpt, scene_hash):
+    if checkpoint_matches(ckpt, scene_hash, config):
         args += ["--ckpt_path", str(ckpt)]
+    elif ckpt.exists():
+        print(f"{ckpt} is for another scene or model config: training afresh")
     _say("train: python train.py " + " ".join(args))
     cli_main(args)
 

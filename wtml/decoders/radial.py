@@ -15,10 +15,11 @@ cubic Hermite, float32), and turns the measurement into a residual that is small
 linear in the unknowns: per frequency ``p = (Ze - Ze_ref(d0)) / (dZe_ref/dd)(d0)``, a complex
 distance in m (its real part is d - d0 plus the stiffness's share). An MLP maps
 (p, d0) to the correction d - d0 and, with the uncertainty head, its std, trained by Gaussian
-NLL (which lets it spend its precision where the bound is tight). It is a learned
+NLL, which lets it spend its precision where the bound is tight (measured: the worst
+800 µm range at 1.8× the bound with MSE, 1.3× with NLL). It is a learned
 Gauss–Newton step: the learned start replaces the inversion's grid search, the learned step
-its stiffness model. Both stages train together; the second sees the first's d0 without
-passing gradients back.
+its stiffness model. The coarse stage trains first, then the refiner with the coarse stage
+frozen (``RadialDecoder.coarse_epochs``).
 """
 
 from __future__ import annotations
@@ -224,7 +225,8 @@ class RadialDecoder(DecoderModule):
         coarse_epochs: with ``refine_hidden``, the epochs that train the coarse stage alone;
             the refiner trains in the rest with the coarse stage frozen. Each has its own
             one-cycle schedule. Measured: trained together instead (the refiner chasing a
-            moving start), the worst d range ends at 3.3× the bound, against 1.25× in turn.
+            moving start), the worst 800 µm range of d ends at 3.3× the bound, against 1.3× in
+            turn (128-wide stages).
         lr, weight_decay: optimiser.
     """
 

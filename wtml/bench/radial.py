@@ -1,4 +1,5 @@
-"""``wtml bench radial``: every radial method on one held-out set, in one run.
+"""``wtml bench radial``: every radial method on one held-out set (the first ``max_samples``
+of the test shard, 10000 by default), in one run.
 
 Thesis decoder (2-10-1 sigmoid) and ours, each in torch and ONNX; the polynomials in Re Ze and
 Im Ze (numpy, and Im Ze as the exported classical ONNX); the physics inversion. For each:

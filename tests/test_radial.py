@@ -146,8 +146,9 @@ def test_radial_bench_reports_every_method(radial_flow, tmp_path):
 
 
 def test_pipeline_resumes_only_a_checkpoint_of_the_same_scene_and_model(radial_flow, tmp_path):
-    """The flow trained configs/radial.yaml with coarse_epochs overridden to 1: the shipped
-    config must not resume it, the same config with that override must, another scene not."""
+    """The flow trained configs/radial.yaml for 2 epochs with coarse_epochs 1: the shipped
+    config must not resume it, the same config with those overrides must; another scene or
+    run length must not."""
     import yaml
 
     from wtml.data import read_manifest
@@ -161,8 +162,10 @@ def test_pipeline_resumes_only_a_checkpoint_of_the_same_scene_and_model(radial_f
     cfg["model"]["init_args"]["coarse_epochs"] = 1
     same = tmp_path / "same.yaml"
     same.write_text(yaml.safe_dump(cfg))
-    assert checkpoint_matches(ckpt, scene_hash, str(same))
-    assert not checkpoint_matches(ckpt, "0" * 64, str(same))
+    assert checkpoint_matches(ckpt, scene_hash, str(same), max_epochs=2)
+    assert not checkpoint_matches(ckpt, scene_hash, str(same), max_epochs=3)
+    assert not checkpoint_matches(ckpt, scene_hash, str(same))  # the config's 50 epochs
+    assert not checkpoint_matches(ckpt, "0" * 64, str(same), max_epochs=2)
     assert not checkpoint_matches(tmp_path / "none.ckpt", scene_hash, str(same))
 
 

@@ -28,17 +28,24 @@ def _say(text: str) -> None:
     print(f"\n== {text}", flush=True)
 
 
-def checkpoint_matches(ckpt: Path, scene_hash: str, config: str) -> bool:
+def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
+                       max_epochs: int | None = None) -> bool:
     """Whether ``ckpt`` can resume ``config`` on the dataset of ``scene_hash``: same scene,
-    and the model arguments of the config are those the checkpoint was made with (an edited
-    config starts afresh rather than failing on the old weights' shapes)."""
+    the model arguments of the config are those the checkpoint was made with (an edited
+    config starts afresh rather than failing on the old weights' shapes), and so is the run
+    length (``max_epochs``, else the config's): the learning-rate schedules are laid out over
+    it."""
     if not ckpt.exists():
         return False
     state = torch.load(ckpt, map_location="cpu", weights_only=False)
     info, hparams = state.get("wtml", {}), state.get("hyper_parameters", {})
     if not info.get("scene") or config_hash(scene_from_dict(info["scene"])) != scene_hash:
         return False
-    wanted = yaml.safe_load(Path(config).read_text())["model"].get("init_args", {})
+    cfg = yaml.safe_load(Path(config).read_text())
+    epochs = max_epochs if max_epochs is not None else cfg.get("trainer", {}).get("max_epochs")
+    if info.get("max_epochs") != epochs:
+        return False
+    wanted = cfg["model"].get("init_args", {})
     return all(hparams.get(key) == value for key, value in wanted.items())
 
 
@@ -65,10 +72,10 @@ def _train(config: str, data: Path, ckpt: Path, scene_hash: str, max_epochs: int
     args = ["fit", "--config", config, "--data.init_args.data_dir", str(data)]
     if max_epochs is not None:
         args += ["--trainer.max_epochs", str(max_epochs)]
-    if checkpoint_matches(ckpt, scene_hash, config):
+    if checkpoint_matches(ckpt, scene_hash, config, max_epochs):
         args += ["--ckpt_path", str(ckpt)]
     elif ckpt.exists():
-        print(f"{ckpt} is for another scene or model config: training afresh")
+        print(f"{ckpt} is for another scene, model config or run length: training afresh")
     _say("train: python train.py " + " ".join(args))
     cli_main(args)
 

@@ -36,7 +36,8 @@ class DecoderModule(L.LightningModule, ABC):
         """Create ``self.net`` with the shapes of ``net_shape()`` (values come after)."""
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint["wtml"] = {"scene": self.scene, "shape": self.net_shape()}
+        checkpoint["wtml"] = {"scene": self.scene, "shape": self.net_shape(),
+                              "max_epochs": self.trainer.max_epochs}
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.scene = checkpoint["wtml"]["scene"]

@@ -200,3 +200,16 @@ def test_two_phase_training_resumes_in_its_refining_phase(radial_flow, tmp_path)
     moved = {k for k, v in after["state_dict"].items()
              if not torch.equal(v, before["state_dict"][k])}
     assert moved and all(k.startswith("net.refine.") for k in moved)
+
+
+def test_coarse_epochs_must_leave_epochs_for_the_refiner(radial_flow):
+    import lightning as L
+
+    from wtml.data.datamodule import ShardDataModule
+    from wtml.decoders.radial import RadialDecoder
+
+    trainer = L.Trainer(max_epochs=2, logger=False, enable_progress_bar=False,
+                        enable_checkpointing=False, enable_model_summary=False)
+    model = RadialDecoder(hidden=[4], refine_hidden=[4], coarse_epochs=2)
+    with pytest.raises(ValueError, match=r"model.coarse_epochs must be in .*\[1, 1\], got 2"):
+        trainer.fit(model, ShardDataModule(str(radial_flow / "data")))

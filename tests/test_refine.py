@@ -101,6 +101,10 @@ def test_refined_net_shapes_and_errors():
         RefinedRadialNet(N_FREQ, [8], [8], contact_table(SCENE), 0.0)
     with pytest.raises(ValueError, match="used_frequencies"):
         RadialDecoder(refine_hidden=[8], used_frequencies=1)
+    with pytest.raises(ValueError, match=r"model.table_step_um must be in \(0, 1e4\) µm"):
+        RadialDecoder(refine_hidden=[8], table_step_um=0.0)
+    with pytest.raises(ValueError, match="model.refine_scale_um"):
+        RadialDecoder(refine_hidden=[8], refine_scale_um=-1.0)
 
 
 def test_one_cycle_runs_only_inside_its_phase():

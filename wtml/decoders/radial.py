@@ -241,6 +241,10 @@ class RadialDecoder(DecoderModule):
         if refine_hidden is not None and used_frequencies is not None:
             raise ValueError("used_frequencies applies to a plain RadialNet only; "
                              "the refined decoder reads every frequency of its table")
+        for name, value in (("table_step_um", table_step_um),
+                            ("refine_scale_um", refine_scale_um)):
+            if not 0 < value < 1e4:
+                raise ValueError(f"model.{name} must be in (0, 1e4) µm, got {value}")
 
     def _new(self, n_freq: int, table: HermiteTable | None = None
              ) -> RadialNet | RefinedRadialNet:

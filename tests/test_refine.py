@@ -65,7 +65,7 @@ def test_contact_table_matches_the_beam_model_between_its_nodes():
     (~2e-10 m at 3 mm, and the steepest tone moves Ze by 1.2 %/µm)."""
     table = contact_table(SCENE)
     d = np.random.default_rng(0).uniform(0, 3.2e-3, 400).astype(np.float32).astype(float)
-    k = np.full_like(d, np.sqrt(np.prod(SCENE.contact.stiffness)))
+    k = np.full_like(d, SCENE.reference_stiffness())
     ze = SCENE.ze_of(d, k)
     f_re, f_im, _, _ = table(torch.tensor(d, dtype=torch.float32))
     got = f_re.double().numpy() + 1j * f_im.double().numpy()
@@ -82,7 +82,7 @@ def test_residual_is_the_distance_step_at_the_reference_stiffness():
     gives Re p = δ to first order (error O(δ²))."""
     net = _net()
     d = np.linspace(100e-6, 3100e-6, 31)
-    ze = SCENE.ze_of(d, np.full_like(d, np.sqrt(np.prod(SCENE.contact.stiffness))))
+    ze = SCENE.ze_of(d, np.full_like(d, SCENE.reference_stiffness()))
     re, im = (torch.tensor(a, dtype=torch.float32) for a in (ze.real, ze.imag))
     n = N_FREQ
     for delta, tol in ((0.0, 2e-9), (0.2e-6, 2e-9), (1e-6, 3e-8)):

@@ -114,7 +114,8 @@ class HermiteTable(nn.Module):
         u = ((x - self.x0) / self.step).clamp(0.0, self.n - 1.0)
         i = torch.floor(u).clamp(max=self.n - 2)
         t = (u - i)[:, None]
-        a, b = self.rows[i.long()], self.rows[i.long() + 1]
+        row = i.long()
+        a, b = self.rows[row], self.rows[row + 1]
         t2, t3 = t * t, t * t * t
         h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, 3 * t2 - 2 * t3, t3 - t2
         g00, g10, g11 = 6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, 3 * t2 - 2 * t  # their d/dt

@@ -105,7 +105,7 @@ def contact_table(scene, step: float = 5e-6, h: float = 1e-8) -> HermiteTable:
     2.5e-7 of the model on the default scene (noise 2e-5)."""
     lo, hi = scene.distance_range_m()
     grid = np.linspace(lo, hi, max(2, int(np.ceil((hi - lo) / step)) + 1))
-    k = np.full_like(grid, np.sqrt(np.prod(scene.contact.stiffness)))
+    k = np.full_like(grid, scene.reference_stiffness())
     tr = scene.transducer()
     below = np.maximum(grid - h, 0.0)
     slopes = ((scene.ze_of(grid + h, k, tr) - scene.ze_of(below, k, tr))
@@ -262,11 +262,11 @@ class RadialDecoder(DecoderModule):
         ze_re, ze_im, targets = dm.train_tensors()
         table = None
         if self.hparams.refine_hidden is not None:
+            if not 0 < self.hparams.coarse_epochs < self.trainer.max_epochs:
+                raise ValueError(f"model.coarse_epochs must be in [1, trainer.max_epochs - 1] = "
+                                 f"[1, {self.trainer.max_epochs - 1}], "
+                                 f"got {self.hparams.coarse_epochs}")
             table = contact_table(dm.scene, 1e-6 * self.hparams.table_step_um)
-        if table is not None and not 0 < self.hparams.coarse_epochs < self.trainer.max_epochs:
-            raise ValueError(f"model.coarse_epochs must be in [1, trainer.max_epochs - 1] = "
-                             f"[1, {self.trainer.max_epochs - 1}], "
-                             f"got {self.hparams.coarse_epochs}")
         self.net = self._new(ze_re.shape[1], table)
         self.scene = dm.scene_dict
         self.net.fit_normalization(ze_re, ze_im, targets)

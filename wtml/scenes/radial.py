@@ -80,12 +80,20 @@ class RadialScene:
         if self.shards > self.samples:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
-        whisker = 1e6 * build(self.preset).segments[-1].length
+        whisker = 1e6 * self.whisker_length_m()
         for key, values in (("distance_um", self.contact.distance_um),
                             ("distances_um", self.contact.distances_um)):
             if values and max(values) >= whisker:
                 raise SceneError(f"{pre}contact.{key}: must stay below the whisker length "
                                  f"{whisker:g} µm, got {max(values):g}")
+
+    def whisker_length_m(self) -> float:
+        """Length of the preset's whisker (its last beam segment), m."""
+        return build(self.preset).segments[-1].length
+
+    def reference_stiffness(self) -> float:
+        """The contact stiffness at the middle of its log-uniform range (geometric mean), N/m."""
+        return float(np.sqrt(np.prod(self.contact.stiffness)))
 
     def distance_range_m(self) -> tuple[float, float]:
         """The span of d (m from the tip) that decoders and inversions search: the scene's
@@ -94,8 +102,7 @@ class RadialScene:
         c = self.contact
         if c.distances_um:
             top = 1e-6 * max(c.distances_um)
-            whisker = build(self.preset).segments[-1].length
-            return 0.0, min(1.2 * top, (top + whisker) / 2)
+            return 0.0, min(1.2 * top, (top + self.whisker_length_m()) / 2)
         return 1e-6 * c.distance_um[0], 1e-6 * c.distance_um[1]
 
     def transducer(self):

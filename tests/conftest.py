@@ -1,12 +1,21 @@
 """Shared fixtures: seeded generators, hypothesis profiles, and transducers of realistic size."""
 
+import os
+import shutil
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
+from lightning.pytorch.callbacks import Callback
 
+from wtml.cli import main
+from wtml.data import generate
 from wtml.physics import LumpedTransducer
+from wtml.scenes import FluidScene, RadialScene
+from wtml.scenes.config import build
+from wtml.training import cli_main
 
 settings.register_profile("ci", max_examples=60, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow])
@@ -37,14 +46,9 @@ def transducer(request):
 def generate_and_train(tmp_path, scene_yaml: str, config_yaml: str, *extra: str):
     """Generate a shipped scene into ``tmp_path/data`` and train a shipped config on it from
     ``tmp_path`` (its runs/ land there); returns the scene."""
-    import os
-    from pathlib import Path
-
-    from wtml.data import generate
     from wtml.scenes import load_scene
-    from wtml.training import cli_main
 
-    root = Path(__file__).resolve().parents[1]
+    root = ROOT
     scene = load_scene(root / scene_yaml)
     generate(scene, tmp_path / "data", progress=False)
     cwd = os.getcwd()
@@ -55,3 +59,69 @@ def generate_and_train(tmp_path, scene_yaml: str, config_yaml: str, *extra: str)
     finally:
         os.chdir(cwd)
     return scene
+
+
+ROOT = Path(__file__).resolve().parents[1]
+FLUID_SMALL = build(FluidScene, {"samples": 1200, "shards": 4})
+RADIAL_SMALL = build(RadialScene, {"samples": 1600, "shards": 4})
+
+
+def train_args(tmp, *extra, subcommand=True):
+    return ["fit"] * subcommand + ["--config", str(ROOT / "configs/fluid.yaml"),
+            "--data.init_args.data_dir", str(tmp / "data"), "--trainer.max_epochs", "3",
+            "--model.init_args.hidden", "[32, 32]", "--trainer.log_every_n_steps", "1", *extra]
+
+
+class StopAfterEpoch(Callback):
+    """Interrupt training as a kill would, after epoch ``n`` has been checkpointed."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+
+    def on_train_epoch_start(self, trainer, pl_module):
+        if trainer.current_epoch == self.n + 1:
+            raise KeyboardInterrupt
+
+
+@pytest.fixture(scope="session")
+def flow(tmp_path_factory):
+    """Dataset, a training run from configs/fluid.yaml interrupted after 2 of 3 epochs, and
+    the export of its last checkpoint."""
+    tmp = tmp_path_factory.mktemp("flow")
+    generate(FLUID_SMALL, tmp / "data", progress=False)
+    cwd = os.getcwd()
+    os.chdir(tmp)  # the config's runs/ paths land here
+    try:
+        cli = cli_main(train_args(tmp, subcommand=False), run=False)
+        cli.trainer.callbacks.append(StopAfterEpoch(1))
+        with pytest.raises(SystemExit):  # lightning shuts down gracefully, then exits
+            cli.trainer.fit(cli.model, cli.datamodule)
+        assert cli.trainer.interrupted
+    finally:
+        os.chdir(cwd)
+    ckpt = tmp / "exported.ckpt"  # a copy: the resume test goes on writing last.ckpt
+    shutil.copy(tmp / "runs/fluid/checkpoints/last.ckpt", ckpt)
+    assert main(["export", "--checkpoint", str(ckpt), "--out", str(tmp / "export")]) == 0
+    return tmp, ckpt
+
+
+@pytest.fixture(scope="session")
+def radial_flow(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("radial")
+    generate(RADIAL_SMALL, tmp / "data", progress=False)
+    invalid = build(RadialScene, {"samples": 60, "shards": 1,
+                                  "contact": {"distances_um": [500.0, 1500.0, 2500.0]}})
+    generate(invalid, tmp / "invalid", progress=False)
+    cwd = os.getcwd()
+    os.chdir(tmp)
+    try:
+        for name, extra in (("radial", ["--model.init_args.coarse_epochs", "1"]),
+                            ("radial_thesis", [])):
+            cli_main(["fit", "--config", str(ROOT / f"configs/{name}.yaml"),
+                      "--data.init_args.data_dir", str(tmp / "data"),
+                      "--trainer.max_epochs", "2", "--trainer.log_every_n_steps", "1"] + extra)
+            assert main(["export", "--checkpoint", f"runs/{name}/checkpoints/last.ckpt",
+                         "--out", f"export/{name}"]) == 0
+    finally:
+        os.chdir(cwd)
+    return tmp

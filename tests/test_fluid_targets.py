@@ -2,10 +2,10 @@
 
 Slow (about a minute and a half on 2 cores): ``pytest -m slow``. It generates the shipped
 scene, trains ``configs/fluid.yaml`` as shipped, and checks on the test shard that the
-decoder's median ρ error is <= 0.5 %, that it is at least 2x better than the classical path
-in η and in ρ, and that its η error stays below what the Cramér–Rao bound allows an
-estimator without the scene's prior (the 1 % η target is out of reach of any such estimator
-under a 1 % calibration error: the bound itself is ~3.8 %, wtml/bench/bounds.py).
+decoder's median ρ error is <= 0.5 %, that it is at least 2x better than the thesis's closed
+form in η and in ρ, and that it is within 1.3x of the best achievable, the Bayes posterior
+mean under the scene's prior, noise and calibration error (README: 1.13x in η, 1.21x in ρ).
+The 1 % η target is out of reach of any estimator here: the Bayes estimate itself has ~2.5 %.
 """
 
 import numpy as np
@@ -13,8 +13,8 @@ import pytest
 from conftest import generate_and_train
 
 from wtml.baselines import ClassicalFluid
+from wtml.baselines.fluid_bayes import BayesFluid
 from wtml.bench.accuracy import relative_errors
-from wtml.bench.bounds import fluid_crlb
 from wtml.data import load_shards
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
 
@@ -29,8 +29,9 @@ def test_default_fluid_training_meets_the_reachable_targets(tmp_path):
                                               scene.sphere.radius)):
         err = relative_errors(p.predict(test["ze"]), test["eta"], test["rho"])
         med[p.name] = {k: float(np.median(v)) for k, v in err.items()}
-    dec, cla = med["decoder torch"], med["classical numpy"]
+    dec, cla = med["decoder torch"], med["thesis closed form numpy"]
     assert dec["rho"] <= 0.005
     assert dec["eta"] * 2 <= cla["eta"] and dec["rho"] * 2 <= cla["rho"]
-    bound = fluid_crlb(scene, test["eta"], test["rho"])
-    assert dec["eta"] < np.median(0.674 * bound["eta"])
+    best = {k: float(np.median(v)) for k, v in relative_errors(
+        BayesFluid(scene).predict(test["ze"]), test["eta"], test["rho"]).items()}
+    assert dec["eta"] <= 1.3 * best["eta"] and dec["rho"] <= 1.3 * best["rho"]

@@ -1,27 +1,26 @@
 """The radial slice: its scene on the beam model, baselines, bound, decoders, export, bench."""
 
-import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from conftest import RADIAL_SMALL
 
 from wtml.baselines.radial import InversionRadial, PolynomialRadial
 from wtml.bench.bounds import radial_crlb
 from wtml.bench.radial import generation_throughput, run_bench
-from wtml.cli import main
-from wtml.data import generate, load_shards
+from wtml.data import load_shards
+from wtml.decoders.checkpoint import read_checkpoint
 from wtml.decoders.layers import StandardPolynomial
 from wtml.decoders.radial import RadialNet, TorchRadial, load_radial_net
 from wtml.physics import ze_from_zm
 from wtml.runtime.predict import OnnxModel, predict_file
 from wtml.scenes import RadialScene, SceneError, load_scene
 from wtml.scenes.config import build
-from wtml.training import cli_main
 
 ROOT = Path(__file__).resolve().parents[1]
-SMALL = build(RadialScene, {"samples": 1600, "shards": 4})
+SMALL = RADIAL_SMALL
 
 
 def test_shipped_scenes_load_and_bad_values_are_named(tmp_path):
@@ -91,28 +90,6 @@ def test_radial_net_options():
 def test_generation_throughput_is_reported():
     gen = generation_throughput(SMALL, n=500)
     assert gen["beam"] > 0 and gen["matrix"] > 0
-
-
-@pytest.fixture(scope="module")
-def radial_flow(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("radial")
-    generate(SMALL, tmp / "data", progress=False)
-    invalid = build(RadialScene, {"samples": 60, "shards": 1,
-                                  "contact": {"distances_um": [500.0, 1500.0, 2500.0]}})
-    generate(invalid, tmp / "invalid", progress=False)
-    cwd = os.getcwd()
-    os.chdir(tmp)
-    try:
-        for name, extra in (("radial", ["--model.init_args.coarse_epochs", "1"]),
-                            ("radial_thesis", [])):
-            cli_main(["fit", "--config", str(ROOT / f"configs/{name}.yaml"),
-                      "--data.init_args.data_dir", str(tmp / "data"),
-                      "--trainer.max_epochs", "2", "--trainer.log_every_n_steps", "1"] + extra)
-            assert main(["export", "--checkpoint", f"runs/{name}/checkpoints/last.ckpt",
-                         "--out", f"export/{name}"]) == 0
-    finally:
-        os.chdir(cwd)
-    return tmp
 
 
 def test_radial_onnx_matches_torch_and_predict_reads_it(radial_flow, tmp_path):
@@ -192,7 +169,7 @@ def test_two_phase_training_resumes_in_its_refining_phase(radial_flow, tmp_path)
                             enable_model_summary=False, log_every_n_steps=1,
                             callbacks=[saver, *callbacks])
         trainer.fit(model, dm, ckpt_path=ckpt_path)
-        return torch.load(tmp_path / "ckpt/last.ckpt", map_location="cpu", weights_only=False)
+        return read_checkpoint(tmp_path / "ckpt/last.ckpt")
 
     before = fit(StopAfterSecondEpoch())
     after = fit(ckpt_path=str(tmp_path / "ckpt/last.ckpt"))

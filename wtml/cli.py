@@ -1,7 +1,8 @@
 """The ``wtml`` console script.
 
-Subcommands: ``walkthrough`` (the thesis's calibration), ``generate``, ``evaluate``,
-``export``, ``predict``, ``bench fluid`` and ``pipeline`` (all of them in a row).
+Subcommands: ``walkthrough`` (the thesis's calibration), ``presets``, ``generate``,
+``evaluate``, ``export``, ``predict``, ``bench fluid|radial`` and ``pipeline`` (all of them
+in a row). Bad input ends a command with one line on stderr and exit code 2.
 Training runs through LightningCLI: ``python train.py fit --config configs/fluid.yaml``.
 """
 
@@ -10,6 +11,7 @@ from __future__ import annotations
 import argparse
 import csv
 import sys
+import textwrap
 
 from wtml import __version__
 
@@ -46,21 +48,9 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from wtml.baselines import ClassicalFluid
-    from wtml.bench.accuracy import by_decade, format_decades, relative_errors
-    from wtml.data import dataset_scene, load_shards, read_manifest
-    from wtml.data.datamodule import split_shards
-    from wtml.decoders.fluid import TorchFluid, load_fluid_net
+    from wtml.bench.evaluate import evaluate
 
-    manifest = read_manifest(args.data)
-    data = load_shards(args.data, split_shards(manifest["n_shards"], 1, 1)["test"])
-    scene = dataset_scene(args.data)
-    net, _ = load_fluid_net(args.checkpoint)
-    for p in (TorchFluid(net), ClassicalFluid(scene.calibrated_t(), scene.excitation.omega,
-                                              scene.sphere.radius)):
-        err = relative_errors(p.predict(data["ze"]), data["eta"], data["rho"])
-        print(format_decades(f"{p.name} on the test shard of {args.data}",
-                             by_decade(err, data["eta"])) + "\n")
+    print(evaluate(args.checkpoint, args.data))
     return 0
 
 
@@ -73,18 +63,21 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from wtml.pipeline import format_predictions
-    from wtml.runtime.predict import predict_file
+    from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 
     rows = predict_file(args.model, args.input)
     if args.out:
         with open(args.out, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
-            w.writerows(rows)
+            w.writerows({k: int(v) if isinstance(v, bool) else v for k, v in r.items()}
+                        for r in rows)
         print(f"{len(rows)} predictions written to {args.out}")
     else:
         print(format_predictions(rows))
+    warning = domain_warning(rows)
+    if warning:
+        print(f"wtml predict: {warning}", file=sys.stderr)
     return 0
 
 
@@ -105,92 +98,130 @@ def _bench_radial(args: argparse.Namespace) -> int:
 
 
 def _pipeline(args: argparse.Namespace) -> int:
-    from wtml.pipeline import run_pipeline, run_radial
+    from wtml.pipeline import run_all
 
-    if args.task in ("fluid", "all"):
-        run_pipeline(max_epochs=args.max_epochs)
-    if args.task in ("radial", "all"):
-        run_radial(max_epochs=args.max_epochs)
+    run_all(args.task, max_epochs=args.max_epochs)
     return 0
 
 
+class _Help(argparse.RawDescriptionHelpFormatter):
+    """Each option's default in its help (unless the help already says it, or there is none
+    to show); descriptions and epilogs keep their line breaks."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text or action.required or action.default in (None, False,
+                                                                        argparse.SUPPRESS):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from wtml.runtime.predict import INPUT_FORMATS
+
     parser = argparse.ArgumentParser(
-        prog="wtml",
-        description="Decoding a piezoelectric whisker transducer: physics, decoders, devices.")
+        prog="wtml", formatter_class=_Help,
+        description="Decoding a piezoelectric whisker transducer: physics, decoders, devices. "
+                    "Training: python train.py fit --config configs/<task>.yaml")
     parser.add_argument("--version", action="version", version=f"wtml {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
-    walk = sub.add_parser(
-        "walkthrough",
-        help="simulate the thesis's calibration of the macro WT and print Table 4.3/4.4",
-        description="Least-squares calibration of the macro WT (lumped preset) at 36 Hz with "
-                    "the 82x1x0.3 mm steel cantilever at 71-81 mm, validated at 70-80 mm.")
-    walk.add_argument("--frequency", type=float, default=36.0, help="Hz (default 36)")
+    def verb(name: str, help: str, description: str | None = None, **kw):
+        return sub.add_parser(name, help=help, formatter_class=_Help,
+                              description=textwrap.fill(description or help, 88), **kw)
+
+    walk = verb("walkthrough", "simulate the thesis's calibration of the macro WT (Tables 4.3-4.4)",
+                "Least-squares calibration of the macro WT (lumped preset) at 36 Hz with the "
+                "82x1x0.3 mm steel cantilever at 71-81 mm, validated at 70-80 mm.")
+    walk.add_argument("--frequency", type=float, default=36.0, help="excitation frequency, Hz")
     walk.add_argument("--noise", type=float, default=2e-4,
-                      help="relative std of one Ze measurement (default 2e-4 = 0.02%%)")
+                      help="relative std of one Ze measurement (2e-4 = 0.02 %%)")
     walk.add_argument("--repeats", type=int, default=5,
-                      help="measurements averaged per load (default 5, as in the thesis)")
-    walk.add_argument("--seed", type=int, default=0)
-    walk.add_argument("--plot", metavar="PNG", help="also save a plot of Zm and errors here")
+                      help="measurements averaged per load (5, as in the thesis)")
+    walk.add_argument("--seed", type=int, default=0, help="seed of the noise")
+    walk.add_argument("--plot", metavar="PNG", default=None,
+                      help="also save a plot of Zm and the errors here")
     walk.set_defaults(func=_walkthrough)
 
-    pre = sub.add_parser("presets", help="the beam presets against the thesis (fidelity table)")
+    pre = verb("presets", "the beam presets against the thesis (fidelity table)")
     pre.set_defaults(func=_presets)
 
-    gen = sub.add_parser("generate", help="simulate a scene into dataset shards (resumable)")
+    gen = verb("generate", "simulate a scene into dataset shards (resumable)",
+               "Simulate a scene into checksummed shards. Re-running skips complete shards, "
+               "remakes damaged ones and removes what an interrupted run left behind.")
     gen.add_argument("--config", required=True, help="scene YAML, e.g. configs/scenes/fluid.yaml")
     gen.add_argument("--out", required=True, help="dataset folder, e.g. datasets/fluid")
-    gen.add_argument("--shards", type=int, help="number of shards (default: the scene's)")
-    gen.add_argument("--shard", type=int, help="make only this shard (parallel jobs)")
+    gen.add_argument("--shards", type=int, default=None,
+                     help="number of shards (default: the scene's 'shards')")
+    gen.add_argument("--shard", type=int, default=None,
+                     help="make only this shard index, for parallel jobs (then one run "
+                          "without --shard completes the manifest)")
     gen.add_argument("--quiet", action="store_true", help="no progress bar")
     gen.set_defaults(func=_generate)
 
-    ev = sub.add_parser("evaluate", help="accuracy by viscosity decade, decoder vs classical")
-    ev.add_argument("--checkpoint", required=True)
-    ev.add_argument("--data", required=True, help="dataset folder (its test shard is used)")
+    ev = verb("evaluate", "a checkpoint's accuracy on its dataset's test shard, beside the "
+                          "classical path (fluid: by viscosity decade; radial: by range of d)")
+    ev.add_argument("--checkpoint", required=True, help="a last.ckpt of python train.py fit")
+    ev.add_argument("--data", required=True, help="its dataset folder (the test shard is used)")
     ev.set_defaults(func=_evaluate)
 
-    ex = sub.add_parser("export", help="checkpoint -> model.onnx and classical.onnx")
-    ex.add_argument("--checkpoint", required=True)
+    ex = verb("export", "checkpoint -> model.onnx (decoder) and classical.onnx, with the "
+                        "trained domain inside both graphs")
+    ex.add_argument("--checkpoint", required=True, help="a last.ckpt of python train.py fit")
     ex.add_argument("--out", required=True, help="folder, e.g. export/fluid")
     ex.set_defaults(func=_export)
 
-    pr = sub.add_parser("predict", help="η and ρ from measured Ze (or e(t), i(t)) with ONNX")
-    pr.add_argument("--model", required=True, help="an export folder")
-    pr.add_argument("--input", required=True, help=".npz or .csv (see wtml.runtime.predict)")
-    pr.add_argument("--out", help="write a CSV here instead of printing")
+    pr = verb("predict", "run an export folder with onnxruntime on measured data (any task)",
+              "Decoder and classical path side by side, one row per measurement, with "
+              "in_domain (1: inside the trained domain), domain_score (<= 1 inside) and the "
+              "flags of each doubtful answer; a warning counts the rows out of domain.",
+              epilog=INPUT_FORMATS)
+    pr.add_argument("--model", required=True, help="an export folder (model.onnx and "
+                                                   "classical.onnx), e.g. export/fluid")
+    pr.add_argument("--input", required=True, help=".csv or .npz (formats below)")
+    pr.add_argument("--out", default=None,
+                    help="write the rows as CSV here (default: print a table)")
     pr.set_defaults(func=_predict)
 
-    be = sub.add_parser("bench", help="speed and accuracy of every method, side by side")
+    be = verb("bench", "speed and accuracy of every method of a task, side by side")
     be_sub = be.add_subparsers(dest="task", metavar="TASK", required=True)
-    bf = be_sub.add_parser("fluid", help="the fluid slice")
-    bf.add_argument("--data", default="datasets/fluid")
-    bf.add_argument("--checkpoint", default="runs/fluid/checkpoints/last.ckpt")
-    bf.add_argument("--model", default="export/fluid")
-    bf.add_argument("--out", default="runs/fluid/bench")
-    bf.add_argument("--threads", type=int, default=2)
+    bf = be_sub.add_parser("fluid", help="the fluid slice", formatter_class=_Help,
+                           description="Every fluid method on the test shard: accuracy by "
+                                       "viscosity decade, the Bayes posterior mean and the "
+                                       "Cramér-Rao bound, latency and throughput.")
+    bf.add_argument("--data", default="datasets/fluid", help="dataset folder")
+    bf.add_argument("--checkpoint", default="runs/fluid/checkpoints/last.ckpt",
+                    help="the decoder's checkpoint")
+    bf.add_argument("--model", default="export/fluid", help="the export folder")
+    bf.add_argument("--out", default="runs/fluid/bench", help="report.md and plots go here")
+    bf.add_argument("--threads", type=int, default=2, help="torch and onnxruntime threads")
     bf.set_defaults(func=_bench)
 
-    br = be_sub.add_parser("radial", help="the radial slice")
-    br.add_argument("--data", default="datasets/radial")
+    br = be_sub.add_parser("radial", help="the radial slice", formatter_class=_Help,
+                           description="Every radial method on the test shard: RMSE by range "
+                                       "of d against the Cramér-Rao bound, latency and "
+                                       "throughput, invalid contacts.")
+    br.add_argument("--data", default="datasets/radial", help="dataset folder")
     br.add_argument("--invalid", default="datasets/radial_invalid",
                     help="the invalid-contact dataset (thesis §5.5.4)")
-    br.add_argument("--checkpoint", default="runs/radial/checkpoints/last.ckpt")
-    br.add_argument("--thesis-checkpoint", default="runs/radial_thesis/checkpoints/last.ckpt")
-    br.add_argument("--model", default="export/radial")
-    br.add_argument("--thesis-model", default="export/radial_thesis")
-    br.add_argument("--out", default="runs/radial/bench")
-    br.add_argument("--threads", type=int, default=2)
+    br.add_argument("--checkpoint", default="runs/radial/checkpoints/last.ckpt",
+                    help="our decoder's checkpoint")
+    br.add_argument("--thesis-checkpoint", default="runs/radial_thesis/checkpoints/last.ckpt",
+                    help="the thesis decoder's checkpoint")
+    br.add_argument("--model", default="export/radial", help="our export folder")
+    br.add_argument("--thesis-model", default="export/radial_thesis",
+                    help="the thesis decoder's export folder")
+    br.add_argument("--out", default="runs/radial/bench", help="report.md and plots go here")
+    br.add_argument("--threads", type=int, default=2, help="torch and onnxruntime threads")
     br.add_argument("--max-samples", type=int, default=10000,
-                    help="benchmark the first this many test samples (the physics inversion "
-                         "runs ~900 samples/s)")
+                    help="benchmark the first this many test samples")
     br.set_defaults(func=_bench_radial)
 
-    pl = sub.add_parser("pipeline", help="the main job: generate, train, export, predict, bench")
+    pl = verb("pipeline", "the main job: generate, train, export, predict, bench, summary")
     pl.add_argument("task", nargs="?", choices=["all", "fluid", "radial"], default="all",
-                    help="which slice (default: both)")
-    pl.add_argument("--max-epochs", type=int, help="override the training configs' epochs")
+                    help="which slice")
+    pl.add_argument("--max-epochs", type=int, default=None,
+                    help="override the training configs' epochs (default: the configs')")
     pl.set_defaults(func=_pipeline)
     return parser
 
@@ -203,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return args.func(args)
-    except (ValueError, FileNotFoundError) as err:  # bad input: say what, not a traceback
+    except (ValueError, OSError) as err:  # bad input: one line that says what, not a traceback
         print(f"wtml {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -1,31 +1,53 @@
 """The main job, end to end on small defaults, for the fluid slice and then the radial slice:
-generate -> train -> export -> predict -> bench.
+generate -> train -> export -> predict -> bench, then one summary of every slice.
 
 Each stage prints the command that does it alone. Work already done is kept: complete shards
-are skipped, and training resumes from ``last.ckpt`` when it belongs to the same dataset.
+are skipped, and training resumes from ``last.ckpt`` when it belongs to the same dataset,
+model config and run length (otherwise the run is replaced, and the pipeline says so).
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
-import torch
-import yaml
 
-from wtml.bench.fluid import run_bench
 from wtml.data import dataset_scene, generate, load_shards, read_manifest
 from wtml.data.datamodule import split_shards
+from wtml.decoders.checkpoint import CheckpointError, read_checkpoint
 from wtml.runtime.export import export_model
-from wtml.runtime.predict import predict_file
+from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.scenes import config_hash, load_scene, scene_from_dict
-from wtml.training import cli_main
+from wtml.scenes.config import yaml_load
+from wtml.training import cli_main, duration
 
 
-def _say(text: str) -> None:
-    print(f"\n== {text}", flush=True)
+class Stages:
+    """Wall-clock time of each stage of each slice, for the closing summary."""
+
+    def __init__(self) -> None:
+        self.start = time.perf_counter()
+        self.times: dict[str, dict[str, float]] = {}
+        self._slice, self._stage, self._t0 = "", "", 0.0
+
+    def begin(self, slice_: str, stage: str, command: str) -> None:
+        """Close the running stage, open this one and print its stand-alone command."""
+        self.end()
+        self._slice, self._stage, self._t0 = slice_, stage, time.perf_counter()
+        print(f"\n== {slice_} {stage}: {command}", flush=True)
+
+    def end(self) -> None:
+        if self._stage:
+            spent = time.perf_counter() - self._t0
+            self.times.setdefault(self._slice, {})[self._stage] = spent
+            self._stage = ""
+
+    def line(self, slice_: str) -> str:
+        return ", ".join(f"{k} {duration(v)}" for k, v in self.times.get(slice_, {}).items())
 
 
 def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
@@ -34,14 +56,18 @@ def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
     the model arguments of the config are those the checkpoint was made with (an edited
     config starts afresh rather than failing on the old weights' shapes), and so is the run
     length (``max_epochs``, else the config's): the learning-rate schedules are laid out over
-    it."""
+    it. A checkpoint that cannot be read safely never matches."""
     if not ckpt.exists():
         return False
-    state = torch.load(ckpt, map_location="cpu", weights_only=False)
-    info, hparams = state.get("wtml", {}), state.get("hyper_parameters", {})
-    if not info.get("scene") or config_hash(scene_from_dict(info["scene"])) != scene_hash:
+    try:
+        state = read_checkpoint(ckpt)
+    except CheckpointError as err:
+        print(f"{err}: not resumed")
         return False
-    cfg = yaml.safe_load(Path(config).read_text())
+    info, hparams = state["wtml"], state.get("hyper_parameters", {})
+    if config_hash(scene_from_dict(info["scene"])) != scene_hash:
+        return False
+    cfg = yaml_load(Path(config).read_text())
     epochs = max_epochs if max_epochs is not None else cfg.get("trainer", {}).get("max_epochs")
     if info.get("max_epochs") != epochs:
         return False
@@ -68,7 +94,17 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> None:
                            + [repr(float(data[k][s])) for k in truth])
 
 
-def _train(config: str, data: Path, ckpt: Path, scene_hash: str, max_epochs: int | None) -> None:
+def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
+    stages.begin(slice_, "generate", f"wtml generate --config {scene_path} --out {out}")
+    manifest = generate(load_scene(scene_path), out)
+    print(f"{manifest['samples']} samples in {manifest['n_shards']} shards")
+    return manifest
+
+
+def _train(stages: Stages, slice_: str, config: str, data: Path, scene_hash: str,
+           max_epochs: int | None) -> Path:
+    root = Path(yaml_load(Path(config).read_text())["trainer"]["default_root_dir"])
+    ckpt = root / "checkpoints" / "last.ckpt"
     args = ["fit", "--config", config, "--data.init_args.data_dir", str(data)]
     if max_epochs is not None:
         args += ["--trainer.max_epochs", str(max_epochs)]
@@ -76,78 +112,127 @@ def _train(config: str, data: Path, ckpt: Path, scene_hash: str, max_epochs: int
         args += ["--ckpt_path", str(ckpt)]
     elif ckpt.exists():
         print(f"{ckpt} is for another scene, model config or run length: training afresh")
-    _say("train: python train.py " + " ".join(args))
+        args += ["--overwrite", "true"]
+    stages.begin(slice_, f"train {root.name}", "python train.py " + " ".join(args))
     cli_main(args)
+    return ckpt
 
 
-def run_radial(*, max_epochs: int | None = None) -> str:
-    """The radial slice end to end; returns the benchmark report."""
-    from wtml.bench.radial import run_bench as run_radial_bench
-
-    data, invalid = Path("datasets/radial"), Path("datasets/radial_invalid")
-    for scene_path, out in (("configs/scenes/radial.yaml", data),
-                            ("configs/scenes/radial_invalid.yaml", invalid)):
-        _say(f"generate: wtml generate --config {scene_path} --out {out}")
-        manifest = generate(load_scene(scene_path), out)
-        print(f"{manifest['samples']} samples in {manifest['n_shards']} shards")
-    scene_hash = read_manifest(data)["scene_hash"]
-    ckpts = {}
-    for name in ("radial", "radial_thesis"):
-        ckpts[name] = Path(f"runs/{name}/checkpoints/last.ckpt")
-        _train(f"configs/{name}.yaml", data, ckpts[name], scene_hash, max_epochs)
-        _say(f"export: wtml export --checkpoint {ckpts[name]} --out export/{name}")
-        export_model(ckpts[name], Path("export") / name)
-    sample = Path("export/radial/sample_input.csv")
-    write_sample_csv(data, sample)
-    _say(f"predict: wtml predict --model export/radial --input {sample}")
-    print(format_predictions(predict_file("export/radial", sample)))
-    bench = Path("runs/radial/bench")
-    _say(f"bench: wtml bench radial --out {bench}")
-    report = run_radial_bench(data, ckpts["radial"], ckpts["radial_thesis"], "export/radial",
-                              "export/radial_thesis", bench, invalid_dir=invalid)
-    print(report)
-    print(f"full report: {bench / 'report.md'}; plots: {bench}/error_vs_latency.png, "
-          f"{bench}/error_vs_d.png")
-    return report
-
-
-def run_pipeline(*, scene_path: str = "configs/scenes/fluid.yaml",
-                 train_config: str = "configs/fluid.yaml", data_dir: str = "datasets/fluid",
-                 model_dir: str = "export/fluid", bench_dir: str = "runs/fluid/bench",
-                 max_epochs: int | None = None) -> str:
-    """Run the fluid slice end to end; returns its benchmark report."""
-    data, model, bench = Path(data_dir), Path(model_dir), Path(bench_dir)
-    _say(f"generate: wtml generate --config {scene_path} --out {data}")
-    manifest = generate(load_scene(scene_path), data)
-    print(f"{manifest['samples']} samples in {manifest['n_shards']} shards")
-
-    ckpt = Path("runs/fluid/checkpoints/last.ckpt")
-    _train(train_config, data, ckpt, manifest["scene_hash"], max_epochs)
-
-    _say(f"export: wtml export --checkpoint {ckpt} --out {model}")
+def _export_and_predict(stages: Stages, slice_: str, ckpt: Path, model: Path,
+                        data: Path) -> None:
+    stages.begin(slice_, f"export {model.name}",
+                 f"wtml export --checkpoint {ckpt} --out {model}")
     for kind, path in export_model(ckpt, model).items():
         print(f"{kind}: {path}")
-
     sample = model / "sample_input.csv"
     write_sample_csv(data, sample)
-    _say(f"predict: wtml predict --model {model} --input {sample}")
-    print(format_predictions(predict_file(model, sample)))
+    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}")
+    rows = predict_file(model, sample)
+    print(format_predictions(rows))
+    warning = domain_warning(rows)
+    if warning:
+        print(warning)
 
-    _say(f"bench: wtml bench fluid --data {data} --checkpoint {ckpt} --model {model} "
-         f"--out {bench}")
+
+def run_fluid(stages: Stages, *, max_epochs: int | None = None) -> dict:
+    """The fluid slice end to end; returns its bench summary."""
+    from wtml.bench.fluid import run_bench
+
+    data, model, bench = Path("datasets/fluid"), Path("export/fluid"), Path("runs/fluid/bench")
+    manifest = _generate(stages, "fluid", "configs/scenes/fluid.yaml", data)
+    ckpt = _train(stages, "fluid", "configs/fluid.yaml", data, manifest["scene_hash"],
+                  max_epochs)
+    _export_and_predict(stages, "fluid", ckpt, model, data)
+    stages.begin("fluid", "bench", f"wtml bench fluid --out {bench}")
     report = run_bench(data, ckpt, model, bench)
     print(report.split("\n## By viscosity decade")[0])
-    print(f"full report: {bench / 'report.md'}; plot: {bench / 'error_vs_latency.png'}")
-    sys.stdout.flush()
-    return report
+    stages.end()
+    return json.loads((bench / "summary.json").read_text())
 
 
-def format_predictions(rows: list[dict]) -> str:
-    """Prediction rows as an aligned table, units in the headers."""
-    keys = list(rows[0])
-    width = [max(len(k), 12) for k in keys]
-    lines = ["  ".join(k.rjust(w) for k, w in zip(keys, width, strict=True))]
-    for r in rows:
-        lines.append("  ".join((f"{r[k]:d}" if k == "sample" else f"{r[k]:.5g}").rjust(w)
-                               for k, w in zip(keys, width, strict=True)))
+def run_radial(stages: Stages, *, max_epochs: int | None = None) -> dict:
+    """The radial slice end to end; returns its bench summary."""
+    from wtml.bench.radial import run_bench
+
+    data, invalid = Path("datasets/radial"), Path("datasets/radial_invalid")
+    manifest = _generate(stages, "radial", "configs/scenes/radial.yaml", data)
+    _generate(stages, "radial", "configs/scenes/radial_invalid.yaml", invalid)
+    ckpts = {}
+    for name in ("radial", "radial_thesis"):
+        ckpts[name] = _train(stages, "radial", f"configs/{name}.yaml", data,
+                             manifest["scene_hash"], max_epochs)
+        if name == "radial_thesis":
+            stages.begin("radial", "export radial_thesis",
+                         f"wtml export --checkpoint {ckpts[name]} --out export/{name}")
+            export_model(ckpts[name], Path("export") / name)
+        else:
+            _export_and_predict(stages, "radial", ckpts[name], Path("export/radial"), data)
+    bench = Path("runs/radial/bench")
+    stages.begin("radial", "bench", f"wtml bench radial --out {bench}")
+    print(run_bench(data, ckpts["radial"], ckpts["radial_thesis"], "export/radial",
+                    "export/radial_thesis", bench, invalid_dir=invalid))
+    stages.end()
+    return json.loads((bench / "summary.json").read_text())
+
+
+def _met(ok: bool) -> str:
+    return "met" if ok else "MISSED"
+
+
+def summary(results: dict[str, dict], stages: Stages) -> str:
+    """The closing summary: each slice's key numbers against its targets, where the reports
+    and plots are, the stage timings and the total time."""
+    lines = ["", "== summary"]
+    fluid = results.get("fluid")
+    if fluid:
+        dec, bayes, closed = fluid["decoder_onnx"], fluid["bayes"], fluid["closed_form"]
+        gain = {k: closed[f"{k}_median"] / dec[f"{k}_median"] for k in ("eta", "rho")}
+        fast = fluid["decoder_onnx_latency_s"], fluid["decoder_onnx_throughput"]
+        lines += [
+            "fluid (test shard, decoder ONNX):",
+            f"  η median {100 * dec['eta_median']:.2f} % "
+            f"({dec['eta_median'] / bayes['eta_median']:.2f}× the Bayes posterior mean's "
+            f"{100 * bayes['eta_median']:.2f} %; target ≤ 1 %: "
+            f"{_met(dec['eta_median'] <= 0.01)}, the Bayes estimate itself is above it)",
+            f"  ρ median {100 * dec['rho_median']:.3f} % "
+            f"({dec['rho_median'] / bayes['rho_median']:.2f}× Bayes; target ≤ 0.5 %: "
+            f"{_met(dec['rho_median'] <= 0.005)})",
+            f"  against the thesis's closed form: {gain['eta']:.1f}× in η, {gain['rho']:.1f}× "
+            f"in ρ (target ≥ 2×: {_met(min(gain.values()) >= 2)})",
+            f"  {1e6 * fast[0]:.0f} µs at batch 1, {fast[1]:.3g}/s at batch 4096 (targets "
+            f"≤ 50 µs, ≥ 1e6/s: {_met(fast[0] <= 50e-6)}, {_met(fast[1] >= 1e6)}); in-domain "
+            f"test rows flagged: {100 * fluid['false_alarm']:.2f} %",
+            "  report runs/fluid/bench/report.md, plot runs/fluid/bench/error_vs_latency.png",
+            f"  time: {stages.line('fluid')}"]
+    radial = results.get("radial")
+    if radial:
+        ours, inv = radial["ours_onnx"], radial["inversion"]
+        lines += [
+            "radial (first test samples, ours ONNX):",
+            f"  RMSE {1e6 * ours['rmse']:.2f} µm = {ours['ratio']:.2f}× the CRLB, worst 800 µm "
+            f"range {radial['worst_range_ratio']:.2f}× (target ≤ 1.5×: "
+            f"{_met(max(ours['ratio'], radial['worst_range_ratio']) <= 1.5)})",
+            f"  {radial['best_polynomial_rmse'] / ours['rmse']:.1f}× below the best polynomial "
+            f"(target ≥ 5×: {_met(radial['best_polynomial_rmse'] >= 5 * ours['rmse'])}); the "
+            f"converged physics inversion {1e6 * inv['rmse']:.2f} µm at "
+            f"{radial['inversion_latency_s'] / radial['ours_onnx_latency_s']:.0f}× the latency",
+            f"  in-domain test rows flagged: {100 * radial['false_alarm']:.2f} %",
+            "  report runs/radial/bench/report.md, plots runs/radial/bench/error_vs_latency.png, "
+            "error_vs_d.png",
+            f"  time: {stages.line('radial')}"]
+    lines.append(f"total: {duration(time.perf_counter() - stages.start)}")
     return "\n".join(lines)
+
+
+def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:
+    """The main job for ``task`` (``"all"``, ``"fluid"`` or ``"radial"``); prints and returns
+    the closing summary."""
+    stages, results = Stages(), {}
+    if task in ("fluid", "all"):
+        results["fluid"] = run_fluid(stages, max_epochs=max_epochs)
+    if task in ("radial", "all"):
+        results["radial"] = run_radial(stages, max_epochs=max_epochs)
+    text = summary(results, stages)
+    print(text)
+    sys.stdout.flush()
+    return text

@@ -1,4 +1,5 @@
-"""The classical path for fluids: calibrated T -> Zm per frequency -> (η, ρ) over the band.
+"""The classical path for fluids, the thesis's closed form: calibrated T -> Zm per
+frequency -> (η, ρ) over the band.
 
 Per frequency the sphere law (physics.md §5) is linear in ``u = (η, ρ, q)`` with
 ``q = sqrt(ηρ)``::
@@ -44,7 +45,7 @@ class ClassicalFluid:
         radius: sphere radius in m.
     """
 
-    name = "classical numpy"
+    name = "thesis closed form numpy"
 
     def __init__(self, t_cal: np.ndarray, omega: np.ndarray, radius: float) -> None:
         self.t_cal = np.asarray(t_cal, dtype=complex)

@@ -14,6 +14,25 @@ def relative_errors(pred: dict[str, np.ndarray], eta: np.ndarray, rho: np.ndarra
     return {"eta": np.abs(pred["eta"] / eta - 1), "rho": np.abs(pred["rho"] / rho - 1)}
 
 
+def sampled_errors(std: dict[str, np.ndarray], eta: np.ndarray, draws: int = 200,
+                   seed: int = 0) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Errors as a bound allows them, for tables made like the methods' rows: each sample's
+    relative error drawn ``draws`` times from a Gaussian of its own std, pooled.
+
+    Args:
+        std: relative standard deviations per sample, ``{"eta": (n,), "rho": (n,)}``.
+        eta: true η per sample (Pa·s), for the decade bins.
+
+    Returns:
+        ``{"eta": (n·draws,), "rho": (n·draws,)}`` absolute relative errors, and η repeated
+        to match. Percentiles of these are the bound's percentiles, like the methods'.
+    """
+    rng = np.random.default_rng(seed)
+    err = {k: np.abs(v[:, None] * rng.standard_normal((len(v), draws))).ravel()
+           for k, v in std.items()}
+    return err, np.repeat(eta, draws)
+
+
 def by_decade(err: dict[str, np.ndarray], eta: np.ndarray) -> list[dict]:
     """Rows per η decade (only decades with samples) and one for all: n, median, p95."""
     rows = []

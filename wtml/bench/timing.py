@@ -1,7 +1,7 @@
 """Timing of a predictor, the same way for every method: p50 latency and throughput.
 
 Each measurement stops at its repeat count or once it has run ``budget_s`` seconds (at
-least 3 calls), so a slow method (the physics inversion takes ~5 s per call at batch 4096)
+least one call), so a slow method (the physics inversion takes ~7 s per call at batch 4096)
 does not hold up a benchmark; the median is robust to the count."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ def _median_call(predictor, ze: np.ndarray, repeats: int, warmup: int, budget_s:
         predictor.predict(ze)
     times: list[float] = []
     start = time.perf_counter()
-    while len(times) < repeats and (len(times) < 3 or time.perf_counter() - start < budget_s):
+    while len(times) < repeats and (not times or time.perf_counter() - start < budget_s):
         t0 = time.perf_counter()
         predictor.predict(ze)
         times.append(time.perf_counter() - t0)

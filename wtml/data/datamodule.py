@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import lightning as L
 import numpy as np
 import torch
@@ -48,6 +50,15 @@ class ShardDataModule(L.LightningDataModule):
     def __init__(self, data_dir: str, batch_size: int = 256, val_shards: int = 1,
                  test_shards: int = 1) -> None:
         super().__init__()
+        for name, value, low in (("batch_size", batch_size, 1), ("val_shards", val_shards, 1),
+                                 ("test_shards", test_shards, 1)):
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= 10**7:
+                raise DatasetError(f"data.{name} must be a whole number in [{low}, 10000000], "
+                                   f"got {value!r}")
+        if not Path(data_dir).is_dir():
+            raise DatasetError(f"data.data_dir: {data_dir} does not exist; make the dataset with "
+                               "`wtml generate --config configs/scenes/<task>.yaml --out "
+                               f"{data_dir}`")
         self.data_dir = data_dir
         self.batch_size = batch_size
         manifest = read_manifest(data_dir)

@@ -19,11 +19,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import socket
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from wtml import __version__
 from wtml.scenes import FluidScene, config_hash, scene_from_dict, to_dict
@@ -43,8 +44,38 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def _tmp_name(path: Path) -> Path:
+    """Where ``path`` is written before its rename: ``.{name}.{host}.{pid}.tmp``."""
+    return path.with_name(f".{path.name}.{socket.gethostname()}.{os.getpid()}.tmp")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
+def clean_orphans(out: Path) -> list[Path]:
+    """Remove the temporary files that a killed writer left in ``out`` (``kill -9`` during a
+    shard write): those of this host whose process is gone. Files of a live writer (a
+    parallel ``--shard`` job) and of other hosts sharing the folder are left alone.
+    Returns the removed paths."""
+    host, removed = socket.gethostname(), []
+    for tmp in out.glob(".*.tmp"):
+        parts = tmp.name.rsplit(".", 3)  # [".name", host, pid, "tmp"]
+        if len(parts) == 4 and parts[1] == host and parts[2].isdigit() \
+                and not _pid_alive(int(parts[2])):
+            tmp.unlink(missing_ok=True)
+            removed.append(tmp)
+    return removed
+
+
 def _atomic_write(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = _tmp_name(path)
     with open(tmp, "wb") as fh:
         write(fh)
         fh.flush()
@@ -116,30 +147,39 @@ def generate(scene: FluidScene, out: str | Path, *, shards: int | None = None,
                            f"got {n_shards}")
     if shard is not None and not 0 <= shard < n_shards:
         raise DatasetError(f"shard must be in [0, {n_shards - 1}], got {shard}")
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"--out {out}: is a file; give a folder for the dataset "
+                           "(e.g. datasets/<task>)")
     out.mkdir(parents=True, exist_ok=True)
+    removed = clean_orphans(out)
+    if removed and progress:
+        print(f"{out}: removed {len(removed)} unfinished file(s) of an interrupted run",
+              file=sys.stderr)
     old = out / "manifest.json"
     if old.exists():
-        prev = json.loads(old.read_text())
+        try:
+            prev = json.loads(old.read_text())
+            if not isinstance(prev, dict):
+                raise ValueError("not a JSON object")
+        except (ValueError, UnicodeDecodeError) as err:
+            raise DatasetError(
+                f"{old}: corrupt ({err}); delete it and run the same wtml generate again: "
+                "complete shards are kept (each has its own checksum file) and the manifest "
+                "is rebuilt") from None
         if prev.get("scene_hash") != config_hash(scene) or prev.get("n_shards") != n_shards:
             raise DatasetError(f"{out} holds a dataset of another scene or shard count "
                                f"(scene {prev.get('scene_hash', '?')[:12]}, "
                                f"{prev.get('n_shards')} shards); choose a new --out")
     sizes = shard_sizes(scene.samples, n_shards)
     todo = [shard] if shard is not None else range(n_shards)
-    start = time.perf_counter()
-    done = made = 0
-    for k in todo:
+    bar = tqdm(todo, desc=f"generate {out.name}", unit="shard", disable=not progress,
+               file=sys.stderr, dynamic_ncols=True)
+    made = 0
+    for done, k in enumerate(bar, start=1):
         if not _shard_ok(out, k):
             _write_shard(scene, out, k, sizes[k])
             made += 1
-        done += 1
-        if progress:
-            frac = done / len(todo)
-            bar = "#" * int(30 * frac)
-            print(f"\r[{bar:<30}] {done}/{len(todo)} shards ({made} made, "
-                  f"{time.perf_counter() - start:.1f} s)", end="", file=sys.stderr, flush=True)
-    if progress:
-        print(file=sys.stderr)
+        bar.set_postfix_str(f"{made} made, {done - made} kept")
     return _write_manifest(scene, out, sizes)
 
 
@@ -148,8 +188,13 @@ def read_manifest(path: str | Path) -> dict:
     path = Path(path)
     try:
         manifest = json.loads((path / "manifest.json").read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise DatasetError(f"{path}: no readable manifest.json ({err}); run wtml generate") from err
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: no dataset there (no manifest.json); make it with "
+                           f"`wtml generate --config configs/scenes/<task>.yaml --out {path}`"
+                           ) from None
+    except (OSError, ValueError) as err:
+        raise DatasetError(f"{path / 'manifest.json'}: corrupt ({err}); run the same wtml "
+                           "generate again after deleting it (complete shards are kept)") from None
     if manifest.get("format") != FORMAT:
         raise DatasetError(f"{path}: format {manifest.get('format')!r}, expected {FORMAT!r}")
     if not manifest.get("complete"):

@@ -1,8 +1,8 @@
 """Fluid decoder: Ze on the sweep grid -> (η, ρ).
 
 :class:`FluidNet` is the plain module that is exported: calibrated T -> Zm (by hand, real
-arithmetic) -> ``sign(Zm) log(1 + |Zm|/z_scale)`` standardised -> MLP -> (log10 η, ρ),
-de-standardised.
+arithmetic) -> ``sign(Zm) log(1 + |Zm|/z_scale)`` (:class:`SignedLogZm`) standardised -> MLP
+-> (log10 η, ρ), de-standardised.
 All normalisation lives in buffers, so the ONNX graph takes raw Ze. :class:`FluidDecoder` is
 its LightningModule: it builds the net from the data module's scene and training statistics
 at ``setup`` and rebuilds its shape from the checkpoint when loaded.
@@ -14,8 +14,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from wtml.decoders.base import DecoderModule
-from wtml.decoders.layers import ZmFromZe
+from wtml.decoders.base import DecoderModule, check_widths
+from wtml.decoders.checkpoint import load_module
+from wtml.decoders.layers import SignedLogZm
 from wtml.decoders.mlp import MLP
 
 
@@ -34,20 +35,12 @@ class FluidNet(nn.Module):
     def __init__(self, t_cal: np.ndarray, z_scale: float, hidden: list[int]) -> None:
         super().__init__()
         n_freq = np.asarray(t_cal).shape[0]
-        self.zm = ZmFromZe(t_cal)
-        self.register_buffer("z_scale", torch.tensor(float(z_scale)))
+        self.features = SignedLogZm(t_cal, z_scale)
         self.register_buffer("feature_mean", torch.zeros(2 * n_freq))
         self.register_buffer("feature_std", torch.ones(2 * n_freq))
         self.register_buffer("target_mean", torch.zeros(2))
         self.register_buffer("target_std", torch.ones(2))
         self.mlp = MLP(2 * n_freq, hidden, 2)
-
-    def features(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
-        """``sign(Zm) log(1 + |Zm| / z_scale)`` of Re and Im, shape ``(batch, 2 n_freq)``:
-        linear below ``z_scale``, logarithmic above (the loads span three decades). Written
-        with Abs/Log/Sign, which onnxruntime vectorises (its Asinh cost as much as the MLP)."""
-        x = torch.cat(self.zm(ze_re, ze_im), -1) / self.z_scale
-        return torch.sign(x) * torch.log1p(torch.abs(x))
 
     def forward_normalized(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
         """Standardised (log10 η, ρ), shape ``(batch, 2)``: what the loss sees."""
@@ -84,15 +77,17 @@ class FluidDecoder(DecoderModule):
         super().__init__(lr, weight_decay)
         self.save_hyperparameters()
         self.hidden = list(hidden or [128, 128])
+        check_widths("model.hidden", self.hidden)
 
-    def setup(self, stage: str) -> None:
-        if self.net is not None:
-            return
-        dm = self.trainer.datamodule
-        self.net = FluidNet(dm.scene.calibrated_t(), 0.01 * dm.scene.reference_zm(), self.hidden)
-        self.scene = dm.scene_dict
-        ze_re, ze_im, targets = dm.train_tensors()
-        self.net.fit_normalization(ze_re, ze_im, targets)
+    def build_net(self, scene, ze_re, ze_im, targets) -> FluidNet:
+        net = FluidNet(scene.calibrated_t(), 0.01 * scene.reference_zm(), self.hidden)
+        net.fit_normalization(ze_re, ze_im, targets)
+        return net
+
+    def domain_features(self, scene) -> tuple[nn.Module, int]:
+        """The decoder's own features: signed-log Zm through the calibrated T."""
+        return SignedLogZm(scene.calibrated_t(), 0.01 * scene.reference_zm()), \
+            2 * scene.excitation.n_freq
 
     def net_shape(self) -> dict:
         return {"n_freq": self.net.mlp.n_in // 2}
@@ -109,7 +104,7 @@ class FluidDecoder(DecoderModule):
 
 def load_fluid_net(checkpoint: str) -> tuple[FluidNet, dict]:
     """The trained :class:`FluidNet` (eval mode) and its scene mapping from a checkpoint."""
-    module = FluidDecoder.load_from_checkpoint(checkpoint, map_location="cpu")
+    module = load_module(FluidDecoder, checkpoint, "fluid")
     return module.net.eval(), module.scene
 
 

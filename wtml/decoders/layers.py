@@ -43,6 +43,27 @@ class ZmFromZe(nn.Module):
                 self.a_im + self.b_re * inv_im + self.b_im * inv_re)
 
 
+class SignedLogZm(nn.Module):
+    """Zm through the calibrated T as ``sign(x) log(1 + |x|)``, ``x = Zm / z_scale``, for Re
+    and Im side by side: linear below ``z_scale``, logarithmic above (loads that span decades).
+    Written with Abs/Log/Sign, which onnxruntime vectorises (its Asinh cost as much as an MLP).
+
+    Args:
+        t: complex T, ``(n_freq, 2, 2)`` (numpy); z_scale: the knee, N·s/m.
+
+    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` in Ω -> ``(batch, 2 n_freq)``.
+    """
+
+    def __init__(self, t: np.ndarray, z_scale: float) -> None:
+        super().__init__()
+        self.zm = ZmFromZe(t)
+        self.register_buffer("z_scale", torch.tensor(float(z_scale)))
+
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
+        x = torch.cat(self.zm(ze_re, ze_im), -1) / self.z_scale
+        return torch.sign(x) * torch.log1p(torch.abs(x))
+
+
 class StandardPolynomial(nn.Module):
     """``p((x - mean) / scale)`` in Horner form, coefficients lowest degree first: the
     scikit-learn pipeline (StandardScaler, PolynomialFeatures, LinearRegression) of

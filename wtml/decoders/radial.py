@@ -31,7 +31,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from wtml.decoders.base import DecoderModule
+from wtml.decoders.base import ConfigError, DecoderModule, check_widths
+from wtml.decoders.checkpoint import load_module
+from wtml.decoders.domain import ZeParts
 from wtml.decoders.layers import HermiteTable
 from wtml.decoders.mlp import MLP
 
@@ -238,13 +240,17 @@ class RadialDecoder(DecoderModule):
         super().__init__(lr, weight_decay)
         self.save_hyperparameters()
         self.hidden = list(hidden or [64, 64])
+        check_widths("model.hidden", self.hidden)
+        if refine_hidden is not None:
+            check_widths("model.refine_hidden", refine_hidden)
         if refine_hidden is not None and used_frequencies is not None:
-            raise ValueError("used_frequencies applies to a plain RadialNet only; "
+            raise ConfigError("used_frequencies applies to a plain RadialNet only; "
                              "the refined decoder reads every frequency of its table")
         for name, value in (("table_step_um", table_step_um),
                             ("refine_scale_um", refine_scale_um)):
-            if not 0 < value < 1e4:
-                raise ValueError(f"model.{name} must be in (0, 1e4) µm, got {value}")
+            if isinstance(value, bool) or not isinstance(value, int | float) \
+                    or not 0 < value < 1e4:
+                raise ConfigError(f"model.{name} must be in (0, 1e4) µm, got {value}")
 
     def _new(self, n_freq: int, table: HermiteTable | None = None
              ) -> RadialNet | RefinedRadialNet:
@@ -255,21 +261,21 @@ class RadialDecoder(DecoderModule):
         return RefinedRadialNet(n_freq, self.hidden, list(h.refine_hidden), table,
                                 1e-6 * h.refine_scale_um, h.activation, h.uncertainty)
 
-    def setup(self, stage: str) -> None:
-        if self.net is not None:
-            return
-        dm = self.trainer.datamodule
-        ze_re, ze_im, targets = dm.train_tensors()
+    def build_net(self, scene, ze_re, ze_im, targets) -> RadialNet | RefinedRadialNet:
         table = None
         if self.hparams.refine_hidden is not None:
             if not 0 < self.hparams.coarse_epochs < self.trainer.max_epochs:
-                raise ValueError(f"model.coarse_epochs must be in [1, trainer.max_epochs - 1] = "
-                                 f"[1, {self.trainer.max_epochs - 1}], "
-                                 f"got {self.hparams.coarse_epochs}")
-            table = contact_table(dm.scene, 1e-6 * self.hparams.table_step_um)
-        self.net = self._new(ze_re.shape[1], table)
-        self.scene = dm.scene_dict
-        self.net.fit_normalization(ze_re, ze_im, targets)
+                raise ConfigError(f"model.coarse_epochs must be in [1, trainer.max_epochs - 1]"
+                                  f" = [1, {self.trainer.max_epochs - 1}], "
+                                  f"got {self.hparams.coarse_epochs}")
+            table = contact_table(scene, 1e-6 * self.hparams.table_step_um)
+        net = self._new(ze_re.shape[1], table)
+        net.fit_normalization(ze_re, ze_im, targets)
+        return net
+
+    def domain_features(self, scene) -> tuple[nn.Module, int]:
+        """Re and Im Ze at every frequency of the scene."""
+        return ZeParts(), 2 * len(scene.excitation.frequencies_hz)
 
     def net_shape(self) -> dict:
         shape = {"n_freq": self.net.n_freq}
@@ -314,7 +320,7 @@ class RadialDecoder(DecoderModule):
 
 def load_radial_net(checkpoint: str) -> tuple[RadialNet | RefinedRadialNet, dict]:
     """The trained net (eval mode) and its scene mapping."""
-    module = RadialDecoder.load_from_checkpoint(checkpoint, map_location="cpu")
+    module = load_module(RadialDecoder, checkpoint, "radial")
     return module.net.eval(), module.scene
 
 

@@ -1,17 +1,24 @@
 """Checkpoint -> ONNX: the decoder and, beside it, the classical path as its own graph.
 
 Both graphs take ``ze_re, ze_im`` (float32, ``(batch, n_freq)``, Ω, dynamic batch) and return
-the task's outputs, each ``(batch,)``: fluid ``eta`` (Pa·s) and ``rho`` (kg/m³); radial
-``distance`` (m from the tip) and ``sigma`` (m, the decoder's own uncertainty; 0 where it has
-none). The fluid classical graph is calibrated T -> Zm -> band least squares; the radial one
-is the thesis's classical decoder, the 9th-degree polynomial of d in Im Ze. The metadata of
-each model carries what a device needs: names and units, the frequency grid, the scene and
-its hash, the package version. A device needs onnxruntime only.
+the task's outputs (``scene.OUTPUTS``), each ``(batch,)``: fluid ``eta`` (Pa·s) and ``rho``
+(kg/m³); radial ``distance`` (m from the tip) and ``sigma`` (m, the decoder's own
+uncertainty; 0 where it has none), then ``in_domain`` (bool) and ``domain_score`` (float,
+``<= 1`` inside the trained domain): the decoder's domain gate (``wtml.decoders.domain``)
+is part of both graphs. The decoder's ``in_domain`` also requires its answer inside the
+trained range; the classical graph's judges the input only (its answers are checked against
+the physically possible range by ``wtml predict``). The fluid classical graph is the thesis's
+closed form, calibrated T -> Zm -> band least squares; the radial one is the thesis's
+classical decoder, the 9th-degree polynomial of d in Im Ze. The metadata of each model
+carries what a device needs: names and units, the frequency grid, the scene and its hash,
+the trained domain and its measured false-alarm rate, the package version. A device needs
+onnxruntime only.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import warnings
 from pathlib import Path
 
@@ -22,14 +29,16 @@ from torch import nn
 
 from wtml import __version__
 from wtml.baselines.fluid_classical import band_pseudo_inverse
-from wtml.decoders.fluid import load_fluid_net
+from wtml.decoders.checkpoint import load_decoder
+from wtml.decoders.domain import QUANTILE, Gated
 from wtml.decoders.layers import StandardPolynomial, ZmFromZe
 from wtml.scenes import config_hash, scene_from_dict
 
 INPUTS = ("ze_re", "ze_im")
-OUTPUTS = {"fluid": ("eta", "rho"), "radial": ("distance", "sigma")}
-UNITS = {"ze_re": "ohm", "ze_im": "ohm", "eta": "Pa*s", "rho": "kg/m^3", "distance": "m",
-         "sigma": "m"}
+GATE_OUTPUTS = ("in_domain", "domain_score")
+FRESH_SAMPLES = 20000
+"""Fresh samples of the scene (not the training data) on which the exported decoder's
+false-alarm rate is measured and stated in its metadata."""
 
 
 class ClassicalFluidNet(nn.Module):
@@ -69,14 +78,21 @@ class PolynomialNet(nn.Module):
 def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]) -> None:
     example = (torch.ones(2, n_freq), torch.ones(2, n_freq))
     batch = torch.export.Dim("batch", min=1)
+    names = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
+    registry = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = registry.level
+    registry.setLevel(logging.ERROR)  # "torchvision is not installed. Skipping ..." (4 lines)
     with warnings.catch_warnings():
         # both inputs share the one batch dimension, which the exporter remarks on
         warnings.filterwarnings("ignore", message=r"# The axis name: batch will not be used")
+        # torch's own exporter calls a pytree API that torch 2.13 deprecates
+        warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)`",
+                                category=FutureWarning)
         torch.onnx.export(module.eval(), example, str(path), input_names=list(INPUTS),
-                          output_names=json.loads(metadata["outputs"]), dynamo=True,
-                          external_data=False,
+                          output_names=names, dynamo=True, external_data=False,
                           dynamic_shapes={"ze_re": {0: batch}, "ze_im": {0: batch}},
                           verbose=False)
+    registry.setLevel(level)
     model = onnx.load(str(path))
     for key, value in metadata.items():
         model.metadata_props.add(key=key, value=value)
@@ -84,43 +100,71 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
     onnx.save(model, str(path))
 
 
+@torch.no_grad()
+def false_alarm_rate(model: Gated, ze: np.ndarray) -> float:
+    """The fraction of in-domain measurements ``ze`` (complex ``(n, n_freq)``) that
+    ``model`` flags as out of domain."""
+    out = model(torch.tensor(ze.real, dtype=torch.float32),
+                torch.tensor(ze.imag, dtype=torch.float32))
+    return float(1.0 - out[-2].float().mean())
+
+
+def domain_metadata(scene, false_alarm: float, n_fresh: int) -> dict:
+    """The trained domain as the exported metadata states it (JSON-ready)."""
+    outputs = {}
+    for name, r in scene.output_ranges().items():
+        outputs[name] = {"trained": [r.low, r.high], "in_domain": list(r.widened()),
+                         "physical": list(r.physical), "log": r.log}
+    return {"score": "squared whitened distance of the input features from the training "
+                     "mean, over its training quantile", "quantile": QUANTILE,
+            "false_alarm_fresh": false_alarm, "n_fresh": n_fresh, "outputs": outputs}
+
+
 def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     """Write ``model.onnx`` (decoder) and ``classical.onnx`` for the checkpoint's task into
-    ``out``; returns the paths."""
-    info = torch.load(str(checkpoint), map_location="cpu", weights_only=False).get("wtml")
-    if not info or not info.get("scene"):
-        raise ValueError(f"{checkpoint}: not a wtml checkpoint (no scene inside)")
-    scene = scene_from_dict(info["scene"])
-    task = scene.task
+    ``out``; returns the paths.
+
+    Raises:
+        CheckpointError: the checkpoint is missing, unreadable, unsafe or not wtml's.
+        ValueError: ``out`` is an existing file.
+    """
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: is a file; give a folder (e.g. export/<task>)")
+    module = load_decoder(checkpoint)
+    scene = scene_from_dict(module.scene)
+    task = scene.task
     out.mkdir(parents=True, exist_ok=True)
     freq = (scene.excitation.frequency_hz if task == "fluid"
             else np.asarray(scene.excitation.frequencies_hz))
+    uncertain = tuple(k for k, name in enumerate(scene.OUTPUTS) if name == "sigma")
+    decoder = Gated(module.net, module.gate, uncertain).eval()
+    if task == "fluid":
+        classical = ClassicalFluidNet(scene.calibrated_t(), scene.excitation.omega,
+                                      scene.sphere.radius)
+        label = "thesis closed form"
+    else:
+        from wtml.baselines.radial import PolynomialRadial
+
+        train = scene.simulate(20000, np.random.default_rng([scene.seed, 10**6]))
+        classical = PolynomialNet(PolynomialRadial("imag").fit(train["ze"], train["distance"]))
+        label = "polynomial 9 in Im Ze"  # fitted on 20000 fresh samples of the scene
+    fresh = scene.simulate(FRESH_SAMPLES, np.random.default_rng([scene.seed, 10**6 + 1]))["ze"]
+    domain = domain_metadata(scene, false_alarm_rate(decoder, fresh), FRESH_SAMPLES)
     meta = {
         "wtml_version": __version__,
         "task": task,
         "inputs": json.dumps(list(INPUTS)),
-        "outputs": json.dumps(list(OUTPUTS[task])),
-        "units": json.dumps(UNITS),
+        "outputs": json.dumps(list(scene.OUTPUTS)),
+        "units": json.dumps(scene.UNITS | {"ze_re": "ohm", "ze_im": "ohm"}),
         "frequency_hz": json.dumps(freq.tolist()),
-        "scene": json.dumps(info["scene"], sort_keys=True),
+        "scene": json.dumps(module.scene, sort_keys=True),
         "scene_hash": config_hash(scene),
+        "domain": json.dumps(domain),
     }
-    if task == "fluid":
-        net, _ = load_fluid_net(str(checkpoint))
-        classical = ClassicalFluidNet(scene.calibrated_t(), scene.excitation.omega,
-                                      scene.sphere.radius)
-        label = "classical"
-    else:
-        from wtml.baselines.radial import PolynomialRadial
-        from wtml.decoders.radial import load_radial_net
-
-        net, _ = load_radial_net(str(checkpoint))
-        train = scene.simulate(20000, np.random.default_rng([scene.seed, 10**6]))
-        classical = PolynomialNet(PolynomialRadial("imag").fit(train["ze"], train["distance"]))
-        label = "polynomial 9 in Im Ze"  # fitted on 20000 fresh samples of the scene
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
     n_freq = len(freq)
-    _export(net, n_freq, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"})
-    _export(classical, n_freq, paths["classical"], meta | {"kind": "classical", "label": label})
+    _export(decoder, n_freq, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"})
+    _export(Gated(classical, module.gate.inputs_only()).eval(), n_freq, paths["classical"],
+            meta | {"kind": "classical", "label": label})
     return paths

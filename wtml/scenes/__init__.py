@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from wtml.scenes.config import SceneError, config_hash, load_yaml, to_dict
+from wtml.scenes.config import SceneError, config_hash, load_yaml, to_dict, yaml_load
 from wtml.scenes.fluid import FluidScene
 from wtml.scenes.radial import RadialScene
 
@@ -15,7 +15,7 @@ def load_scene(path: str | Path) -> FluidScene | RadialScene:
     import yaml
 
     try:
-        task = (yaml.safe_load(Path(path).read_text()) or {}).get("task", "fluid")
+        task = (yaml_load(Path(path).read_text()) or {}).get("task", "fluid")
     except (OSError, yaml.YAMLError, AttributeError) as err:
         raise SceneError(f"{path}: cannot read a scene: {err}") from err
     if task not in SCENES:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 import typing
 from collections.abc import Mapping
 from pathlib import Path
@@ -20,6 +21,22 @@ import yaml
 
 class SceneError(ValueError):
     """A scene file with an unknown key, a missing key or a value out of range."""
+
+
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader, reading ``2.4e4`` and ``1e-3`` as numbers: YAML 1.1 wants a dot
+    and a signed exponent (``2.4e+4``) and would return the string ``"2.4e4"``."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
+
+
+def yaml_load(text: str) -> Any:
+    """Parse YAML safely (no Python objects), numbers in scientific notation included."""
+    return yaml.load(text, Loader=_Loader)  # a SafeLoader: plain types only
 
 
 def bounded(low: float, high: float, *, default: Any = dataclasses.MISSING) -> Any:
@@ -109,7 +126,7 @@ def load_yaml(cls: type, path: str | Path) -> Any:
     """Read a YAML file into dataclass ``cls``; errors name the file and the key path."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml_load(path.read_text())
     except (OSError, yaml.YAMLError) as err:
         raise SceneError(f"{path}: cannot read: {err}") from err
     try:

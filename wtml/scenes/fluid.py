@@ -17,9 +17,11 @@ Noise: complex Gaussian on Ze with relative std ``noise.ze_relative``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
+from wtml.interface import OutputRange
 from wtml.physics import cascade, tip_mass, ze_from_zm
 from wtml.physics.fluids import glycerol_water, water
 from wtml.physics.loads import stokes_sphere
@@ -123,6 +125,10 @@ class NuisanceSpec:
 class FluidScene:
     """A fluid-property scene (``configs/scenes/fluid.yaml``)."""
 
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("eta", "rho")
+    """What a fluid decoder returns, each ``(batch,)``."""
+    UNITS: ClassVar[dict[str, str]] = {"eta": "Pa*s", "rho": "kg/m^3"}
+
     name: str = "fluid"
     task: str = one_of("fluid", default="fluid")
     seed: int = bounded(0, 2**32 - 1, default=0)
@@ -139,6 +145,16 @@ class FluidScene:
         if self.shards > self.samples:
             raise SceneError(f"{path + '.' if path else ''}shards: {self.shards} shards for "
                              f"{self.samples} samples; must be <= samples")
+
+    def output_ranges(self) -> dict[str, OutputRange]:
+        """η and ρ over the scene's volume fractions and temperatures (a 41×41 grid of the
+        mixture law); physically, both are > 0. η is judged in log10 (it spans decades)."""
+        cv, temp = np.meshgrid(np.linspace(*self.fluid.volume_fraction, 41),
+                               np.linspace(*self.fluid.temperature_c, 41))
+        eta, rho = glycerol_water(cv.ravel(), temp.ravel())
+        positive = (0.0, float("inf"))
+        return {"eta": OutputRange(float(eta.min()), float(eta.max()), positive, log=True),
+                "rho": OutputRange(float(rho.min()), float(rho.max()), positive, margin=0.1)}
 
     def calibrated_t(self) -> np.ndarray:
         """The device's calibrated T (whisker and sphere) on the grid, ``(n_freq, 2, 2)``."""

@@ -17,9 +17,11 @@ thesis's three distances: ``contact.distances_um: [500, 1500, 2500]``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
+from wtml.interface import OutputRange
 from wtml.physics.beam_presets import PRESETS, build
 from wtml.scenes.config import SceneError, bounded, one_of
 from wtml.signals import complex_noise
@@ -65,6 +67,11 @@ class RadialNoise:
 class RadialScene:
     """A radial-location scene (``configs/scenes/radial.yaml``)."""
 
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("distance", "sigma")
+    """What a radial decoder returns, each ``(batch,)``: the contact's distance from the tip
+    and the decoder's own std of it (0 where it has none)."""
+    UNITS: ClassVar[dict[str, str]] = {"distance": "m", "sigma": "m"}
+
     name: str = "radial"
     task: str = one_of("radial", default="radial")
     seed: int = bounded(0, 2**32 - 1, default=0)
@@ -104,6 +111,12 @@ class RadialScene:
             top = 1e-6 * max(c.distances_um)
             return 0.0, min(1.2 * top, (top + self.whisker_length_m()) / 2)
         return 1e-6 * c.distance_um[0], 1e-6 * c.distance_um[1]
+
+    def output_ranges(self) -> dict[str, OutputRange]:
+        """The distance over :meth:`distance_range_m`, 2 % of its span beyond it still in
+        domain; physically, a contact lies on the whisker, 0 to its length from the tip."""
+        lo, hi = self.distance_range_m()
+        return {"distance": OutputRange(lo, hi, (0.0, self.whisker_length_m()), margin=0.02)}
 
     def transducer(self):
         """The preset's beam model (built once per call)."""

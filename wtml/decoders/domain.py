@@ -1,0 +1,130 @@
+"""The trained domain, carried inside every exported graph.
+
+A decoder answers only inside the domain it was trained on. :class:`DomainGate` holds that
+domain: the input statistics of the training data (mean and a whitening matrix of the task's
+input features) with a threshold at a stated quantile of the training data's own scores, and
+the trained range of each output (the scene's ranges, widened by a margin). Its score is the
+squared whitened distance of an input's features from the training mean, divided by that
+threshold: ``score <= 1`` for all but ``1 - quantile`` of the training data. :class:`Gated`
+wraps any exported net (decoder or classical path) with it, so the ONNX graph itself returns
+``in_domain`` and ``domain_score`` beside the task's outputs, and sets every predicted
+uncertainty to NaN out of domain (an uncertainty must not shrink where the net was never
+trained).
+
+A task declares only two things: the feature layer (``DecoderModule.domain_features``) and
+its outputs' ranges (``scene.output_ranges()``, ``wtml.interface.OutputRange``). The gate
+is fitted in ``DecoderModule.setup`` from the training split and saved with the checkpoint.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+QUANTILE = 0.999
+"""The training data's score quantile that sets the threshold (0.1 % of training inputs
+score above 1)."""
+
+
+class ZeParts(nn.Module):
+    """The plainest input features: ``(Re Ze, Im Ze)`` side by side, ``(batch, 2 n_freq)``."""
+
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
+        return torch.cat([ze_re, ze_im], -1)
+
+
+class DomainGate(nn.Module):
+    """Whitened distance of input features from the training data, and output ranges.
+
+    Args:
+        features: ``(ze_re, ze_im) -> (batch, n_feat)`` float32 (part of the exported graph).
+        n_feat: number of features.
+        ranges: trained range of each output that is checked, by output index.
+
+    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` -> ``score (batch,)`` (``<= 1`` inside).
+    """
+
+    def __init__(self, features: nn.Module, n_feat: int,
+                 ranges: dict[int, tuple[float, float]] | None = None) -> None:
+        super().__init__()
+        self.features = features
+        self.register_buffer("mean", torch.zeros(n_feat))
+        self.register_buffer("scale", torch.ones(n_feat))
+        self.register_buffer("whiten", torch.eye(n_feat))
+        self.register_buffer("threshold", torch.tensor(1.0))
+        self.ranges = dict(ranges or {})
+        lo = [self.ranges[k][0] for k in sorted(self.ranges)]
+        hi = [self.ranges[k][1] for k in sorted(self.ranges)]
+        self.register_buffer("low", torch.tensor(lo, dtype=torch.float32))
+        self.register_buffer("high", torch.tensor(hi, dtype=torch.float32))
+
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
+        z = ((self.features(ze_re, ze_im) - self.mean) / self.scale) @ self.whiten
+        return (z * z).sum(-1) / self.threshold
+
+    def outputs_in_range(self, outputs: tuple[torch.Tensor, ...]) -> torch.Tensor:
+        """Whether every checked output lies in its trained range, ``(batch,)`` bool."""
+        ok = torch.ones_like(outputs[0], dtype=torch.bool)
+        for j, k in enumerate(sorted(self.ranges)):
+            ok = ok & (outputs[k] >= self.low[j]) & (outputs[k] <= self.high[j])
+        return ok
+
+    def inputs_only(self) -> DomainGate:
+        """The same input statistics without output ranges (for a graph whose outputs have
+        no trained range, such as the classical path)."""
+        gate = DomainGate(self.features, len(self.mean))
+        for name in ("mean", "scale", "whiten", "threshold"):
+            getattr(gate, name).copy_(getattr(self, name))
+        return gate
+
+    @torch.no_grad()
+    def fit(self, ze_re: torch.Tensor, ze_im: torch.Tensor, quantile: float = QUANTILE,
+            floor: float = 1e-9) -> DomainGate:
+        """Fit mean, scale and whitening (float64) to training inputs, then set the threshold
+        at ``quantile`` of their scores as this float32 gate computes them.
+
+        Whitening: eigenvectors of the standardised features' covariance, each scaled by
+        ``1/sqrt(max(λ, floor·λ_max))`` (the floor keeps directions that the training data
+        never vary in from dividing by zero, and float32 rounding from mattering there)."""
+        if not 0.5 <= quantile < 1:
+            raise ValueError(f"quantile must be in [0.5, 1), got {quantile}")
+        x = self.features(ze_re, ze_im).double()
+        mean, scale = x.mean(0), x.std(0).clamp_min(1e-30)
+        lam, vec = torch.linalg.eigh(torch.cov(((x - mean) / scale).T))
+        lam = lam.clamp_min(floor * float(lam.max()))
+        self.mean.copy_(mean.float())
+        self.scale.copy_(scale.float())
+        self.whiten.copy_((vec / lam.sqrt()).float())
+        self.threshold.fill_(1.0)
+        scores = torch.cat([self(ze_re[s:s + 65536], ze_im[s:s + 65536])
+                            for s in range(0, len(ze_re), 65536)])
+        self.threshold.fill_(float(torch.quantile(scores.double(), quantile)))
+        return self
+
+
+class Gated(nn.Module):
+    """A net with its domain: ``(ze_re, ze_im) -> (*outputs, in_domain, domain_score)``.
+
+    ``in_domain`` is ``domain_score <= 1`` and, for the outputs the gate checks, the answer
+    inside its trained range; the outputs at ``uncertain`` (indices) become NaN where it is
+    false.
+
+    Args:
+        net: the exported net, returning a tuple of ``(batch,)`` tensors.
+        gate: its fitted :class:`DomainGate`.
+        uncertain: indices of the outputs that are predicted uncertainties.
+    """
+
+    def __init__(self, net: nn.Module, gate: DomainGate, uncertain: tuple[int, ...] = ()
+                 ) -> None:
+        super().__init__()
+        self.net, self.gate, self.uncertain = net, gate, tuple(uncertain)
+
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        outputs = tuple(self.net(ze_re, ze_im))
+        score = self.gate(ze_re, ze_im)
+        inside = (score <= 1.0) & self.gate.outputs_in_range(outputs)
+        nan = torch.full_like(outputs[0], float("nan"))
+        outputs = tuple(torch.where(inside, y, nan) if k in self.uncertain else y
+                        for k, y in enumerate(outputs))
+        return (*outputs, inside, score)

@@ -217,8 +217,8 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
             f"converged physics inversion {1e6 * inv['rmse']:.2f} µm at "
             f"{radial['inversion_latency_s'] / radial['ours_onnx_latency_s']:.0f}× the latency",
             f"  in-domain test rows flagged: {100 * radial['false_alarm']:.2f} %",
-            "  report runs/radial/bench/report.md, plots runs/radial/bench/error_vs_latency.png, "
-            "error_vs_d.png",
+            "  report runs/radial/bench/report.md, plots runs/radial/bench/error_vs_latency.png "
+            "and runs/radial/bench/error_vs_d.png",
             f"  time: {stages.line('radial')}"]
     lines.append(f"total: {duration(time.perf_counter() - stages.start)}")
     return "\n".join(lines)

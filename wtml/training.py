@@ -122,6 +122,18 @@ class WtmlCLI(LightningCLI):
         return self._instantiate_trainer({**config, **kwargs}, callbacks)
 
 
+def _our_error(err: BaseException) -> BaseException | None:
+    """The wtml error behind ``err`` (jsonargparse wraps what a class raises when it is
+    instantiated), or None when it is none of ours."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, ConfigError | DatasetError | SceneError | CheckpointError):
+            return err
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return None
+
+
 def cli_main(args: list[str] | None = None, run: bool = True) -> WtmlCLI:
     """Run the CLI with wtml's trainer defaults; ``args`` as on the command line.
 
@@ -152,8 +164,11 @@ def cli_main(args: list[str] | None = None, run: bool = True) -> WtmlCLI:
                                                       r"not empty")
             return WtmlCLI(subclass_mode_model=True, subclass_mode_data=True,
                            trainer_defaults=trainer_defaults, args=args, run=run)
-    except (ConfigError, DatasetError, SceneError, CheckpointError) as err:
-        print(f"train.py: error: {err}", file=sys.stderr)
+    except ValueError as err:
+        ours = _our_error(err)
+        if ours is None:
+            raise
+        print(f"train.py: error: {ours}", file=sys.stderr)
         raise SystemExit(2) from None
     finally:
         sys.argv = argv

@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import socket
 import sys
 from pathlib import Path
@@ -64,11 +65,11 @@ def clean_orphans(out: Path) -> list[Path]:
     shard write): those of this host whose process is gone. Files of a live writer (a
     parallel ``--shard`` job) and of other hosts sharing the folder are left alone.
     Returns the removed paths."""
-    host, removed = socket.gethostname(), []
-    for tmp in out.glob(".*.tmp"):
-        parts = tmp.name.rsplit(".", 3)  # [".name", host, pid, "tmp"]
-        if len(parts) == 4 and parts[1] == host and parts[2].isdigit() \
-                and not _pid_alive(int(parts[2])):
+    mine = re.compile(rf"^\..+\.{re.escape(socket.gethostname())}\.(\d+)\.tmp$")
+    removed = []
+    for tmp in out.iterdir():
+        match = mine.match(tmp.name)
+        if match and not _pid_alive(int(match[1])):
             tmp.unlink(missing_ok=True)
             removed.append(tmp)
     return removed

@@ -1,11 +1,15 @@
 """The trained domain, carried inside every exported graph.
 
 A decoder answers only inside the domain it was trained on. :class:`DomainGate` holds that
-domain: the input statistics of the training data (mean and a whitening matrix of the task's
-input features) with a threshold at a stated quantile of the training data's own scores, and
-the trained range of each output (the scene's ranges, widened by a margin). Its score is the
-squared whitened distance of an input's features from the training mean, divided by that
-threshold: ``score <= 1`` for all but ``1 - quantile`` of the training data. :class:`Gated`
+domain: the input statistics of the training data (mean, a whitening matrix and the range of
+each of the task's input features), a threshold at a stated quantile of the training data's
+own scores, and the trained range of each output (the scene's ranges, widened by a margin).
+Its score is the larger of two: the squared whitened distance of an input's features from
+the training mean over that threshold (an ellipsoid: it catches inputs off the data's
+manifold), and how far the input leaves the box of the training features, in units of a 5 %
+margin of each feature's span (it catches an extrapolation along the manifold, such as a
+viscosity a decade below the range, which the ellipsoid's long axis can hold). ``score <= 1``
+inside: for all but about ``1 - quantile`` of the training data. :class:`Gated`
 wraps any exported net (decoder or classical path) with it, so the ONNX graph itself returns
 ``in_domain`` and ``domain_score`` beside the task's outputs, and sets every predicted
 uncertainty to NaN out of domain (an uncertainty must not shrink where the net was never
@@ -52,6 +56,8 @@ class DomainGate(nn.Module):
         self.register_buffer("scale", torch.ones(n_feat))
         self.register_buffer("whiten", torch.eye(n_feat))
         self.register_buffer("threshold", torch.tensor(1.0))
+        self.register_buffer("box_low", torch.full((n_feat,), -float("inf")))
+        self.register_buffer("box_margin", torch.full((n_feat,), float("inf")))
         self.ranges = dict(ranges or {})
         lo = [self.ranges[k][0] for k in sorted(self.ranges)]
         hi = [self.ranges[k][1] for k in sorted(self.ranges)]
@@ -59,8 +65,14 @@ class DomainGate(nn.Module):
         self.register_buffer("high", torch.tensor(hi, dtype=torch.float32))
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
-        z = ((self.features(ze_re, ze_im) - self.mean) / self.scale) @ self.whiten
-        return (z * z).sum(-1) / self.threshold
+        x = self.features(ze_re, ze_im)
+        z = ((x - self.mean) / self.scale) @ self.whiten
+        # beyond the box [low, high]: (low - x) or (x - high), over the margin; high is low
+        # plus the span, and the span is 20 margins
+        below = (self.box_low - x) / self.box_margin
+        above = (x - self.box_low) / self.box_margin - 20.0
+        box = torch.maximum(below, above).amax(-1)
+        return torch.maximum((z * z).sum(-1) / self.threshold, box)
 
     def outputs_in_range(self, outputs: tuple[torch.Tensor, ...]) -> torch.Tensor:
         """Whether every checked output lies in its trained range, ``(batch,)`` bool."""
@@ -73,7 +85,7 @@ class DomainGate(nn.Module):
         """The same input statistics without output ranges (for a graph whose outputs have
         no trained range, such as the classical path)."""
         gate = DomainGate(self.features, len(self.mean))
-        for name in ("mean", "scale", "whiten", "threshold"):
+        for name in ("mean", "scale", "whiten", "threshold", "box_low", "box_margin"):
             getattr(gate, name).copy_(getattr(self, name))
         return gate
 
@@ -96,6 +108,9 @@ class DomainGate(nn.Module):
         self.scale.copy_(scale.float())
         self.whiten.copy_((vec / lam.sqrt()).float())
         self.threshold.fill_(1.0)
+        low, high = x.min(0).values, x.max(0).values
+        self.box_low.copy_(low.float())
+        self.box_margin.copy_(((high - low) / 20).clamp_min(1e-30).float())  # 5 % of the span
         scores = torch.cat([self(ze_re[s:s + 65536], ze_im[s:s + 65536])
                             for s in range(0, len(ze_re), 65536)])
         self.threshold.fill_(float(torch.quantile(scores.double(), quantile)))

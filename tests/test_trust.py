@@ -117,7 +117,8 @@ def radial_domain():
 
 
 def _out_of_domain_variants(ze: np.ndarray) -> dict[str, np.ndarray]:
-    return {"Ze x 1e6": ze * 1e6, "Ze x 1e-3": ze * 1e-3, "Re Ze x 1.5": 1.5 * ze.real + 1j * ze.imag,
+    return {"Ze x 1e6": ze * 1e6, "Ze x 1e-3": ze * 1e-3,
+            "Re Ze x 1.5": 1.5 * ze.real + 1j * ze.imag,
             "Re Ze negated": -ze.real + 1j * ze.imag, "Im Ze negated": ze.conj()}
 
 
@@ -448,7 +449,7 @@ def test_the_main_job_summary_states_targets_times_and_places():
         assert needle in text, needle
 
 
-# ---------------------------------------------------------------- 5. numbers that mean what they say
+# ---------------------------------------------------------------- 5. numbers that mean it
 
 
 def test_bound_rows_are_percentiles_of_pooled_errors():
@@ -467,8 +468,9 @@ def test_bayes_likelihood_is_the_dense_gaussian():
     """The Woodbury form with the calibration error integrated out equals the complex
     Gaussian log-density with the full covariance D + c² B Bᴴ, up to a constant per
     measurement, on a grid around each measurement's truth (where the posterior has its
-    mass), to 1e-5 (measured: 3e-6). Far from it (log-likelihoods ~ -4e4, no weight), the misfit lies almost wholly
-    along the calibration error's directions and the Woodbury form keeps ~1e-6 relative."""
+    mass), to 1e-5 (measured: 3e-6). Far from it (log-likelihoods ~ -4e4, no weight), the
+    misfit lies almost wholly along the calibration error's directions and the Woodbury form
+    keeps ~1e-6 relative."""
     c2 = FLUID_SMALL.nuisance.calibration_error ** 2
     data = FLUID_SMALL.simulate(2, np.random.default_rng(0))
     for n in range(2):

@@ -43,7 +43,8 @@ class Stages:
     def end(self) -> None:
         if self._stage:
             spent = time.perf_counter() - self._t0
-            self.times.setdefault(self._slice, {})[self._stage] = spent
+            times = self.times.setdefault(self._slice, {})
+            times[self._stage] = times.get(self._stage, 0.0) + spent  # generate: two datasets
             self._stage = ""
 
     def line(self, slice_: str) -> str:

@@ -174,13 +174,14 @@ def generate(scene: FluidScene, out: str | Path, *, shards: int | None = None,
     sizes = shard_sizes(scene.samples, n_shards)
     todo = [shard] if shard is not None else range(n_shards)
     bar = tqdm(todo, desc=f"generate {out.name}", unit="shard", disable=not progress,
-               file=sys.stderr, dynamic_ncols=True)
+               file=sys.stderr, dynamic_ncols=True,
+               mininterval=0.1 if sys.stderr.isatty() else 10.0)  # a log: few updates
     made = 0
     for done, k in enumerate(bar, start=1):
         if not _shard_ok(out, k):
             _write_shard(scene, out, k, sizes[k])
             made += 1
-        bar.set_postfix_str(f"{made} made, {done - made} kept")
+        bar.set_postfix_str(f"{made} made, {done - made} kept", refresh=False)
     return _write_manifest(scene, out, sizes)
 
 

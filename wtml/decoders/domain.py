@@ -52,12 +52,12 @@ class DomainGate(nn.Module):
                  ranges: dict[int, tuple[float, float]] | None = None) -> None:
         super().__init__()
         self.features = features
+        # folded for a device (few ONNX ops): ellipsoid |(x - mean) W|² with the scales and
+        # the threshold inside W; box max|x a + b| - 10
         self.register_buffer("mean", torch.zeros(n_feat))
-        self.register_buffer("scale", torch.ones(n_feat))
-        self.register_buffer("whiten", torch.eye(n_feat))
-        self.register_buffer("threshold", torch.tensor(1.0))
-        self.register_buffer("box_low", torch.full((n_feat,), -float("inf")))
-        self.register_buffer("box_margin", torch.full((n_feat,), float("inf")))
+        self.register_buffer("whiten", torch.zeros(n_feat, n_feat))
+        self.register_buffer("box_a", torch.zeros(n_feat))
+        self.register_buffer("box_b", torch.zeros(n_feat))
         self.ranges = dict(ranges or {})
         lo = [self.ranges[k][0] for k in sorted(self.ranges)]
         hi = [self.ranges[k][1] for k in sorted(self.ranges)]
@@ -66,54 +66,55 @@ class DomainGate(nn.Module):
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
         x = self.features(ze_re, ze_im)
-        z = ((x - self.mean) / self.scale) @ self.whiten
-        # beyond the box [low, high]: (low - x) or (x - high), over the margin; high is low
-        # plus the span, and the span is 20 margins
-        below = (self.box_low - x) / self.box_margin
-        above = (x - self.box_low) / self.box_margin - 20.0
-        box = torch.maximum(below, above).amax(-1)
-        return torch.maximum((z * z).sum(-1) / self.threshold, box)
+        z = (x - self.mean) @ self.whiten
+        # the box: |(x - low)/m - 10| - 10 is 0 on [low, low + 20 m] = the training span's
+        # edges, 1 one margin m (5 % of the span) beyond either edge
+        box = torch.abs(x * self.box_a + self.box_b).amax(-1) - 10.0
+        return torch.maximum((z * z).sum(-1), box)
 
     def outputs_in_range(self, outputs: tuple[torch.Tensor, ...]) -> torch.Tensor:
-        """Whether every checked output lies in its trained range, ``(batch,)`` bool."""
-        ok = torch.ones_like(outputs[0], dtype=torch.bool)
+        """Whether every checked output lies in its trained range, ``(batch,)`` bool (all
+        true when none is checked)."""
+        ok = None
         for j, k in enumerate(sorted(self.ranges)):
-            ok = ok & (outputs[k] >= self.low[j]) & (outputs[k] <= self.high[j])
-        return ok
+            inside = (outputs[k] >= self.low[j]) & (outputs[k] <= self.high[j])
+            ok = inside if ok is None else ok & inside
+        return torch.ones_like(outputs[0], dtype=torch.bool) if ok is None else ok
 
     def inputs_only(self) -> DomainGate:
         """The same input statistics without output ranges (for a graph whose outputs have
         no trained range, such as the classical path)."""
         gate = DomainGate(self.features, len(self.mean))
-        for name in ("mean", "scale", "whiten", "threshold", "box_low", "box_margin"):
+        for name in ("mean", "whiten", "box_a", "box_b"):
             getattr(gate, name).copy_(getattr(self, name))
         return gate
 
     @torch.no_grad()
     def fit(self, ze_re: torch.Tensor, ze_im: torch.Tensor, quantile: float = QUANTILE,
             floor: float = 1e-9) -> DomainGate:
-        """Fit mean, scale and whitening (float64) to training inputs, then set the threshold
+        """Fit the whitening (float64) and the box to training inputs, then set the threshold
         at ``quantile`` of their scores as this float32 gate computes them.
 
-        Whitening: eigenvectors of the standardised features' covariance, each scaled by
+        Whitening: the standardised features' covariance eigenvectors, each scaled by
         ``1/sqrt(max(λ, floor·λ_max))`` (the floor keeps directions that the training data
         never vary in from dividing by zero, and float32 rounding from mattering there)."""
         if not 0.5 <= quantile < 1:
             raise ValueError(f"quantile must be in [0.5, 1), got {quantile}")
-        x = self.features(ze_re, ze_im).double()
+        x = torch.cat([self.features(ze_re[s:s + 65536], ze_im[s:s + 65536])
+                       for s in range(0, len(ze_re), 65536)]).double()
         mean, scale = x.mean(0), x.std(0).clamp_min(1e-30)
         lam, vec = torch.linalg.eigh(torch.cov(((x - mean) / scale).T))
-        lam = lam.clamp_min(floor * float(lam.max()))
-        self.mean.copy_(mean.float())
-        self.scale.copy_(scale.float())
-        self.whiten.copy_((vec / lam.sqrt()).float())
-        self.threshold.fill_(1.0)
+        whiten = (vec / lam.clamp_min(floor * float(lam.max())).sqrt()) / scale[:, None]
         low, high = x.min(0).values, x.max(0).values
-        self.box_low.copy_(low.float())
-        self.box_margin.copy_(((high - low) / 20).clamp_min(1e-30).float())  # 5 % of the span
+        margin = ((high - low) / 20).clamp_min(1e-30)  # 5 % of each feature's span
+        self.box_a.copy_((1 / margin).float())
+        self.box_b.copy_((-low / margin - 10).float())
+        self.mean.copy_(mean.float())
+        self.whiten.copy_(whiten.float())
         scores = torch.cat([self(ze_re[s:s + 65536], ze_im[s:s + 65536])
                             for s in range(0, len(ze_re), 65536)])
-        self.threshold.fill_(float(torch.quantile(scores.double(), quantile)))
+        threshold = float(torch.quantile(scores.double(), quantile))
+        self.whiten.copy_((whiten / threshold**0.5).float())  # score 1 at the quantile
         return self
 
 

@@ -85,9 +85,12 @@ class FluidDecoder(DecoderModule):
         return net
 
     def domain_features(self, scene) -> tuple[nn.Module, int]:
-        """The decoder's own features: signed-log Zm through the calibrated T."""
-        return SignedLogZm(scene.calibrated_t(), 0.01 * scene.reference_zm()), \
-            2 * scene.excitation.n_freq
+        """The decoder's own feature layer (signed-log Zm through the calibrated T), the same
+        module, so the exported graph computes Zm once for both (a new one before the net
+        exists)."""
+        features = (self.net.features if self.net is not None
+                    else SignedLogZm(scene.calibrated_t(), 0.01 * scene.reference_zm()))
+        return features, 2 * scene.excitation.n_freq
 
     def net_shape(self) -> dict:
         return {"n_freq": self.net.mlp.n_in // 2}

@@ -254,7 +254,7 @@ def domain_warning(rows: list[dict]) -> str | None:
         parts.append(f"{out} of {len(rows)} rows outside the trained domain (in_domain = 0: "
                      "the decoder's answer is an extrapolation)")
     if odd:
-        parts.append(f"{odd} rows with a physically impossible answer")
+        parts.append(f"{odd} row{'s' * (odd > 1)} with a physically impossible answer")
     return "warning: " + "; ".join(parts) + "; see the flags column"
 
 

@@ -130,8 +130,8 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
         f"(float64): max relative error η {exact['eta']:.1e}, ρ {exact['rho']:.1e}.",
         "The Cramér–Rao row is the bound for this noise and calibration-error model without the "
         "prior (wtml/bench/bounds.py), as percentiles of errors drawn from each sample's bound "
-        f"({BOUND_DRAWS} draws each), the way the methods' rows are made; the prior ties ρ to η, so it is "
-        "no floor for an estimator that knows the prior (the Bayes row is).",
+        f"({BOUND_DRAWS} draws each), the way the methods' rows are made; the prior ties ρ to η, "
+        "so it is no floor for an estimator that knows the prior (the Bayes row is).",
         f"Domain gate: {100 * false_alarm:.2f} % of this in-domain test set flagged out of "
         f"domain by decoder ONNX (stated rate {100 * (1 - QUANTILE):.1f} %).",
         "The Bayes row is the posterior mean, which minimises the mean squared error; a method "

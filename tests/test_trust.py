@@ -122,6 +122,15 @@ def _out_of_domain_variants(ze: np.ndarray) -> dict[str, np.ndarray]:
             "Re Ze negated": -ze.real + 1j * ze.imag, "Im Ze negated": ze.conj()}
 
 
+def _check_held_out_and_variants(scene, gate: DomainGate, n: int) -> None:
+    """At most 0.3 % of ``n`` held-out in-domain inputs flagged; every variant of 500 of
+    them from :func:`_out_of_domain_variants` flagged."""
+    held = scene.simulate(n, np.random.default_rng(2))["ze"]
+    assert np.mean(_score(gate, held) > 1) <= 0.003
+    for name, ze in _out_of_domain_variants(held[:500]).items():
+        assert np.all(_score(gate, ze) > 1), name
+
+
 def test_fluid_domain_false_alarms_and_detections(fluid_domain):
     """Held-out in-domain inputs: flagged at about the stated rate (0.1 %; <= 0.3 % allowed
     for 3000 samples, a binomial tail of 1e-3). Every scaled or negated input, and every
@@ -130,10 +139,7 @@ def test_fluid_domain_false_alarms_and_detections(fluid_domain):
     The lower decade is an extrapolation along the data's manifold (Zm moves by 8 stds of
     the calibration offset, the way it moves inside the range), which the box catches."""
     scene, gate = fluid_domain
-    held = scene.simulate(3000, np.random.default_rng(2))["ze"]
-    assert np.mean(_score(gate, held) > 1) <= 0.003
-    for name, ze in _out_of_domain_variants(held[:500]).items():
-        assert np.all(_score(gate, ze) > 1), name
+    _check_held_out_and_variants(scene, gate, 3000)
     rng = np.random.default_rng(3)
     for eta, rho in ((np.geomspace(5.0, 23.0, 300), 1260.0),
                      (np.geomspace(6.5e-5, 2e-4, 300), 992.0)):
@@ -146,10 +152,7 @@ def test_radial_domain_false_alarms_and_detections(radial_domain):
     """Held-out in-domain inputs: <= 0.3 % flagged (stated 0.1 %). Every scaled or negated
     input and every contact 100 µm or more past the trained 3200 µm: flagged."""
     scene, gate = radial_domain
-    held = scene.simulate(20000, np.random.default_rng(2))["ze"]
-    assert np.mean(_score(gate, held) > 1) <= 0.003
-    for name, ze in _out_of_domain_variants(held[:500]).items():
-        assert np.all(_score(gate, ze) > 1), name
+    _check_held_out_and_variants(scene, gate, 20000)
     rng = np.random.default_rng(3)
     d = 1e-6 * np.linspace(3300, 4500, 300)
     k = np.exp(rng.uniform(*np.log(scene.contact.stiffness), 300))

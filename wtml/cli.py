@@ -116,6 +116,17 @@ class _Help(argparse.RawDescriptionHelpFormatter):
         return f"{text} (default: %(default)s)"
 
 
+def _bench_options(parser: argparse.ArgumentParser, task: str) -> None:
+    """The options every ``wtml bench TASK`` has, with the pipeline's folders as defaults."""
+    parser.add_argument("--data", default=f"datasets/{task}", help="dataset folder")
+    parser.add_argument("--checkpoint", default=f"runs/{task}/checkpoints/last.ckpt",
+                        help="the decoder's checkpoint")
+    parser.add_argument("--model", default=f"export/{task}", help="the export folder")
+    parser.add_argument("--out", default=f"runs/{task}/bench",
+                        help="report.md, summary.json and plots go here")
+    parser.add_argument("--threads", type=int, default=2, help="torch and onnxruntime threads")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from wtml.runtime.predict import INPUT_FORMATS
 
@@ -189,30 +200,20 @@ def build_parser() -> argparse.ArgumentParser:
                            description="Every fluid method on the test shard: accuracy by "
                                        "viscosity decade, the Bayes posterior mean and the "
                                        "Cramér-Rao bound, latency and throughput.")
-    bf.add_argument("--data", default="datasets/fluid", help="dataset folder")
-    bf.add_argument("--checkpoint", default="runs/fluid/checkpoints/last.ckpt",
-                    help="the decoder's checkpoint")
-    bf.add_argument("--model", default="export/fluid", help="the export folder")
-    bf.add_argument("--out", default="runs/fluid/bench", help="report.md and plots go here")
-    bf.add_argument("--threads", type=int, default=2, help="torch and onnxruntime threads")
+    _bench_options(bf, "fluid")
     bf.set_defaults(func=_bench)
 
     br = be_sub.add_parser("radial", help="the radial slice", formatter_class=_Help,
                            description="Every radial method on the test shard: RMSE by range "
                                        "of d against the Cramér-Rao bound, latency and "
                                        "throughput, invalid contacts.")
-    br.add_argument("--data", default="datasets/radial", help="dataset folder")
+    _bench_options(br, "radial")
     br.add_argument("--invalid", default="datasets/radial_invalid",
                     help="the invalid-contact dataset (thesis §5.5.4)")
-    br.add_argument("--checkpoint", default="runs/radial/checkpoints/last.ckpt",
-                    help="our decoder's checkpoint")
     br.add_argument("--thesis-checkpoint", default="runs/radial_thesis/checkpoints/last.ckpt",
                     help="the thesis decoder's checkpoint")
-    br.add_argument("--model", default="export/radial", help="our export folder")
     br.add_argument("--thesis-model", default="export/radial_thesis",
                     help="the thesis decoder's export folder")
-    br.add_argument("--out", default="runs/radial/bench", help="report.md and plots go here")
-    br.add_argument("--threads", type=int, default=2, help="torch and onnxruntime threads")
     br.add_argument("--max-samples", type=int, default=10000,
                     help="benchmark the first this many test samples")
     br.set_defaults(func=_bench_radial)

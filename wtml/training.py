@@ -89,10 +89,14 @@ class WtmlCLI(LightningCLI):
         epochs = trainer.get("max_epochs")
         if epochs is not None and not 1 <= epochs <= 10**6:
             raise ConfigError(f"trainer.max_epochs must be in [1, 1000000], got {epochs}")
+        trainer["default_root_dir"] = str(trainer.get("default_root_dir") or DEFAULT_ROOT)
+
+    def after_instantiate_classes(self) -> None:
+        """The run folder's guard, once every value has passed its own check."""
+        config = self.config.get(str(self.subcommand), self.config)
         if self.subcommand != "fit":
             return
-        root = Path(trainer.get("default_root_dir") or DEFAULT_ROOT)
-        trainer["default_root_dir"] = str(root)
+        root = Path(config["trainer"]["default_root_dir"])
         last = root / "checkpoints" / "last.ckpt"
         if not last.exists() or config.get("ckpt_path"):
             return

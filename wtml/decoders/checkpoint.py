@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import pickle
+import re
 from pathlib import Path
 
 import torch
@@ -24,10 +25,11 @@ def _load_bytes(data: bytes, path: Path) -> dict:
     try:
         state = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as err:
-        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        found = re.search(r"GLOBAL (\S+)", str(err))
+        reason = f"it would call {found[1]}" if found else "objects that are not plain data"
         raise CheckpointError(
             f"{path}: refused: it holds objects other than tensors and plain types, which "
-            f"could run code when loaded ({reason[:160]}); wtml loads checkpoints with "
+            f"could run code when loaded ({reason}); wtml loads checkpoints with "
             "weights_only=True only. Use a checkpoint written by `python train.py fit`") from None
     except Exception as err:  # a damaged archive fails in many ways (zip, storage, unpickler)
         raise CheckpointError(f"{path}: not a readable checkpoint (truncated or another kind "

@@ -80,8 +80,11 @@ def checkpoint_task(path: str | Path) -> str:
 def load_module(cls, path: str | Path, task: str):
     """A LightningModule of class ``cls`` from a checked checkpoint of ``task`` (CPU, eval),
     loaded with ``weights_only=True``."""
-    path = Path(path)
-    _, data = _checked(path, task)
+    return _module(cls, _checked(Path(path), task)[1])
+
+
+def _module(cls, data: bytes):
+    """``cls`` loaded from checked checkpoint bytes (``weights_only=True``), CPU, eval."""
     module = cls.load_from_checkpoint(io.BytesIO(data), map_location="cpu", weights_only=True)
     return module.eval()
 
@@ -93,8 +96,9 @@ def load_decoder(path: str | Path):
     from wtml.decoders.radial import RadialDecoder
 
     classes = {"fluid": FluidDecoder, "radial": RadialDecoder}
-    task = checkpoint_task(path)
+    state, data = _checked(Path(path), None)
+    task = state["wtml"]["scene"].get("task", "fluid")
     if task not in classes:
         raise CheckpointError(f"{path}: a checkpoint of the {task!r} task, which this version "
                               f"of wtml cannot load (tasks: {sorted(classes)})")
-    return load_module(classes[task], path, task)
+    return _module(classes[task], data)

@@ -115,7 +115,7 @@ class WtmlCLI(LightningCLI):
 
     def instantiate_trainer(self, **kwargs):
         config = self._get(self.config_init, "trainer", default={})
-        root = Path(config.get("default_root_dir") or DEFAULT_ROOT)
+        root = Path(config["default_root_dir"])  # set by before_instantiate_classes
         if config.get("logger") in (None, True):
             kwargs["logger"] = CSVLogger(save_dir=root, name="logs")
         callbacks = [self._get(self.config_init, c)

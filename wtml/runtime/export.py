@@ -115,8 +115,10 @@ def domain_metadata(scene, false_alarm: float, n_fresh: int) -> dict:
     for name, r in scene.output_ranges().items():
         outputs[name] = {"trained": [r.low, r.high], "in_domain": list(r.widened()),
                          "physical": list(r.physical), "log": r.log}
-    return {"score": "squared whitened distance of the input features from the training "
-                     "mean, over its training quantile", "quantile": QUANTILE,
+    return {"score": "the larger of the squared whitened distance of the input features from "
+                     "the training mean over its training quantile, and the distance outside "
+                     "the training features' box in units of 5 % of each span; <= 1 inside",
+            "quantile": QUANTILE,
             "false_alarm_fresh": false_alarm, "n_fresh": n_fresh, "outputs": outputs}
 
 

@@ -74,7 +74,6 @@ class OnnxModel:
         if any(k not in self.metadata for k in need):
             raise InputError(f"{path}: not a wtml model of this version (its metadata lacks "
                              f"{[k for k in need if k not in self.metadata]}); {redo}")
-        self.path = path
         self.task = self.metadata["task"]
         self.frequency_hz = np.array(json.loads(self.metadata["frequency_hz"]))
         self.outputs = json.loads(self.metadata["outputs"])

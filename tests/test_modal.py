@@ -1,0 +1,111 @@
+"""The time-domain transducer: tied to the two-port path, to the beam, and to closed forms."""
+
+import numpy as np
+import pytest
+
+from wtml.physics import ze_from_zm
+from wtml.physics.beam_presets import build
+from wtml.physics.modal import LinearTipLoad, ModalTransducer, Wall, convergence_table
+
+W_H = 2 * np.pi * 420.0
+
+
+@pytest.fixture(scope="module")
+def micro():
+    return ModalTransducer.from_beam(build("micro"), 3, reference_hz=420.0)
+
+
+def tone_phasors(model, load, fs, periods=21, settle=0.8):
+    """Phasors of i and u at 420 Hz under 20 mV, over whole periods after ``settle`` s
+    (20 ring times of the 400 Hz mode, so the transient is below 1e-8)."""
+    dt = 1 / fs
+    t = np.arange(int(round((settle + periods / 420) * fs))) * dt
+    e, de = 0.02 * np.cos(W_H * t), -0.02 * W_H * np.sin(W_H * t)
+    out = model.simulate(e, dt, load, drive_rate=de, dtype=np.float64)
+    n = int(round(periods / 420 * fs))
+    keep = np.arange(len(t))[-n:]
+    ref = np.exp(-1j * W_H * t[keep])
+    return (2 * np.mean(out["i"][:, keep] * ref, -1), 2 * np.mean(out["u"][:, keep] * ref, -1))
+
+
+def test_steady_tone_through_a_linear_load_matches_the_two_port_answer(micro):
+    """i(t) and u(t) of a 420 Hz tone through a spring-damper at the tip equal the phasors
+    of ``Ze = (t11 Zm + t12)/(t21 Zm + t22)`` of the same modal T: second order in the step,
+    and to ~1e-6 after one Richardson step."""
+    load = LinearTipLoad([5.0, 0.5], [2e-4, 0.0])
+    t = micro.transduction_matrix(np.array([W_H]))[0]
+    zm = load.impedance(np.array([W_H]))[:, 0]
+    i_ref = 0.02 / ze_from_zm(t, zm)
+    u_ref = (-t[1, 0] * 0.02 + t[0, 0] * i_ref) / (1j * W_H)
+    errs, phasors = [], []
+    for fs in (40960, 81920, 163840):
+        i, u = tone_phasors(micro, load, fs)
+        phasors.append((i, u))
+        errs.append(np.max(np.abs(i / i_ref - 1)))
+    order = np.log2(errs[0] / errs[1]), np.log2(errs[1] / errs[2])
+    assert min(order) > 1.8, (errs, order)
+    i_r = (4 * phasors[2][0] - phasors[1][0]) / 3
+    u_r = (4 * phasors[2][1] - phasors[1][1]) / 3
+    assert np.max(np.abs(i_r / i_ref - 1)) < 2e-6
+    assert np.max(np.abs(u_r / u_ref - 1)) < 2e-6
+
+
+def test_modal_t_converges_to_the_beam_and_hue0_is_exact_for_any_n():
+    beam = build("micro")
+    rows = convergence_table(beam, 2 * np.pi * np.linspace(380.0, 460.0, 41),
+                             (1, 2, 3, 6, 10))
+    trunc = [r["vs_all_modes"] for r in rows]
+    assert all(b < a for a, b in zip(trunc, trunc[1:], strict=False)), trunc
+    assert trunc[2] < 1e-3 and trunc[-1] < 1e-5
+    # what is left against the beam is the damping model (§9), a few per cent, not truncation
+    assert all(0.005 < r["vs_beam"] < 0.05 for r in rows[2:])
+    assert max(r["hue0"] for r in rows) < 1e-12
+
+
+def test_a_wall_never_reached_gives_exactly_the_linear_answer(micro):
+    fs = 26880
+    t = np.arange(4000) / fs
+    e = 9.5 * np.cos(2 * np.pi * t) + 0.02 * np.cos(W_H * t)
+    free = micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 1e-4), dtype=np.float64)
+    linear = micro.simulate(e, 1 / fs, LinearTipLoad([0.0], [0.0]), dtype=np.float64)
+    assert not free["contact"].any()
+    for key in ("u", "i", "v"):
+        np.testing.assert_array_equal(free[key], linear[key])
+    assert np.all(free["force"] == 0)
+
+
+def test_single_mode_impact_oscillator_matches_its_closed_form():
+    """u'' + w0² u = E0 - F from rest under a step E0, against a stiff undamped wall at g:
+    the first impact at ``cos w0 t1 = 1 - g w0²/E0``; in contact it oscillates about
+    ``(E0 + k g)/(w0² + k)`` at ``wc = sqrt(w0² + k)`` and leaves after ``2 φ / wc``,
+    ``φ = atan2(v1/wc, g - y_eq)``, at the speed it came in (elastic),
+    ``y_eq + hypot(g - y_eq, v1/wc)`` at its deepest."""
+    w0, e0, g, k = 2 * np.pi * 100.0, 20.0, 30e-6, 4e7
+    model = ModalTransducer(np.array([w0]), np.array([0.0]), np.array([1.0]), np.array([1.0]))
+    fs = 2e6
+    n = int(0.02 * fs)
+    out = model.simulate(np.full(n, e0), 1 / fs, Wall([g], k, 0.0), dtype=np.float64)
+    t1 = np.arccos(1 - g * w0**2 / e0) / w0
+    v1 = e0 / w0 * np.sin(w0 * t1)
+    wc = np.sqrt(w0**2 + k)
+    y_eq = (e0 + k * g) / (w0**2 + k)
+    t2 = t1 + 2 * np.arctan2(v1 / wc, g - y_eq) / wc
+    edges = np.flatnonzero(np.diff(out["contact"][0].astype(int)))
+    assert len(edges) >= 2
+    on, off = (edges[:2] + 1) / fs
+    assert abs(on - t1) <= 1.5 / fs and abs(off - t2) <= 1.5 / fs, (on - t1, off - t2)
+    v_out = out["v"][0, edges[1] + 2]
+    assert abs(abs(v_out) / v1 - 1) < 0.01 and v_out < 0
+    deepest = y_eq + np.hypot(g - y_eq, v1 / wc)
+    assert abs((np.max(out["u"][0]) - g) / (deepest - g) - 1) < 0.01
+
+
+def test_loads_refuse_bad_parameters():
+    with pytest.raises(ValueError, match="stiffness must be in"):
+        Wall([1e-6], -1.0, 0.0)
+    with pytest.raises(ValueError, match="gap must be finite"):
+        Wall([np.nan], 1.0, 0.0)
+    with pytest.raises(ValueError, match="n_modes must be in"):
+        ModalTransducer.from_beam(build("micro"), 0)
+    with pytest.raises(ValueError, match="dt must be in"):
+        ModalTransducer.from_beam(build("micro"), 2).simulate(np.zeros(4), 0.0, Wall([1], 1, 0))

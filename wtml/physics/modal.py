@@ -1,0 +1,371 @@
+"""The transducer in the time domain: a modal state-space model of a beam (physics.md §9).
+
+Mass-normalised modes of the short-circuited beam with a free tip, the n lowest kept, and the
+static correction of the truncated ones (mode-acceleration method)::
+
+    q'' + 2ζΩ q' + Ω² q = φθ E - φb F
+    u = φb·q - a_r F + β_r E,      Q = φθ·q - β_r F + (Cp + δ_r) E,      I = Q' + G E
+
+with ``φb = bᵀΦ`` (the modes at the tip), ``φθ = ΘᵀΦ`` (their coupling) and the residuals
+``a_r, β_r, δ_r`` of ``K⁻¹ - ΦΩ⁻²Φᵀ``, so that HUE(0) is exact whatever n. Damping: modal
+viscous ``ζ_i = η_i/2`` from each mode's loss factor (the beam's complex modulus has no causal
+time-domain form); dielectric loss: a conductance ``G = ω_ref Cp tanδ``, exact at ``ω_ref``.
+The two damping models differ off resonance (1.3 % in the micro preset's free-tip Ze at
+420 Hz), so a time-domain scene's true T is :meth:`ModalTransducer.transduction_matrix`.
+
+Loads at the tip (:class:`TipLoad`) are piecewise linear: each is a linear force law
+``F = k (u - g) + c u'`` while engaged and 0 while not, with a rule for switching. Between
+switches the system is linear and time-invariant and is stepped exactly, the drive held
+first-order (piecewise linear E: the matrix exponential of the system augmented with E, E'
+and g). The force of an engaged load is part of the linear system, never fed back explicitly
+(explicit feedback is unstable for stiff walls, §9). With a residual compliance ``a_r > 0`` and
+a damped load, ``F`` is a state: ``c a_r F' + (1 + k a_r) F = k (u_m - g) + c u_m'`` where
+``u_m = φb·q + β_r E``; otherwise it is algebraic.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import eigh, expm
+
+from wtml.physics.beam import BeamTransducer
+from wtml.physics.structure import Structure
+from wtml.physics.validation import check_omega, check_range
+
+OUTPUTS = ("u", "v", "force", "i")
+"""What :meth:`ModalTransducer.simulate` records at every step: tip displacement (m), tip
+velocity (m/s), the force the transducer applies to the load (N) and the current (A)."""
+
+
+@dataclass(frozen=True)
+class ModalTransducer(Structure):
+    """A piezo-coupled structure reduced to ``n`` modes with static correction.
+
+    Attributes:
+        omega_n: natural angular frequencies Ω, rad/s, shape ``(n,)``.
+        zeta: modal damping ratios, shape ``(n,)``.
+        tip: φb, the mass-normalised modes' tip displacement, m/√kg, shape ``(n,)``.
+        coupling: φθ, their electromechanical coupling, N/(V·√kg), shape ``(n,)``.
+        residual: ``(a_r m/N, β_r m/V, δ_r F)`` of the truncated modes.
+        capacitance: clamped capacitance Cp (real), F.
+        conductance: dielectric-loss conductance G, S.
+    """
+
+    omega_n: np.ndarray
+    zeta: np.ndarray
+    tip: np.ndarray
+    coupling: np.ndarray
+    residual: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    capacitance: float = 0.0
+    conductance: float = 0.0
+
+    def __post_init__(self) -> None:
+        n = np.shape(self.omega_n)
+        for name in ("zeta", "tip", "coupling"):
+            if np.shape(getattr(self, name)) != n:
+                raise ValueError(f"{name} must have the shape of omega_n {n}, "
+                                 f"got {np.shape(getattr(self, name))}")
+        check_range("omega_n", self.omega_n, 0.0, np.inf, unit="rad/s", low_open=True,
+                    high_open=True)
+        check_range("zeta", self.zeta, 0.0, 1.0)
+        check_range("residual a_r", self.residual[0], 0.0, np.inf, unit="m/N", high_open=True)
+        check_range("capacitance", self.capacitance, 0.0, np.inf, unit="F", high_open=True)
+
+    @property
+    def n_modes(self) -> int:
+        return len(self.omega_n)
+
+    @classmethod
+    def from_beam(cls, beam: BeamTransducer, n_modes: int = 3,
+                  reference_hz: float | None = None) -> ModalTransducer:
+        """The ``n_modes`` lowest modes of ``beam`` with static correction.
+
+        Args:
+            beam: the full model.
+            n_modes: modes kept, 1 to the beam's number of DOFs.
+            reference_hz: where the dielectric conductance equals the beam's loss
+                ``ω Cp tanδ`` (default: the first natural frequency).
+        """
+        k, m, theta = beam.matrices()
+        n_dof = len(theta)
+        check_range("n_modes", n_modes, 1, n_dof)
+        w2, phi = eigh(k.real, m, subset_by_index=[0, int(n_modes) - 1])  # ΦᵀMΦ = 1
+        omega = np.sqrt(w2)
+        eta = np.einsum("ji,jk,ki->i", phi, k.imag, phi) / w2
+        tip_row = phi[-2]
+        coupling = theta @ phi
+        kinv = np.linalg.inv(k.real)
+        tip = np.zeros(n_dof)
+        tip[-2] = 1.0
+        g_res = kinv - (phi / w2) @ phi.T
+        residual = (0.0, 0.0, 0.0) if n_modes == n_dof else (
+            float(tip @ g_res @ tip), float(tip @ g_res @ theta), float(theta @ g_res @ theta))
+        cp = complex(beam.capacitance)
+        w_ref = 2 * np.pi * reference_hz if reference_hz else omega[0]
+        return cls(omega, eta / 2, tip_row, coupling, residual, cp.real, -w_ref * cp.imag)
+
+    def with_coupling(self, scale: float) -> ModalTransducer:
+        """The same structure with its piezo coupling scaled by ``scale`` (a device whose
+        HUE(0) and T differ from the calibrated one by about ``scale - 1``)."""
+        a_r, b_r, d_r = self.residual
+        return ModalTransducer(self.omega_n, self.zeta, self.tip, self.coupling * scale,
+                               (a_r, b_r * scale, d_r * scale**2), self.capacitance,
+                               self.conductance)
+
+    def _forms(self, omega: np.ndarray):
+        w = omega[..., None]
+        h = 1.0 / (self.omega_n**2 - w**2 + 2j * self.zeta * self.omega_n * w)
+        a_r, b_r, d_r = self.residual
+        a = h @ self.tip**2 + a_r
+        beta = h @ (self.tip * self.coupling) + b_r
+        delta = (h @ self.coupling**2 + d_r + self.capacitance
+                 + self.conductance / (1j * omega))
+        return a, beta, delta
+
+    def transduction_matrix(self, omega) -> np.ndarray:
+        """T(ω) of the modal model with a free tip, shape ``omega.shape + (2, 2)``, det T = 1."""
+        omega = check_omega(omega)
+        return BeamTransducer._t_from_forms(omega, *self._forms(omega))
+
+    def static_tip_displacement_per_volt(self) -> float:
+        """HUE(0) = ``Σ φb φθ / Ω² + β_r``, m/V: the beam's, whatever n."""
+        return float(np.sum(self.tip * self.coupling / self.omega_n**2) + self.residual[1])
+
+    def step_matrices(self, dt: float, stiffness, damping, offset_scale: float = 1.0):
+        """The exact one-step map and the outputs of the system with an engaged linear load
+        ``F = k (u - g) + c u'`` (``k = c = 0``: a free tip).
+
+        The state is ``x = [q (n), q' (n), F]``; the augmented vector is
+        ``z = [x, E_k, Ė_k, g, Ė_out]`` (``Ė_k`` the drive's slope over the step, ``Ė_out`` its
+        rate at the sample, for the outputs). Returns ``M`` of shape ``(B, 2n+1+4, 2n+5)``:
+        its first ``2n+1`` rows give ``x_{k+1}``, the last four give ``(u, u', F, i)`` at k.
+
+        Args:
+            dt: the step, s.
+            stiffness, damping: k (N/m) and c (N·s/m) of the engaged load, shape ``(B,)``.
+            offset_scale: 1 for a load whose force is measured from ``u = g``.
+        """
+        k = np.atleast_1d(np.asarray(stiffness, dtype=float))
+        c = np.broadcast_to(np.asarray(damping, dtype=float), k.shape)
+        n = self.n_modes
+        ns, nz = 2 * n + 1, 2 * n + 5
+        iq, iv, i_f, i_e, i_de, i_g, i_do = (slice(0, n), slice(n, 2 * n), 2 * n, 2 * n + 1,
+                                             2 * n + 2, 2 * n + 3, 2 * n + 4)
+        a_r, b_r, d_r = self.residual
+        bsz = len(k)
+        # u_m = φb·q + β_r E and u_m' = φb·q' + β_r Ė as forms over z (Ė: stepping slope)
+        um = np.zeros(nz)
+        um[iq], um[i_e] = self.tip, b_r
+        dum = np.zeros(nz)
+        dum[iv], dum[i_de] = self.tip, b_r
+        gap = np.zeros(nz)
+        gap[i_g] = offset_scale
+        drive = k[:, None] * (um - gap) + c[:, None] * dum  # k (u_m - g) + c u_m', (B, nz)
+        stateful = (c * a_r > 0)[:, None]
+        tau_c = np.where(stateful[:, 0], c * a_r, 1.0)[:, None]
+        soft = (1 + k * a_r)[:, None]
+        e_f = np.zeros(nz)
+        e_f[i_f] = 1.0
+        force = np.where(stateful, e_f, drive / soft)  # F as a form over z
+        dforce = np.where(stateful, (drive - soft * e_f) / tau_c,
+                          k[:, None] * dum / soft)  # F' (algebraic case: c = 0 or a_r = 0)
+        engaged = (k > 0) | (c > 0)
+        force = np.where(engaged[:, None], force, 0.0)
+        dforce = np.where(engaged[:, None], dforce, 0.0)
+
+        a = np.zeros((bsz, nz, nz))
+        a[:, iq, iv] = np.eye(n)
+        a[:, iv, iq] = -np.diag(self.omega_n**2)
+        a[:, iv, iv] = -np.diag(2 * self.zeta * self.omega_n)
+        a[:, iv, i_e] = self.coupling
+        a[:, iv, :] -= self.tip[None, :, None] * force[:, None, :]
+        a[:, i_f, :] = np.where(stateful, dforce, 0.0)
+        a[:, i_e, i_de] = 1.0
+        step = expm(a * dt)[:, :ns, :]
+        step[:, :, i_do] = 0.0
+
+        def at_sample(form: np.ndarray) -> np.ndarray:
+            out = form.copy()
+            out[..., i_do], out[..., i_de] = form[..., i_de], 0.0
+            return out
+
+        out = np.zeros((bsz, 4, nz))
+        out[:, 0] = um - a_r * force
+        out[:, 1] = dum - a_r * dforce
+        out[:, 2] = force
+        cur = np.zeros(nz)
+        cur[iv], cur[i_de], cur[i_e] = self.coupling, self.capacitance + d_r, self.conductance
+        out[:, 3] = cur - b_r * dforce
+        return np.concatenate([step, at_sample(out)], axis=1)
+
+    def simulate(self, drive, dt: float, load: TipLoad, *, drive_rate=None,
+                 record: tuple[str, ...] = OUTPUTS, dtype=np.float32) -> dict[str, np.ndarray]:
+        """Step the transducer from rest under the voltage ``drive`` with ``load`` at the tip.
+
+        Args:
+            drive: E in V at the sample instants ``k dt``, shape ``(n_steps,)`` (shared by the
+                batch) or ``(B, n_steps)``.
+            dt: the step, s (> 0).
+            load: a :class:`TipLoad` with batch size B (its parameters' length).
+            drive_rate: dE/dt in V/s at the samples, same shape as ``drive`` (default: central
+                differences); used for the outputs (the capacitive current), not the stepping.
+            record: which of :data:`OUTPUTS` to return.
+            dtype: of the returned arrays.
+
+        Returns:
+            each recorded output, shape ``(B, n_steps)``, and ``contact`` (bool, same shape):
+            whether the load was engaged at each sample.
+        """
+        check_range("dt", dt, 0.0, np.inf, unit="s", low_open=True, high_open=True)
+        unknown = set(record) - set(OUTPUTS)
+        if unknown:
+            raise ValueError(f"record: unknown outputs {sorted(unknown)}; choose from {OUTPUTS}")
+        bsz = load.batch
+        e = np.broadcast_to(np.asarray(drive, dtype=float), (bsz, np.shape(drive)[-1]))
+        n_steps = e.shape[1]
+        if n_steps < 2:
+            raise ValueError("drive needs at least 2 samples")
+        if not np.all(np.isfinite(e)):
+            raise ValueError("drive must be finite")
+        if drive_rate is None:
+            de_out = np.gradient(e, dt, axis=1)
+        else:
+            de_out = np.broadcast_to(np.asarray(drive_rate, dtype=float), e.shape)
+        de_step = np.diff(e, axis=1, append=e[:, -1:]) / dt
+        free = self.step_matrices(dt, np.zeros(bsz), np.zeros(bsz))
+        engaged = self.step_matrices(dt, load.stiffness, load.damping)
+        both = np.stack([free, engaged])  # (2, B, ns+4, nz)
+        ns = 2 * self.n_modes + 1
+        z = np.zeros((bsz, ns + 4))
+        z[:, ns + 2] = load.offset
+        state = load.initial_state()
+        rows = np.arange(bsz)
+        cols = [OUTPUTS.index(r) for r in record]
+        out = {r: np.empty((bsz, n_steps), dtype) for r in record}
+        contact = np.empty((bsz, n_steps), bool)
+        for step in range(n_steps):
+            z[:, ns], z[:, ns + 1], z[:, ns + 3] = e[:, step], de_step[:, step], de_out[:, step]
+            res = np.matmul(both, z[None, :, :, None])[..., 0]  # (2, B, ns+4)
+            new = load.switch(state, res[0, :, ns:], res[1, :, ns:])
+            changed = new != state
+            if changed.any():
+                z[changed, ns - 1] = 0.0  # an engaged load's force starts (and ends) at 0
+                res = np.matmul(both, z[None, :, :, None])[..., 0]
+            state = new
+            pick = res[state.astype(int), rows]
+            for r, col in zip(record, cols, strict=True):
+                out[r][:, step] = pick[:, ns + col]
+            contact[:, step] = state
+            z[:, :ns] = pick[:, :ns]
+        out["contact"] = contact
+        return out
+
+
+class TipLoad(ABC):
+    """A piecewise-linear load at the tip, for a batch of B samples: while engaged it pushes
+    back with ``F = k (u - g) + c u'``; while not, ``F = 0``.
+
+    Attributes (arrays of shape ``(B,)``): ``stiffness`` k (N/m), ``damping`` c (N·s/m),
+    ``offset`` g (m).
+    """
+
+    stiffness: np.ndarray
+    damping: np.ndarray
+    offset: np.ndarray
+
+    @property
+    def batch(self) -> int:
+        return len(self.stiffness)
+
+    @abstractmethod
+    def initial_state(self) -> np.ndarray:
+        """Engaged at rest, bool ``(B,)``."""
+
+    @abstractmethod
+    def switch(self, engaged: np.ndarray, if_free: np.ndarray,
+               if_engaged: np.ndarray) -> np.ndarray:
+        """The new engagement from the outputs ``(u, u', F, i)`` that the sample would have
+        free and engaged, each ``(B, 4)``; ``engaged`` is the current state, bool ``(B,)``."""
+
+
+def _batch(name: str, value, unit: str, size: int | None = None, positive: bool = False):
+    arr = np.atleast_1d(np.asarray(value, dtype=float))
+    if size is not None:
+        arr = np.broadcast_to(arr, (size,)).copy()
+    check_range(name, arr, 0.0, np.inf, unit=unit, high_open=True, low_open=positive)
+    return arr
+
+
+class LinearTipLoad(TipLoad):
+    """A spring and damper at the tip, always engaged: ``Zm = c + k/(jω)``."""
+
+    def __init__(self, stiffness, damping) -> None:
+        self.stiffness = _batch("stiffness", stiffness, "N/m")
+        self.damping = _batch("damping", damping, "N·s/m", len(self.stiffness))
+        self.offset = np.zeros(len(self.stiffness))
+
+    def impedance(self, omega) -> np.ndarray:
+        """``Zm = c + k/(jω)`` in N·s/m, shape ``(B,) + omega.shape``."""
+        w = check_omega(omega)
+        return self.damping[:, None] + self.stiffness[:, None] / (1j * w.reshape(1, -1))
+
+    def initial_state(self) -> np.ndarray:
+        return np.ones(self.batch, bool)
+
+    def switch(self, engaged, if_free, if_engaged) -> np.ndarray:
+        return engaged
+
+
+class Wall(TipLoad):
+    """A unilateral wall at ``gap`` g (m) from the tip's rest position, along +u: the tip
+    touches it when ``u > g`` while the wall would push (``k (u - g) + c u' > 0``), and leaves it
+    when the force turns tensile. It may touch and leave any number of times.
+
+    Args:
+        gap: g, m (may be negative: a wall the tip rests past; 0 < g usual), shape ``(B,)``.
+        stiffness: k_c, N/m, > 0.  damping: c_c, N·s/m, >= 0.
+    """
+
+    def __init__(self, gap, stiffness, damping) -> None:
+        self.offset = np.atleast_1d(np.asarray(gap, dtype=float)).copy()
+        if not np.all(np.isfinite(self.offset)):
+            raise ValueError("gap must be finite (m)")
+        size = len(self.offset)
+        self.stiffness = _batch("stiffness", stiffness, "N/m", size, positive=True)
+        self.damping = _batch("damping", damping, "N·s/m", size)
+
+    def initial_state(self) -> np.ndarray:
+        return self.offset < 0
+
+    def switch(self, engaged, if_free, if_engaged) -> np.ndarray:
+        u, v = if_free[:, 0], if_free[:, 1]
+        touches = (u > self.offset) & (self.stiffness * (u - self.offset) + self.damping * v > 0)
+        return np.where(engaged, if_engaged[:, 2] >= 0, touches)
+
+
+def convergence_table(beam: BeamTransducer, omega, n_modes=(1, 2, 3, 4, 6, 10)) -> list[dict]:
+    """How the modal T(ω) approaches the full model as modes are added.
+
+    For each n: the largest relative error of any element of T over ``omega`` against the
+    model with every mode kept (the same modal damping: truncation alone), against the beam
+    (truncation plus the damping-model difference, §9), and the relative error of HUE(0).
+
+    Args:
+        omega: rad/s, shape ``(n_freq,)`` (the scene's band).
+    """
+    omega = check_omega(omega)
+    full = ModalTransducer.from_beam(beam, len(beam.matrices()[2])).transduction_matrix(omega)
+    exact = beam.transduction_matrix(omega)
+    hue = beam.static_tip_displacement_per_volt()
+    rows = []
+    for n in n_modes:
+        model = ModalTransducer.from_beam(beam, n)
+        t = model.transduction_matrix(omega)
+        rows.append({"n_modes": n,
+                     "vs_all_modes": float(np.max(np.abs(t - full) / np.abs(full))),
+                     "vs_beam": float(np.max(np.abs(t - exact) / np.abs(exact))),
+                     "hue0": float(abs(model.static_tip_displacement_per_volt() / hue - 1))})
+    return rows

@@ -63,9 +63,14 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from wtml.runtime.predict import domain_warning, format_predictions, predict_file
+    from wtml.runtime.predict import domain_warning, format_predictions, predict_file, task_of
 
-    rows = predict_file(args.model, args.input)
+    if task_of(args.model) == "onset":
+        from wtml.runtime.onset import predict_records
+
+        rows = predict_records(args.model, args.input)
+    else:
+        rows = predict_file(args.model, args.input)
     if args.out:
         with open(args.out, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))

@@ -27,15 +27,20 @@ def split_shards(n_shards: int, val_shards: int, test_shards: int) -> dict[str, 
 TARGETS = {
     "fluid": lambda a: np.stack([np.log10(a["eta"]), a["rho"]], -1),  # log10 Pa·s, kg/m³
     "radial": lambda a: a["distance"][:, None],  # m from the tip
+    "onset": lambda a: np.concatenate([a["gap"][:, None], a["onset"], a["detachment"]], 1),
 }
 """The training targets of each task, shape ``(n, n_targets)``."""
 
 
 def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor, ...]:
-    """``(ze_re, ze_im, targets)`` float32 for a task's arrays (targets as in ``TARGETS``)."""
-    ze = arrays["ze"]
-    return tuple(torch.tensor(a, dtype=torch.float32)
-                 for a in (ze.real, ze.imag, TARGETS[task](arrays)))
+    """The two input tensors and the targets, float32: ``(ze_re, ze_im, targets)`` for the
+    phasor tasks, ``(e, i, targets)`` (V, A; NaN-padded targets: gap m, onsets s,
+    detachments s) for the time-domain ones; targets as in ``TARGETS``."""
+    if task == "onset":
+        inputs = (arrays["e"], arrays["i"])
+    else:
+        inputs = (arrays["ze"].real, arrays["ze"].imag)
+    return tuple(torch.tensor(a, dtype=torch.float32) for a in (*inputs, TARGETS[task](arrays)))
 
 
 class ShardDataModule(L.LightningDataModule):
@@ -66,6 +71,7 @@ class ShardDataModule(L.LightningDataModule):
         self.scene = dataset_scene(data_dir)
         self.scene_dict = to_dict(self.scene)
         self._data: dict[str, TensorDataset] = {}
+        self.eval_batch = 64 if self.scene.task == "onset" else 4096  # records vs phasors
 
     def _dataset(self, split: str) -> TensorDataset:
         if split not in self._data:
@@ -81,7 +87,7 @@ class ShardDataModule(L.LightningDataModule):
         return DataLoader(self._dataset("train"), batch_size=self.batch_size, shuffle=True)
 
     def val_dataloader(self) -> DataLoader:
-        return DataLoader(self._dataset("val"), batch_size=4096)
+        return DataLoader(self._dataset("val"), batch_size=self.eval_batch)
 
     def test_dataloader(self) -> DataLoader:
-        return DataLoader(self._dataset("test"), batch_size=4096)
+        return DataLoader(self._dataset("test"), batch_size=self.eval_batch)

@@ -45,7 +45,7 @@ def read_checkpoint(path: str | Path, task: str | None = None) -> dict:
 
     Args:
         path: a ``.ckpt`` file written by ``python train.py fit``.
-        task: if given, the task the checkpoint must be for (``"fluid"``, ``"radial"``).
+        task: if given, the task the checkpoint must be for (``"fluid"``, ``"radial"``, ``"onset"``).
 
     Raises:
         CheckpointError: one line naming the file and what to do: missing, truncated or
@@ -93,9 +93,10 @@ def load_decoder(path: str | Path):
     """The trained LightningModule of any task's checkpoint (its ``net``, ``gate`` and
     ``scene``), CPU, eval mode."""
     from wtml.decoders.fluid import FluidDecoder
+    from wtml.decoders.onset import OnsetDecoder
     from wtml.decoders.radial import RadialDecoder
 
-    classes = {"fluid": FluidDecoder, "radial": RadialDecoder}
+    classes = {"fluid": FluidDecoder, "radial": RadialDecoder, "onset": OnsetDecoder}
     state, data = _checked(Path(path), None)
     task = state["wtml"]["scene"].get("task", "fluid")
     if task not in classes:

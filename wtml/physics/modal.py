@@ -134,9 +134,9 @@ class ModalTransducer(Structure):
         """HUE(0) = ``Σ φb φθ / Ω² + β_r``, m/V: the beam's, whatever n."""
         return float(np.sum(self.tip * self.coupling / self.omega_n**2) + self.residual[1])
 
-    def step_matrices(self, dt: float, stiffness, damping, offset_scale: float = 1.0):
+    def step_matrices(self, dt: float, stiffness, damping, coupling_scale=1.0):
         """The exact one-step map and the outputs of the system with an engaged linear load
-        ``F = k (u - g) + c u'`` (``k = c = 0``: a free tip).
+        ``F = k (u - g) + c u'`` (``k = c = 0``: a free tip), for a batch of B samples.
 
         The state is ``x = [q (n), q' (n), F]``; the augmented vector is
         ``z = [x, E_k, Ė_k, g, Ė_out]`` (``Ė_k`` the drive's slope over the step, ``Ė_out`` its
@@ -146,23 +146,25 @@ class ModalTransducer(Structure):
         Args:
             dt: the step, s.
             stiffness, damping: k (N/m) and c (N·s/m) of the engaged load, shape ``(B,)``.
-            offset_scale: 1 for a load whose force is measured from ``u = g``.
+            coupling_scale: each sample's device as :meth:`with_coupling`, ``(B,)`` or scalar.
         """
         k = np.atleast_1d(np.asarray(stiffness, dtype=float))
+        bsz = len(k)
         c = np.broadcast_to(np.asarray(damping, dtype=float), k.shape)
+        s = np.broadcast_to(np.asarray(coupling_scale, dtype=float), k.shape)[:, None]
         n = self.n_modes
         ns, nz = 2 * n + 1, 2 * n + 5
         iq, iv, i_f, i_e, i_de, i_g, i_do = (slice(0, n), slice(n, 2 * n), 2 * n, 2 * n + 1,
                                              2 * n + 2, 2 * n + 3, 2 * n + 4)
         a_r, b_r, d_r = self.residual
-        bsz = len(k)
+        b_r = b_r * s[:, 0]
         # u_m = φb·q + β_r E and u_m' = φb·q' + β_r Ė as forms over z (Ė: stepping slope)
-        um = np.zeros(nz)
-        um[iq], um[i_e] = self.tip, b_r
-        dum = np.zeros(nz)
-        dum[iv], dum[i_de] = self.tip, b_r
+        um = np.zeros((bsz, nz))
+        um[:, iq], um[:, i_e] = self.tip, b_r
+        dum = np.zeros((bsz, nz))
+        dum[:, iv], dum[:, i_de] = self.tip, b_r
         gap = np.zeros(nz)
-        gap[i_g] = offset_scale
+        gap[i_g] = 1.0
         drive = k[:, None] * (um - gap) + c[:, None] * dum  # k (u_m - g) + c u_m', (B, nz)
         stateful = (c * a_r > 0)[:, None]
         tau_c = np.where(stateful[:, 0], c * a_r, 1.0)[:, None]
@@ -172,36 +174,34 @@ class ModalTransducer(Structure):
         force = np.where(stateful, e_f, drive / soft)  # F as a form over z
         dforce = np.where(stateful, (drive - soft * e_f) / tau_c,
                           k[:, None] * dum / soft)  # F' (algebraic case: c = 0 or a_r = 0)
-        engaged = (k > 0) | (c > 0)
-        force = np.where(engaged[:, None], force, 0.0)
-        dforce = np.where(engaged[:, None], dforce, 0.0)
+        engaged = ((k > 0) | (c > 0))[:, None]
+        force, dforce = np.where(engaged, force, 0.0), np.where(engaged, dforce, 0.0)
 
         a = np.zeros((bsz, nz, nz))
         a[:, iq, iv] = np.eye(n)
         a[:, iv, iq] = -np.diag(self.omega_n**2)
         a[:, iv, iv] = -np.diag(2 * self.zeta * self.omega_n)
-        a[:, iv, i_e] = self.coupling
+        a[:, iv, i_e] = self.coupling * s
         a[:, iv, :] -= self.tip[None, :, None] * force[:, None, :]
         a[:, i_f, :] = np.where(stateful, dforce, 0.0)
         a[:, i_e, i_de] = 1.0
         step = expm(a * dt)[:, :ns, :]
         step[:, :, i_do] = 0.0
 
-        def at_sample(form: np.ndarray) -> np.ndarray:
-            out = form.copy()
-            out[..., i_do], out[..., i_de] = form[..., i_de], 0.0
-            return out
-
         out = np.zeros((bsz, 4, nz))
         out[:, 0] = um - a_r * force
         out[:, 1] = dum - a_r * dforce
         out[:, 2] = force
-        cur = np.zeros(nz)
-        cur[iv], cur[i_de], cur[i_e] = self.coupling, self.capacitance + d_r, self.conductance
-        out[:, 3] = cur - b_r * dforce
-        return np.concatenate([step, at_sample(out)], axis=1)
+        cur = np.zeros((bsz, nz))
+        cur[:, iv] = self.coupling * s
+        cur[:, i_de] = self.capacitance + d_r * s[:, 0] ** 2
+        cur[:, i_e] = self.conductance
+        out[:, 3] = cur - b_r[:, None] * dforce
+        # at the sample the outputs use the drive's rate there, not the step's slope
+        out[..., i_do], out[..., i_de] = out[..., i_de], 0.0
+        return np.concatenate([step, out], axis=1)
 
-    def simulate(self, drive, dt: float, load: TipLoad, *, drive_rate=None,
+    def simulate(self, drive, dt: float, load: TipLoad, *, drive_rate=None, coupling_scale=1.0,
                  record: tuple[str, ...] = OUTPUTS, dtype=np.float32) -> dict[str, np.ndarray]:
         """Step the transducer from rest under the voltage ``drive`` with ``load`` at the tip.
 
@@ -212,6 +212,7 @@ class ModalTransducer(Structure):
             load: a :class:`TipLoad` with batch size B (its parameters' length).
             drive_rate: dE/dt in V/s at the samples, same shape as ``drive`` (default: central
                 differences); used for the outputs (the capacitive current), not the stepping.
+            coupling_scale: each sample's device, ``(B,)`` or scalar (:meth:`with_coupling`).
             record: which of :data:`OUTPUTS` to return.
             dtype: of the returned arrays.
 
@@ -235,8 +236,8 @@ class ModalTransducer(Structure):
         else:
             de_out = np.broadcast_to(np.asarray(drive_rate, dtype=float), e.shape)
         de_step = np.diff(e, axis=1, append=e[:, -1:]) / dt
-        free = self.step_matrices(dt, np.zeros(bsz), np.zeros(bsz))
-        engaged = self.step_matrices(dt, load.stiffness, load.damping)
+        free = self.step_matrices(dt, np.zeros(bsz), np.zeros(bsz), coupling_scale)
+        engaged = self.step_matrices(dt, load.stiffness, load.damping, coupling_scale)
         both = np.stack([free, engaged])  # (2, B, ns+4, nz)
         ns = 2 * self.n_modes + 1
         z = np.zeros((bsz, ns + 4))

@@ -75,7 +75,10 @@ class PolynomialNet(nn.Module):
         return y, torch.zeros_like(y)
 
 
-def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]) -> None:
+def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str],
+            inputs: tuple[str, ...] = INPUTS) -> None:
+    """Write ``module`` (inputs ``inputs``, each ``(batch, n_freq)`` float32, dynamic batch)
+    to ``path`` with ``metadata``, and check the file."""
     example = (torch.ones(2, n_freq), torch.ones(2, n_freq))
     batch = torch.export.Dim("batch", min=1)
     names = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
@@ -88,9 +91,9 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
         # torch's own exporter calls a pytree API that torch 2.13 deprecates
         warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)`",
                                 category=FutureWarning)
-        torch.onnx.export(module.eval(), example, str(path), input_names=list(INPUTS),
+        torch.onnx.export(module.eval(), example, str(path), input_names=list(inputs),
                           output_names=names, dynamo=True, external_data=False,
-                          dynamic_shapes={"ze_re": {0: batch}, "ze_im": {0: batch}},
+                          dynamic_shapes={name: {0: batch} for name in module_inputs(module)},
                           verbose=False)
     registry.setLevel(level)
     model = onnx.load(str(path))
@@ -98,6 +101,13 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
         model.metadata_props.add(key=key, value=value)
     onnx.checker.check_model(model, full_check=True)
     onnx.save(model, str(path))
+
+
+def module_inputs(module: nn.Module) -> tuple[str, ...]:
+    """The names of ``module.forward``'s tensor arguments (the exporter keys shapes by them)."""
+    import inspect
+
+    return tuple(inspect.signature(module.forward).parameters)
 
 
 @torch.no_grad()
@@ -137,6 +147,10 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     scene = scene_from_dict(module.scene)
     task = scene.task
     out.mkdir(parents=True, exist_ok=True)
+    if task == "onset":
+        from wtml.runtime.onset import export_onset
+
+        return export_onset(module, scene, out)
     freq = (scene.excitation.frequency_hz if task == "fluid"
             else np.asarray(scene.excitation.frequencies_hz))
     uncertain = tuple(k for k, name in enumerate(scene.OUTPUTS) if name == "sigma")

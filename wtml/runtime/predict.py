@@ -32,7 +32,11 @@ model's metadata; another grid is refused, never interpolated):
         (n_freq, n_t) or (n, n_freq, n_t), in V and A, sampled at sample_rate_hz
         (phasors are fitted by least squares at each grid frequency).
 Fluid models return eta (Pa*s) and rho (kg/m^3); radial models distance (m from the tip)
-and sigma (m, the decoder's std; NaN out of domain)."""
+and sigma (m, the decoder's std; NaN out of domain).
+Onset models take a recording instead: .npz with e (V) and i (A), each (n_samples,) or
+(n_records, n_samples), and sample_rate_hz (another rate than trained is resampled when the
+ratio is one of whole numbers, else refused); they return one row per contact: onset and
+detachment (s), the wall's location gap (m) and sigma (m)."""
 
 
 class InputError(ValueError):
@@ -81,14 +85,20 @@ class OnnxModel:
         self.domain = json.loads(self.metadata["domain"])
         self.name = f"{self.metadata.get('label', self.metadata['kind'])} ONNX"
 
-    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
-        ze = np.asarray(ze)
-        values = self.session.run(None, {"ze_re": ze.real.astype(np.float32),
-                                         "ze_im": ze.imag.astype(np.float32)})
+    def run(self, *inputs: np.ndarray) -> dict[str, np.ndarray]:
+        """The graph on float32 inputs (in the order of its metadata's ``inputs``): each
+        output by name, ``in_domain`` (bool) and ``domain_score``."""
+        names = [i.name for i in self.session.get_inputs()]
+        values = self.session.run(None, {n: np.asarray(x, np.float32)
+                                         for n, x in zip(names, inputs, strict=True)})
         out = {k: v.astype(float) for k, v in zip(self.outputs, values, strict=False)}
         out["in_domain"] = values[-2].astype(bool)
         out["domain_score"] = values[-1].astype(float)
         return out
+
+    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
+        ze = np.asarray(ze)
+        return self.run(ze.real, ze.imag)
 
 
 def _npz_signals(path: Path, data, freq: np.ndarray) -> np.ndarray:
@@ -205,6 +215,11 @@ def load_export(model_dir: str | Path) -> tuple[OnnxModel, OnnxModel]:
         raise InputError(f"{model_dir}: model.onnx and classical.onnx come from different scenes;"
                          " export the folder again")
     return decoder, classical
+
+
+def task_of(model_dir: str | Path) -> str:
+    """The task of an export folder's decoder (reads its metadata only)."""
+    return load_export(model_dir)[0].task
 
 
 def impossible(model: OnnxModel, predictions: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

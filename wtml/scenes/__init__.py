@@ -4,13 +4,14 @@ from pathlib import Path
 
 from wtml.scenes.config import SceneError, config_hash, load_yaml, to_dict, yaml_load
 from wtml.scenes.fluid import FluidScene
+from wtml.scenes.onset import OnsetScene
 from wtml.scenes.radial import RadialScene
 
-SCENES = {"fluid": FluidScene, "radial": RadialScene}
+SCENES = {"fluid": FluidScene, "radial": RadialScene, "onset": OnsetScene}
 """Scene classes by task name."""
 
 
-def load_scene(path: str | Path) -> FluidScene | RadialScene:
+def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene:
     """Load a scene YAML; its ``task`` key picks the scene class (default ``fluid``)."""
     import yaml
 
@@ -23,12 +24,12 @@ def load_scene(path: str | Path) -> FluidScene | RadialScene:
     return load_yaml(SCENES[task], path)
 
 
-def scene_from_dict(data: dict) -> FluidScene | RadialScene:
+def scene_from_dict(data: dict) -> FluidScene | RadialScene | OnsetScene:
     """Rebuild a scene from the mapping stored in a manifest."""
     from wtml.scenes.config import build
 
     return build(SCENES[data.get("task", "fluid")], data)
 
 
-__all__ = ["SCENES", "FluidScene", "RadialScene", "SceneError", "config_hash", "load_scene",
+__all__ = ["SCENES", "FluidScene", "OnsetScene", "RadialScene", "SceneError", "config_hash", "load_scene",
            "scene_from_dict", "to_dict"]

@@ -1,0 +1,109 @@
+"""The thesis's onset pipeline (Figure 5.11, physics.md §10), as an exportable torch module,
+and a change-point peer (ruptures) on the same |Zm(t)|.
+
+Equal-length linear-phase FIR filters split e and i into the whisking band (a low-pass) and
+the probe band; the probe band's filter is complex, ``h(n) e^{jωH n/fs}`` with ``h`` a
+low-pass prototype: its real part is the band-pass and its imaginary part the band-pass's FIR
+Hilbert transform, so it yields the analytic signals ``E_H(t), I_H(t)`` directly, with the
+same delay as the low-pass (all filters applied centred: offline, zero delay). Then
+``Zm(t) = (t22 E_H - t12 I_H)/(t11 I_H - t21 E_H)`` with the calibrated T at ωH, contact
+where ``|Zm(t)|`` exceeds half of ``k_ref/ωH`` (k_ref: the middle of the scene's contact
+stiffness range), and the location ``u(t_c) = HUE(0) e_L(t_c)`` averaged over every rising
+(onset) and falling (detachment) edge. The filters' first and last half-lengths (19 ms at
+the defaults) see the record's edges and are left undecided (no contact).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.signal import firwin
+from torch import nn
+from torch.nn import functional as fn
+
+
+def band_filters(sample_rate: float, probe_hz: float, taps: int = 1025, low_cut_hz: float = 150.0,
+                 half_band_hz: float = 60.0) -> np.ndarray:
+    """``(3, taps)``: the whisking low-pass, and the probe band's real (band-pass) and
+    imaginary (its Hilbert transform) parts; Kaiser windows, ~100 dB stop band."""
+    low = firwin(taps, low_cut_hz, window=("kaiser", 10.0), fs=sample_rate)
+    proto = firwin(taps, half_band_hz, window=("kaiser", 10.0), fs=sample_rate)
+    n = np.arange(taps) - (taps - 1) / 2
+    carrier = np.exp(2j * np.pi * probe_hz * n / sample_rate)
+    analytic = 2 * proto * carrier
+    # correlation (conv1d) with the time-reversed taps is convolution with the taps
+    return np.stack([low, analytic.real, analytic.imag])[:, ::-1].copy()
+
+
+class ThesisOnset(nn.Module):
+    """``(e, i)`` ``(batch, n)`` (V, A) -> ``(gap, sigma, contact)``: the wall location (m; NaN
+    without an edge), NaN (no uncertainty), and the contact state per sample ``(batch, n)``.
+
+    Args:
+        sample_rate, probe_hz: Hz.
+        t_probe: calibrated T at the probe ``(2, 2)`` complex.
+        hue0: calibrated HUE(0), m/V.
+        threshold: on |Zm|, N·s/m.
+        taps: FIR length (odd).
+    """
+
+    def __init__(self, sample_rate: float, probe_hz: float, t_probe: np.ndarray, hue0: float,
+                 threshold: float, taps: int = 1025) -> None:
+        super().__init__()
+        self.register_buffer("fir", torch.tensor(band_filters(sample_rate, probe_hz, taps)[:, None],
+                                                 dtype=torch.float32))
+        t = np.asarray(t_probe, dtype=complex)
+        self.i_scale = 1e6
+        # Zm = (t22 E - t12 I)/(t11 I - t21 E) with I in µA inside
+        for name, value in (("t11", t[0, 0] / self.i_scale), ("t12", t[0, 1] / self.i_scale),
+                            ("t21", t[1, 0]), ("t22", t[1, 1])):
+            self.register_buffer(f"{name}_re", torch.tensor(value.real, dtype=torch.float32))
+            self.register_buffer(f"{name}_im", torch.tensor(value.imag, dtype=torch.float32))
+        self.hue0, self.threshold, self.pad = float(hue0), float(threshold), (taps - 1) // 2
+
+    def bands(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``u_L`` (m) and ``|Zm|`` (N·s/m) per sample, each ``(batch, n)``."""
+        fe = fn.conv1d(fn.pad(e[:, None], (self.pad, self.pad)), self.fir)
+        fi = fn.conv1d(fn.pad(i[:, None] * self.i_scale, (self.pad, self.pad)), self.fir[1:])
+        e_re, e_im, i_re, i_im = fe[:, 1], fe[:, 2], fi[:, 0], fi[:, 1]
+        num_re = self.t22_re * e_re - self.t22_im * e_im - (self.t12_re * i_re - self.t12_im * i_im)
+        num_im = self.t22_re * e_im + self.t22_im * e_re - (self.t12_re * i_im + self.t12_im * i_re)
+        den_re = self.t11_re * i_re - self.t11_im * i_im - (self.t21_re * e_re - self.t21_im * e_im)
+        den_im = self.t11_re * i_im + self.t11_im * i_re - (self.t21_re * e_im + self.t21_im * e_re)
+        zm = torch.sqrt((num_re * num_re + num_im * num_im) / (den_re * den_re + den_im * den_im))
+        return self.hue0 * fe[:, 0], zm
+
+    def forward(self, e: torch.Tensor, i: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        u, zm = self.bands(e, i)
+        # the filters' first and last half-lengths see the record's edges: no decision there
+        inner = (zm[:, self.pad:-self.pad] > self.threshold).float()
+        edge = torch.zeros_like(zm[:, :self.pad])
+        contact = torch.cat([edge, inner, edge], -1)
+        edges = torch.abs(contact[:, 1:] - contact[:, :-1])
+        count = edges.sum(-1)
+        gap = (edges * u[:, 1:]).sum(-1) / count
+        nan = torch.full_like(gap, float("nan"))
+        return torch.where(count > 0, gap, nan), nan, contact
+
+
+def ruptures_contacts(zm_frames: np.ndarray, u_frames: np.ndarray, threshold: float,
+                      penalty: float) -> tuple[float, np.ndarray]:
+    """The peer: PELT change points (ruptures, l2 cost) on one record's |Zm| per probe frame;
+    segments whose mean |Zm| exceeds ``threshold`` are contacts. Returns the location (mean
+    ``u_L`` at every contact segment's two ends, m; NaN if none) and the per-frame contact
+    state ``(n_frames,)`` bool."""
+    import ruptures
+
+    x = np.asarray(zm_frames, dtype=float)
+    bkps = ruptures.Pelt(model="l2", min_size=2, jump=1).fit(x).predict(pen=penalty)
+    state = np.zeros(len(x), bool)
+    ends = []
+    start = 0
+    for stop in bkps:
+        if x[start:stop].mean() > threshold:
+            state[start:stop] = True
+            ends += [start, stop - 1]
+        start = stop
+    gap = float(np.mean(u_frames[ends])) if ends else float("nan")
+    return gap, state

@@ -1,0 +1,231 @@
+"""The contact-onset scene: horizontal location of a wall by the whisking tip (thesis §5.2).
+
+The micro WT whisks at 1 Hz (9.5 V) with a 420 Hz probe (20 mV) on top, two whisk cycles; a
+wall stands at g from the tip's rest position along the whisking direction, somewhere across
+the reachable range. The transducer is the modal model of the preset
+(``wtml.physics.modal``), the wall a unilateral spring-damper, stepped exactly at the sampling
+rate. Both channels go through a 24-bit ADC with noise (e in V; i through an I-V converter, so
+its full scale is in A).
+
+The drive is ``e = -AL cos(ωL t) + AH sin(ωH t)``: the whisk starts at its far end, so every
+contact lies inside the record. A lead-in of ``lead_s`` before t = 0, the drive raised from 0
+by a raised-cosine ramp, lets the probe's resonance (ring time ~40 ms) settle from rest; it is
+simulated and not recorded. Each record's device differs from the calibrated one by its piezo coupling, a factor
+``1 + N(0, calibration_error)``: HUE(0) and T at 420 Hz are off by about that much, and no
+method sees it (the classical path and the decoders use the calibrated model).
+
+Labels: ``gap`` g (m; NaN in a record without a wall), and every contact's ``onset`` and
+``detachment`` (s; NaN-padded to ``max_contacts``). A contact is a stretch of touching; touches
+on successive probe peaks (gaps shorter than ``merge_periods`` probe periods) are one contact.
+Stored: ``e`` and ``i`` float32 ``(n, n_samples)``: 2 × 4 bytes × 53760 samples = 430 kB per
+record at the defaults.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from wtml.interface import OutputRange
+from wtml.physics.beam_presets import PRESETS, build
+from wtml.physics.modal import ModalTransducer, Wall
+from wtml.scenes.config import SceneError, bounded, one_of
+
+
+@dataclass(frozen=True)
+class OnsetDrive:
+    """Whisking and probe tones (V, Hz) and how many whisk cycles a record holds."""
+
+    whisk_hz: float = bounded(0.01, 100.0, default=1.0)
+    whisk_v: float = bounded(0.0, 1e3, default=9.5)
+    probe_hz: float = bounded(1.0, 1e5, default=420.0)
+    probe_v: float = bounded(0.0, 10.0, default=0.02)
+    cycles: float = bounded(0.5, 100.0, default=2.0)
+    lead_s: float = bounded(0.0, 10.0, default=0.25)
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """Sampling rate (Hz; also the simulation step), ADC bits, full scales of the voltage (V)
+    and current (A) channels, and white noise on each (V rms, A rms)."""
+
+    sample_rate_hz: float = bounded(1e3, 1e7, default=26880.0)
+    adc_bits: int = bounded(8, 32, default=24)
+    e_full_scale_v: float = bounded(1e-3, 1e4, default=10.0)
+    i_full_scale_a: float = bounded(1e-12, 1.0, default=1e-6)
+    e_noise_v: float = bounded(0.0, 1.0, default=1e-6)
+    i_noise_a: float = bounded(0.0, 1e-3, default=1e-12)
+
+
+@dataclass(frozen=True)
+class WallSpec:
+    """Where the wall stands, as a fraction of the tip's whisking amplitude HUE(0)·whisk_v
+    (uniform), and its contact stiffness (N/m, log-uniform) and damping (N·s/m, uniform):
+    nuisance around the thesis's |Zm| ≈ 2e-3 N·s/m at 420 Hz (k_c ≈ 5 N/m).
+    ``free_fraction`` of the records have no wall (free whisking)."""
+
+    gap_fraction: tuple[float, float] = bounded(-0.5, 1.5, default=(0.1, 0.9))
+    stiffness: tuple[float, float] = bounded(1e-3, 1e6, default=(3.0, 8.0))
+    damping: tuple[float, float] = bounded(0.0, 1.0, default=(5e-5, 3e-4))
+    free_fraction: float = bounded(0.0, 1.0, default=0.0)
+
+
+@dataclass(frozen=True)
+class OnsetScene:
+    """A contact-onset scene (``configs/scenes/onset.yaml``)."""
+
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("gap", "sigma")
+    """What an onset decoder returns per record, each ``(batch,)``: the wall's location g and
+    the decoder's own std of it; the contact intervals come beside them."""
+    UNITS: ClassVar[dict[str, str]] = {"gap": "m", "sigma": "m"}
+
+    name: str = "onset"
+    task: str = one_of("onset", default="onset")
+    seed: int = bounded(0, 2**32 - 1, default=0)
+    samples: int = bounded(1, 10**7, default=480)
+    shards: int = bounded(1, 10**5, default=6)
+    preset: str = one_of(*PRESETS, default="micro")
+    n_modes: int = bounded(1, 40, default=3)
+    drive: OnsetDrive = field(default_factory=OnsetDrive)
+    acquisition: Acquisition = field(default_factory=Acquisition)
+    wall: WallSpec = field(default_factory=WallSpec)
+    calibration_error: float = bounded(0.0, 0.2, default=0.01)
+    max_contacts: int = bounded(1, 1000, default=8)
+    merge_periods: float = bounded(0.0, 100.0, default=2.0)
+
+    def check(self, path: str) -> None:
+        pre = path + "." if path else ""
+        if self.shards > self.samples:
+            raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
+                             "must be <= samples")
+        nyquist = self.acquisition.sample_rate_hz / 2
+        if self.drive.probe_hz >= nyquist / 4:
+            raise SceneError(f"{pre}drive.probe_hz: {self.drive.probe_hz:g} Hz must stay below "
+                             f"a quarter of Nyquist ({nyquist / 4:g} Hz) for exact stepping")
+        lo, hi = self.wall.gap_fraction
+        if lo > hi:
+            raise SceneError(f"{pre}wall.gap_fraction: low {lo:g} above high {hi:g}")
+
+    # --- the model -------------------------------------------------------------------------
+    def transducer(self) -> ModalTransducer:
+        """The calibrated modal model (the dielectric loss exact at the probe frequency)."""
+        return ModalTransducer.from_beam(build(self.preset), self.n_modes,
+                                         reference_hz=self.drive.probe_hz)
+
+    @property
+    def n_samples(self) -> int:
+        """Samples per record."""
+        return int(round(self.drive.cycles / self.drive.whisk_hz
+                         * self.acquisition.sample_rate_hz))
+
+    def times(self) -> np.ndarray:
+        """Sample instants, s, shape ``(n_samples,)``."""
+        return np.arange(self.n_samples) / self.acquisition.sample_rate_hz
+
+    def drive_voltage(self, lead: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """E (V) and dE/dt (V/s) at the samples, each ``(n_samples,)`` (with ``lead``: the
+        lead-in's samples first)."""
+        d, rate = self.drive, self.acquisition.sample_rate_hz
+        n_lead = int(round(d.lead_s * rate)) if lead else 0
+        t = np.arange(-n_lead, self.n_samples) / rate
+        wl, wh = 2 * np.pi * d.whisk_hz, 2 * np.pi * d.probe_hz
+        e = -d.whisk_v * np.cos(wl * t) + d.probe_v * np.sin(wh * t)
+        de = d.whisk_v * wl * np.sin(wl * t) + d.probe_v * wh * np.cos(wh * t)
+        if n_lead:
+            x = np.clip((t + d.lead_s) / d.lead_s, 0.0, 1.0)
+            ramp, dramp = 0.5 - 0.5 * np.cos(np.pi * x), 0.5 * np.pi / d.lead_s * np.sin(np.pi * x)
+            e, de = e * ramp, de * ramp + e * dramp
+        return e, de
+
+    def whisk_amplitude_m(self) -> float:
+        """The tip's whisking amplitude HUE(0)·whisk_v of the calibrated model, m."""
+        return self.transducer().static_tip_displacement_per_volt() * self.drive.whisk_v
+
+    def gap_range_m(self) -> tuple[float, float]:
+        lo, hi = self.wall.gap_fraction
+        amp = self.whisk_amplitude_m()
+        return lo * amp, hi * amp
+
+    def output_ranges(self) -> dict[str, OutputRange]:
+        """g over the scene's range, 2 % of its span beyond still in domain; physically
+        anywhere the tip can reach (± twice the whisking amplitude)."""
+        lo, hi = self.gap_range_m()
+        amp = self.whisk_amplitude_m()
+        return {"gap": OutputRange(lo, hi, (-2 * amp, 2 * amp), margin=0.02)}
+
+    def reference_stiffness(self) -> float:
+        """Geometric mean of the contact-stiffness range, N/m (the classical threshold's)."""
+        return float(np.sqrt(np.prod(self.wall.stiffness)))
+
+    # --- generation --------------------------------------------------------------------------
+    def contacts(self, touching: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Onset and detachment times (s) of each record's contacts from the per-sample
+        touching state ``(n, n_samples)``; touches closer than ``merge_periods`` probe
+        periods are one contact. Each ``(n, max_contacts)``, NaN-padded."""
+        return intervals(touching, self.acquisition.sample_rate_hz,
+                         self.merge_periods / self.drive.probe_hz, self.max_contacts)
+
+    def quantise(self, x: np.ndarray, full_scale: float) -> np.ndarray:
+        """Clip to ± full scale and round to the ADC's step."""
+        lsb = 2 * full_scale / 2**self.acquisition.adc_bits
+        return np.round(np.clip(x, -full_scale, full_scale - lsb) / lsb) * lsb
+
+    def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64
+                 ) -> dict[str, np.ndarray]:
+        """``n`` records: ``e`` (V) and ``i`` (A) float32 ``(n, n_samples)``; labels ``gap``
+        (m, NaN without a wall), ``onset``, ``detachment`` (s, ``(n, max_contacts)``);
+        nuisance ``stiffness``, ``damping``, ``coupling``."""
+        w, a = self.wall, self.acquisition
+        lo, hi = self.gap_range_m()
+        gap = rng.uniform(lo, hi, n)
+        gap[rng.random(n) < w.free_fraction] = np.nan
+        k = np.exp(rng.uniform(*np.log(w.stiffness), n))
+        c = rng.uniform(*w.damping, n)
+        scale = 1 + self.calibration_error * rng.standard_normal(n)
+        e, de = self.drive_voltage(lead=True)
+        n_lead = len(e) - self.n_samples
+        model = self.transducer()
+        dt = 1 / a.sample_rate_hz
+        cur = np.empty((n, self.n_samples), np.float32)
+        touching = np.empty((n, self.n_samples), bool)
+        for start in range(0, n, batch):
+            sl = slice(start, min(n, start + batch))
+            # no wall: one far beyond the reach (never touched: exactly the free answer)
+            g = np.where(np.isnan(gap[sl]), 1.0, gap[sl])
+            out = model.simulate(e, dt, Wall(g, k[sl], c[sl]), drive_rate=de,
+                                 coupling_scale=scale[sl], record=("i",), dtype=np.float64)
+            cur[sl] = out["i"][:, n_lead:]
+            touching[sl] = out["contact"][:, n_lead:]
+        e = e[n_lead:]
+        e_rec = self.quantise(e[None] + a.e_noise_v * rng.standard_normal((n, len(e))),
+                              a.e_full_scale_v)
+        i_rec = self.quantise(cur + a.i_noise_a * rng.standard_normal(cur.shape),
+                              a.i_full_scale_a)
+        onset, detach = self.contacts(touching)
+        return {"e": e_rec.astype(np.float32), "i": i_rec.astype(np.float32),
+                "gap": gap, "onset": onset, "detachment": detach, "stiffness": k,
+                "damping": c, "coupling": scale}
+
+
+def intervals(active: np.ndarray, rate: float, merge_s: float, max_count: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end times (s) of the runs of ``True`` in each row of ``active``
+    ``(n, n_samples)``, runs closer than ``merge_s`` merged; each ``(n, max_count)``,
+    NaN-padded (extra runs dropped). A run still open at the end has end NaN."""
+    n = len(active)
+    starts = np.full((n, max_count), np.nan)
+    ends = np.full((n, max_count), np.nan)
+    pad = np.zeros((n, 1), bool)
+    edges = np.diff(np.concatenate([pad, active.astype(bool), pad], 1).astype(np.int8), axis=1)
+    for r in range(n):
+        on = np.flatnonzero(edges[r] == 1)
+        off = np.flatnonzero(edges[r] == -1)
+        apart = on[1:] - off[:-1] > merge_s * rate
+        on = on[np.concatenate([[True], apart])] if len(on) else on
+        off = off[np.concatenate([apart, [True]])] if len(off) else off
+        m = min(len(on), max_count)
+        starts[r, :m] = on[:m] / rate
+        ends[r, :m] = np.where(off[:m] >= active.shape[1], np.nan, off[:m] / rate)
+    return starts, ends

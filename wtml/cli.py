@@ -1,7 +1,7 @@
 """The ``wtml`` console script.
 
 Subcommands: ``walkthrough`` (the thesis's calibration), ``presets``, ``generate``,
-``evaluate``, ``export``, ``predict``, ``bench fluid|radial`` and ``pipeline`` (all of them
+``evaluate``, ``export``, ``predict``, ``bench fluid|radial|onset`` and ``pipeline`` (all of them
 in a row). Bad input ends a command with one line on stderr and exit code 2.
 Training runs through LightningCLI: ``python train.py fit --config configs/fluid.yaml``.
 """
@@ -99,6 +99,14 @@ def _bench_radial(args: argparse.Namespace) -> int:
     print(run_bench(args.data, args.checkpoint, args.thesis_checkpoint, args.model,
                     args.thesis_model, args.out, invalid_dir=args.invalid,
                     threads=args.threads, max_samples=args.max_samples))
+    return 0
+
+
+def _bench_onset(args: argparse.Namespace) -> int:
+    from wtml.bench.onset import run_bench
+
+    print(run_bench(args.data, args.model, args.out, free_records=args.free_records,
+                    variant_records=args.variant_records))
     return 0
 
 
@@ -223,8 +231,21 @@ def build_parser() -> argparse.ArgumentParser:
                     help="benchmark the first this many test samples")
     br.set_defaults(func=_bench_radial)
 
+    bo = be_sub.add_parser("onset", help="the contact-onset slice", formatter_class=_Help,
+                           description="Every onset method on the test shard: location error "
+                                       "by range of g, onset/detachment time error, F1 at "
+                                       "±1 ms, false contacts in free whisking, domain flag on "
+                                       "untrained drives, Figure 5.22, latency; the modal "
+                                       "convergence table and the simulator's speed.")
+    _bench_options(bo, "onset")
+    bo.add_argument("--free-records", type=int, default=50,
+                    help="records of 2 s of free whisking (no wall) for false contacts")
+    bo.add_argument("--variant-records", type=int, default=16,
+                    help="records per untrained-drive variant for the domain flag")
+    bo.set_defaults(func=_bench_onset)
+
     pl = verb("pipeline", "the main job: generate, train, export, predict, bench, summary")
-    pl.add_argument("task", nargs="?", choices=["all", "fluid", "radial"], default="all",
+    pl.add_argument("task", nargs="?", choices=["all", "fluid", "radial", "onset"], default="all",
                     help="which slice")
     pl.add_argument("--max-epochs", type=int, default=None,
                     help="override the training configs' epochs (default: the configs')")

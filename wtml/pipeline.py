@@ -1,4 +1,4 @@
-"""The main job, end to end on small defaults, for the fluid slice and then the radial slice:
+"""The main job, end to end on small defaults, for the fluid, radial and onset slices:
 generate -> train -> export -> predict -> bench, then one summary of every slice.
 
 Each stage prints the command that does it alone. Work already done is kept: complete shards
@@ -221,18 +221,71 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
             "  report runs/radial/bench/report.md, plots runs/radial/bench/error_vs_latency.png "
             "and runs/radial/bench/error_vs_d.png",
             f"  time: {stages.line('radial')}"]
+    if results.get("onset"):
+        lines += _onset_lines(results["onset"], stages)
     lines.append(f"total: {duration(time.perf_counter() - stages.start)}")
     return "\n".join(lines)
 
 
+def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
+    """The onset slice end to end; returns its bench summary."""
+    from wtml.bench.onset import run_bench
+    from wtml.runtime.onset import predict_records
+
+    data, model, bench = Path("datasets/onset"), Path("export/onset"), Path("runs/onset/bench")
+    manifest = _generate(stages, "onset", "configs/scenes/onset.yaml", data)
+    ckpt = _train(stages, "onset", "configs/onset.yaml", data, manifest["scene_hash"],
+                  max_epochs)
+    stages.begin("onset", "export onset", f"wtml export --checkpoint {ckpt} --out {model}")
+    for kind, path in export_model(ckpt, model).items():
+        print(f"{kind}: {path}")
+    test = load_shards(data, split_shards(manifest["n_shards"], 1, 1)["test"])
+    sample = model / "rec.npz"
+    np.savez(sample, e=test["e"][:2], i=test["i"][:2],
+             sample_rate_hz=dataset_scene(data).acquisition.sample_rate_hz)
+    stages.begin("onset", "predict", f"wtml predict --model {model} --input {sample}")
+    rows = predict_records(model, sample)
+    print(format_predictions(rows))
+    print("true: gap " + ", ".join(f"{g:.4g} m" for g in test["gap"][:2]) + "; onsets "
+          + ", ".join(f"{t:.4f}" for t in test["onset"][:2].ravel() if np.isfinite(t)) + " s")
+    stages.begin("onset", "bench", f"wtml bench onset --out {bench} --free-records 20 "
+                                   "--variant-records 8")
+    print(run_bench(data, model, bench, free_records=20, variant_records=8))
+    stages.end()
+    return json.loads((bench / "summary.json").read_text())
+
+
+def _onset_lines(onset: dict, stages: Stages) -> list[str]:
+    by = {m["name"]: m for m in onset["methods"]}
+    dec, thesis = by["decoder (ONNX)"], by["thesis pipeline (ONNX)"]
+    rmse = dec["rows"][-1]["rmse"]
+    return [
+        f"onset ({onset['n_test']} test records, decoder ONNX):",
+        f"  location RMSE {1e6 * rmse:.3f} µm (target ≤ 0.1 µm: {_met(rmse <= 1e-7)}); thesis "
+        f"pipeline {1e6 * thesis['rows'][-1]['rmse']:.3f} µm (target ours ≤ half: "
+        f"{_met(rmse <= thesis['rows'][-1]['rmse'] / 2)})",
+        f"  F1 at ±1 ms {dec['f1']:.3f} (target ≥ 0.995: {_met(dec['f1'] >= 0.995)}); false "
+        f"contacts {dec['false_per_s']:.3f}/s of free whisking (target 0: "
+        f"{_met(dec['false_per_s'] == 0)}); Fig 5.22 R² {dec['fig522_r2']:.4f}",
+        "  domain flag on untrained drives: " + ", ".join(
+            f"{k} {100 * v:.0f} %" for k, v in onset["domain_flag"].items())
+        + f"; held-out test rows flagged {100 * onset['false_alarm_held_out']:.1f} %",
+        f"  simulator {onset['simulator']['real_time_factor']:.0f}× real time (target ≥ 1000×"
+        f": {_met(onset['simulator']['real_time_factor'] >= 1000)})",
+        "  report runs/onset/bench/report.md, plots runs/onset/bench/*.png",
+        f"  time: {stages.line('onset')}"]
+
+
 def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:
-    """The main job for ``task`` (``"all"``, ``"fluid"`` or ``"radial"``); prints and returns
-    the closing summary."""
+    """The main job for ``task`` (``"all"``, ``"fluid"``, ``"radial"`` or ``"onset"``);
+    prints and returns the closing summary."""
     stages, results = Stages(), {}
     if task in ("fluid", "all"):
         results["fluid"] = run_fluid(stages, max_epochs=max_epochs)
     if task in ("radial", "all"):
         results["radial"] = run_radial(stages, max_epochs=max_epochs)
+    if task in ("onset", "all"):
+        results["onset"] = run_onset(stages, max_epochs=max_epochs)
     text = summary(results, stages)
     print(text)
     sys.stdout.flush()

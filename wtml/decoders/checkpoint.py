@@ -45,7 +45,8 @@ def read_checkpoint(path: str | Path, task: str | None = None) -> dict:
 
     Args:
         path: a ``.ckpt`` file written by ``python train.py fit``.
-        task: if given, the task the checkpoint must be for (``"fluid"``, ``"radial"``, ``"onset"``).
+        task: if given, the task the checkpoint must be for (``"fluid"``, ``"radial"``,
+            ``"onset"``).
 
     Raises:
         CheckpointError: one line naming the file and what to do: missing, truncated or

@@ -31,5 +31,5 @@ def scene_from_dict(data: dict) -> FluidScene | RadialScene | OnsetScene:
     return build(SCENES[data.get("task", "fluid")], data)
 
 
-__all__ = ["SCENES", "FluidScene", "OnsetScene", "RadialScene", "SceneError", "config_hash", "load_scene",
-           "scene_from_dict", "to_dict"]
+__all__ = ["SCENES", "FluidScene", "OnsetScene", "RadialScene", "SceneError", "config_hash",
+           "load_scene", "scene_from_dict", "to_dict"]

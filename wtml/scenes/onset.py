@@ -10,9 +10,9 @@ its full scale is in A).
 The drive is ``e = -AL cos(ωL t) + AH sin(ωH t)``: the whisk starts at its far end, so every
 contact lies inside the record. A lead-in of ``lead_s`` before t = 0, the drive raised from 0
 by a raised-cosine ramp, lets the probe's resonance (ring time ~40 ms) settle from rest; it is
-simulated and not recorded. Each record's device differs from the calibrated one by its piezo coupling, a factor
-``1 + N(0, calibration_error)``: HUE(0) and T at 420 Hz are off by about that much, and no
-method sees it (the classical path and the decoders use the calibrated model).
+simulated and not recorded. Each record's device differs from the calibrated one by its piezo
+coupling, a factor ``1 + N(0, calibration_error)``: HUE(0) and T at 420 Hz are off by about
+that much, and no method sees it (the classical path and the decoders use the calibrated model).
 
 Labels: ``gap`` g (m; NaN in a record without a wall), and every contact's ``onset`` and
 ``detachment`` (s; NaN-padded to ``max_contacts``). A contact is a stretch of touching; touches
@@ -172,15 +172,18 @@ class OnsetScene:
         lsb = 2 * full_scale / 2**self.acquisition.adc_bits
         return np.round(np.clip(x, -full_scale, full_scale - lsb) / lsb) * lsb
 
-    def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64
+    def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64, gaps=None
                  ) -> dict[str, np.ndarray]:
         """``n`` records: ``e`` (V) and ``i`` (A) float32 ``(n, n_samples)``; labels ``gap``
         (m, NaN without a wall), ``onset``, ``detachment`` (s, ``(n, max_contacts)``);
-        nuisance ``stiffness``, ``damping``, ``coupling``."""
+        nuisance ``stiffness``, ``damping``, ``coupling``. ``gaps`` (m, ``(n,)``) fixes the
+        walls instead of drawing them (NaN: no wall)."""
         w, a = self.wall, self.acquisition
         lo, hi = self.gap_range_m()
         gap = rng.uniform(lo, hi, n)
         gap[rng.random(n) < w.free_fraction] = np.nan
+        if gaps is not None:
+            gap = np.broadcast_to(np.asarray(gaps, dtype=float), (n,)).copy()
         k = np.exp(rng.uniform(*np.log(w.stiffness), n))
         c = rng.uniform(*w.damping, n)
         scale = 1 + self.calibration_error * rng.standard_normal(n)

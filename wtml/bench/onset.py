@@ -1,0 +1,310 @@
+"""``wtml bench onset``: every onset method on the held-out test shard, in one run.
+
+Methods: our decoder (``model.onnx``), the thesis's pipeline (``classical.onnx``), and the
+ruptures change-point peer (PELT on the pipeline's |Zm| per probe frame). For each: location
+RMSE and max error (µm) by range of g, onset and detachment time error (ms, median absolute,
+over contacts matched within 50 ms), detection F1 of onsets at ±1 ms, false contacts per second
+of free whisking (a variant with no wall), p50 latency at batch 1 per second of signal and
+throughput. Also: the decoder's domain flag on variants it was not trained on (another
+whisking amplitude, another probe level), the thesis's Figure 5.22 (15 positions × 3 repeats,
+measured against actual location, with R²), the modal model's convergence table, and the
+simulator's speed. Writes ``report.md``, ``summary.json`` and PNGs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wtml.baselines.onset_classical import ruptures_contacts
+from wtml.data.datamodule import split_shards
+from wtml.data.shards import dataset_scene, load_shards, read_manifest
+from wtml.physics.beam_presets import build
+from wtml.physics.modal import Wall, convergence_table
+from wtml.runtime.onset import contacts_from, thesis_pipeline
+from wtml.runtime.predict import OnnxModel
+
+TOLERANCE_S = 1e-3
+MATCH_S = 50e-3
+
+
+def match_events(true: np.ndarray, found: np.ndarray, tol: float) -> tuple[int, int, int,
+                                                                          np.ndarray]:
+    """Greedy one-to-one matching of event times per record within ``tol`` s: true
+    positives, false positives, false negatives, and the matched errors (s)."""
+    tp = fp = fn = 0
+    errors = []
+    for t_row, f_row in zip(true, found, strict=True):
+        t_ev = list(t_row[np.isfinite(t_row)])
+        f_ev = f_row[np.isfinite(f_row)]
+        for f in f_ev:
+            if t_ev:
+                k = int(np.argmin(np.abs(np.subtract(t_ev, f))))
+                if abs(t_ev[k] - f) <= tol:
+                    errors.append(f - t_ev.pop(k))
+                    tp += 1
+                    continue
+            fp += 1
+        fn += len(t_ev)
+    return tp, fp, fn, np.array(errors)
+
+
+def event_metrics(labels: dict, onset: np.ndarray, detach: np.ndarray) -> dict:
+    tp, fp, fn, _ = match_events(labels["onset"], onset, TOLERANCE_S)
+    f1 = 2 * tp / max(2 * tp + fp + fn, 1)
+    _, _, _, on_err = match_events(labels["onset"], onset, MATCH_S)
+    _, _, _, off_err = match_events(labels["detachment"], detach, MATCH_S)
+    return {"f1": f1, "onset_ms": _median_ms(on_err), "detach_ms": _median_ms(off_err)}
+
+
+def _median_ms(errors: np.ndarray) -> float:
+    return float(np.median(np.abs(errors))) * 1e3 if len(errors) else float("nan")
+
+
+def location_rows(err: np.ndarray, frac: np.ndarray) -> list[dict]:
+    """RMSE and max |error| (m) by range of g as a fraction of the whisking amplitude."""
+    rows = []
+    for lo, hi in ((0.0, 0.37), (0.37, 0.63), (0.63, 1.0), (0.0, 1.0)):
+        sel = (frac >= lo) & (frac <= hi) & np.isfinite(err)
+        miss = int(np.sum((frac >= lo) & (frac <= hi) & ~np.isfinite(err)))
+        rows.append({"range": "all" if (lo, hi) == (0.0, 1.0) else f"{lo:.2f}-{hi:.2f}",
+                     "rmse": float(np.sqrt(np.mean(err[sel] ** 2))) if sel.any() else np.nan,
+                     "max": float(np.abs(err[sel]).max()) if sel.any() else np.nan,
+                     "missed": miss})
+    return rows
+
+
+def _timed(fn, *args, repeats: int = 5) -> float:
+    fn(*args)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn(*args)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+class RupturesPeer:
+    """The change-point peer on the thesis pipeline's |Zm| (mean per probe frame)."""
+
+    name = "ruptures PELT on |Zm|"
+
+    def __init__(self, scene) -> None:
+        self.pipe = thesis_pipeline(scene).eval()
+        self.period = int(round(scene.acquisition.sample_rate_hz / scene.drive.probe_hz))
+        self.frame_s = self.period / scene.acquisition.sample_rate_hz
+        self.merge = scene.merge_periods / scene.drive.probe_hz
+        self.threshold = self.pipe.threshold
+        self.max_contacts = scene.max_contacts
+
+    @torch.no_grad()
+    def run(self, e: np.ndarray, i: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        from wtml.scenes.onset import intervals
+
+        u, zm = self.pipe.bands(torch.tensor(e), torch.tensor(i))
+        n_fr = zm.shape[1] // self.period
+        zf = zm[:, :n_fr * self.period].reshape(len(e), n_fr, -1).mean(-1).numpy()
+        uf = u[:, :n_fr * self.period].reshape(len(e), n_fr, -1).mean(-1).numpy()
+        pad = int(np.ceil(self.pipe.pad / self.period))
+        gaps, states = [], []
+        for z, uu in zip(zf, uf, strict=True):
+            z = z[pad:-pad]
+            noise = np.median(np.abs(np.diff(z))) / 0.95 + 1e-12
+            g, st = ruptures_contacts(z / noise, uu[pad:-pad], self.threshold / noise,
+                                      penalty=10.0 * np.log(len(z)))
+            gaps.append(g)
+            states.append(np.concatenate([np.zeros(pad, bool), st, np.zeros(pad, bool)]))
+        on, off = intervals(np.array(states), 1 / self.frame_s, self.merge, self.max_contacts)
+        return np.array(gaps), on + self.frame_s / 2, off - self.frame_s / 2
+
+
+def _methods(model_dir: Path, scene):
+    decoder = OnnxModel(model_dir / "model.onnx")
+    classical = OnnxModel(model_dir / "classical.onnx")
+    peer = RupturesPeer(scene)
+
+    def onnx_run(model):
+        def run(e, i):
+            out = model.run(e, i)
+            on, off = contacts_from(out["contact"], model.metadata)
+            return out["gap"], on, off, out
+        return run
+
+    return {"decoder (ONNX)": onnx_run(decoder), "thesis pipeline (ONNX)": onnx_run(classical),
+            peer.name: lambda e, i: (*peer.run(e, i), None)}, decoder
+
+
+def simulator_speed(scene, records: int = 64, seconds: float = 0.5) -> dict:
+    """Samples·steps per second and the real-time factor of the onset scene's simulator
+    (``records`` walls stepped together for ``seconds`` of signal), on this machine."""
+    model = scene.transducer()
+    rate = scene.acquisition.sample_rate_hz
+    e, de = scene.drive_voltage()
+    n = int(seconds * rate)
+    rng = np.random.default_rng(0)
+    lo, hi = scene.gap_range_m()
+    wall = Wall(rng.uniform(lo, hi, records), 5.0, 1e-4)
+    t0 = time.perf_counter()
+    model.simulate(e[:n], 1 / rate, wall, drive_rate=de[:n], record=("i",))
+    wall_s = time.perf_counter() - t0
+    return {"records": records, "steps": n, "modes": model.n_modes,
+            "sample_steps_per_s": records * n / wall_s,
+            "real_time_factor": records * seconds / wall_s}
+
+
+def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_records: int = 16,
+              repeats: int = 3) -> str:
+    """The whole bench; returns the markdown report (also written to ``out/report.md``)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    model_dir = Path(model_dir)
+    scene = dataset_scene(data_dir)
+    split = split_shards(read_manifest(data_dir)["n_shards"], 1, 1)
+    test = load_shards(data_dir, split["test"])
+    methods, decoder = _methods(model_dir, scene)
+    amp = scene.whisk_amplitude_m()
+    frac = test["gap"] / amp
+    rng = np.random.default_rng([scene.seed, 777])
+    free_scene = dataclasses.replace(scene, wall=dataclasses.replace(scene.wall,
+                                                                     free_fraction=1.0))
+    free = free_scene.simulate(free_records, rng)
+    positions = np.repeat(np.linspace(*scene.gap_range_m(), 15), repeats)
+    fig = scene.simulate(len(positions), rng, gaps=positions)
+    results = []
+    for name, run in methods.items():
+        gap, on, off, _ = run(test["e"], test["i"])
+        err = gap - test["gap"]
+        ev = event_metrics(test, on, off)
+        _, f_on, _, _ = run(free["e"], free["i"])
+        false_rate = float(np.isfinite(f_on).sum() / (free_records * scene.n_samples
+                                                      / scene.acquisition.sample_rate_hz))
+        g_fig, _, _, _ = run(fig["e"], fig["i"])
+        ok = np.isfinite(g_fig)
+        r2 = 1 - np.sum((g_fig[ok] - positions[ok]) ** 2) / np.sum(
+            (positions[ok] - positions[ok].mean()) ** 2)
+        lat = _timed(run, test["e"][:1], test["i"][:1], repeats=repeats)
+        thr = len(test["e"]) / _timed(run, test["e"], test["i"], repeats=1)
+        results.append({"name": name, "rows": location_rows(err, frac), **ev,
+                        "false_per_s": false_rate, "fig522_r2": float(r2),
+                        "fig522": g_fig.tolist(), "err": err.tolist(),
+                        "latency_ms_per_s": 1e3 * lat * scene.acquisition.sample_rate_hz
+                        / scene.n_samples, "records_per_s": thr})
+    flags = {}
+    for label, drive in (("whisk 7.5 V", {"whisk_v": 7.5}), ("probe 40 mV", {"probe_v": 0.04})):
+        var = dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, **drive))
+        rec = var.simulate(variant_records, rng)
+        flags[label] = float(1 - decoder.run(rec["e"], rec["i"])["in_domain"].mean())
+    held_in = float(1 - decoder.run(test["e"], test["i"])["in_domain"].mean())
+    band = 2 * np.pi * np.linspace(0.9, 1.1, 41) * scene.drive.probe_hz
+    conv = convergence_table(build(scene.preset), band)
+    speed = simulator_speed(scene)
+    report = _report(results, flags, held_in, conv, speed, scene, len(test["e"]), free_records)
+    (out / "report.md").write_text(report)
+    summary = {"task": "onset", "n_test": len(test["e"]),
+               "methods": [{k: v for k, v in r.items() if k not in ("err", "fig522")}
+                           for r in results], "domain_flag": flags,
+               "false_alarm_held_out": held_in, "convergence": conv, "simulator": speed}
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    _plots(results, test, fig, positions, amp, scene, methods, out)
+    return report
+
+
+def _report(results, flags, held_in, conv, speed, scene, n_test, n_free) -> str:
+    rows = results[0]["rows"]
+    lines = [f"# wtml bench onset ({n_test} held-out records of "
+             f"{scene.n_samples / scene.acquisition.sample_rate_hz:g} s; "
+             f"{n_free} free-whisking records)", "",
+             "Location RMSE / max |error| in µm by g as a fraction of the whisking amplitude "
+             f"({1e6 * scene.whisk_amplitude_m():.2f} µm):", "",
+             "| method | " + " | ".join(r["range"] for r in rows)
+             + " | onset err (ms) | detach err (ms) | F1 ±1 ms | false contacts/s "
+               "| Fig 5.22 R² | p50 ms per s of signal | records/s |",
+             "|---|" + "---|" * (len(rows) + 7)]
+    for r in results:
+        cells = [f"{1e6 * x['rmse']:.3f} / {1e6 * x['max']:.2f}"
+                 + (f" ({x['missed']} missed)" if x["missed"] else "") for x in r["rows"]]
+        lines.append(f"| {r['name']} | " + " | ".join(cells)
+                     + f" | {r['onset_ms']:.2f} | {r['detach_ms']:.2f} | {r['f1']:.3f} | "
+                       f"{r['false_per_s']:.3f} | {r['fig522_r2']:.5f} | "
+                       f"{r['latency_ms_per_s']:.2f} | {r['records_per_s']:.1f} |")
+    lines += ["", "Decoder's domain flag (fraction of records flagged out of domain): "
+              f"held-out test {held_in:.3f}; "
+              + "; ".join(f"{k} {v:.3f}" for k, v in flags.items()), "",
+              f"Modal T(ω) over {0.9 * scene.drive.probe_hz:g}-{1.1 * scene.drive.probe_hz:g} "
+              "Hz: max relative error of any element", "",
+              "| modes | vs all modes (truncation) | vs beam (+ damping model) | HUE(0) |",
+              "|---|---|---|---|"]
+    lines += [f"| {c['n_modes']} | {c['vs_all_modes']:.2e} | {c['vs_beam']:.2e} | "
+              f"{c['hue0']:.1e} |" for c in conv]
+    lines += ["", f"Simulator ({speed['modes']} modes, {speed['records']} records stepped "
+              f"together): {speed['sample_steps_per_s']:.3g} samples·steps/s, "
+              f"{speed['real_time_factor']:.1f}× real time (one process)."]
+    return "\n".join(lines) + "\n"
+
+
+def _plots(results, test, fig, positions, amp, scene, methods, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f, ax = plt.subplots(figsize=(6, 4))
+    for r in results:
+        ax.plot(test["gap"] * 1e6, np.abs(r["err"]) * 1e6, ".", label=r["name"])
+    ax.set(xlabel="wall location g (µm)", ylabel="|error| (µm)", yscale="log",
+           title="location error vs g")
+    ax.legend(fontsize=7)
+    f.tight_layout()
+    f.savefig(out / "error_vs_g.png", dpi=120)
+    plt.close(f)
+    f, ax = plt.subplots(figsize=(5, 4))
+    for r in results:
+        ax.plot(r["latency_ms_per_s"], 1e6 * r["rows"][-1]["rmse"], "o", label=r["name"])
+    ax.set(xlabel="p50 latency, ms per s of signal", ylabel="location RMSE (µm)",
+           xscale="log", yscale="log", title="error vs latency")
+    ax.legend(fontsize=7)
+    f.tight_layout()
+    f.savefig(out / "error_vs_latency.png", dpi=120)
+    plt.close(f)
+    f, ax = plt.subplots(figsize=(5, 5))
+    for r in results:
+        ax.plot(positions * 1e6, np.array(r["fig522"]) * 1e6, "o", ms=3,
+                label=f"{r['name']} (R² {r['fig522_r2']:.4f})")
+    ax.plot(positions * 1e6, positions * 1e6, "k-", lw=0.5)
+    ax.set(xlabel="actual location (µm)", ylabel="measured location (µm)",
+           title="Figure 5.22: 15 positions × 3 repeats")
+    ax.legend(fontsize=7)
+    f.tight_layout()
+    f.savefig(out / "fig5_22.png", dpi=120)
+    plt.close(f)
+    pipe = thesis_pipeline(scene).eval()
+    with torch.no_grad():
+        u, zm = pipe.bands(torch.tensor(test["e"][:1]), torch.tensor(test["i"][:1]))
+    t = np.arange(scene.n_samples) / scene.acquisition.sample_rate_hz
+    f, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
+    axes[0].plot(t, test["e"][0], lw=0.5)
+    axes[0].set_ylabel("e (V)")
+    axes[1].plot(t, test["i"][0] * 1e9, lw=0.5)
+    axes[1].set_ylabel("i (nA)")
+    axes[2].plot(t, zm[0].numpy() * 1e3, lw=0.7, label="|Zm(t)| (thesis pipeline)")
+    for k, (name, run) in enumerate(methods.items()):
+        _, on, off, _ = run(test["e"][:1], test["i"][:1])
+        for a, b in zip(on[0], off[0], strict=True):
+            if np.isfinite(a):
+                axes[2].axvspan(a, b if np.isfinite(b) else t[-1], ymin=0.05 + 0.1 * k,
+                                ymax=0.12 + 0.1 * k, color=f"C{k + 1}", label=name)
+    for a, b in zip(test["onset"][0], test["detachment"][0], strict=True):
+        if np.isfinite(a):
+            axes[2].axvspan(a, b, ymin=0.9, ymax=1.0, color="k", alpha=0.4, label="true")
+    axes[2].set(ylabel="|Zm| (mN·s/m)", xlabel="t (s)")
+    handles, labels = axes[2].get_legend_handles_labels()
+    keep = dict(zip(labels, handles, strict=True))
+    axes[2].legend(keep.values(), keep.keys(), fontsize=6)
+    f.tight_layout()
+    f.savefig(out / "example_record.png", dpi=120)
+    plt.close(f)

@@ -21,6 +21,8 @@ from scipy.signal import firwin
 from torch import nn
 from torch.nn import functional as fn
 
+from wtml.decoders.layers import ZmFromEI
+
 
 def band_filters(sample_rate: float, probe_hz: float, taps: int = 1025, low_cut_hz: float = 150.0,
                  half_band_hz: float = 60.0) -> np.ndarray:
@@ -52,26 +54,15 @@ class ThesisOnset(nn.Module):
         super().__init__()
         self.register_buffer("fir", torch.tensor(band_filters(sample_rate, probe_hz, taps)[:, None],
                                                  dtype=torch.float32))
-        t = np.asarray(t_probe, dtype=complex)
-        self.i_scale = 1e6
-        # Zm = (t22 E - t12 I)/(t11 I - t21 E) with I in µA inside
-        for name, value in (("t11", t[0, 0] / self.i_scale), ("t12", t[0, 1] / self.i_scale),
-                            ("t21", t[1, 0]), ("t22", t[1, 1])):
-            self.register_buffer(f"{name}_re", torch.tensor(value.real, dtype=torch.float32))
-            self.register_buffer(f"{name}_im", torch.tensor(value.imag, dtype=torch.float32))
+        self.zm = ZmFromEI(t_probe)
         self.hue0, self.threshold, self.pad = float(hue0), float(threshold), (taps - 1) // 2
 
     def bands(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """``u_L`` (m) and ``|Zm|`` (N·s/m) per sample, each ``(batch, n)``."""
         fe = fn.conv1d(fn.pad(e[:, None], (self.pad, self.pad)), self.fir)
-        fi = fn.conv1d(fn.pad(i[:, None] * self.i_scale, (self.pad, self.pad)), self.fir[1:])
-        e_re, e_im, i_re, i_im = fe[:, 1], fe[:, 2], fi[:, 0], fi[:, 1]
-        num_re = self.t22_re * e_re - self.t22_im * e_im - (self.t12_re * i_re - self.t12_im * i_im)
-        num_im = self.t22_re * e_im + self.t22_im * e_re - (self.t12_re * i_im + self.t12_im * i_re)
-        den_re = self.t11_re * i_re - self.t11_im * i_im - (self.t21_re * e_re - self.t21_im * e_im)
-        den_im = self.t11_re * i_im + self.t11_im * i_re - (self.t21_re * e_im + self.t21_im * e_re)
-        zm = torch.sqrt((num_re * num_re + num_im * num_im) / (den_re * den_re + den_im * den_im))
-        return self.hue0 * fe[:, 0], zm
+        fi = fn.conv1d(fn.pad(i[:, None] * ZmFromEI.I_SCALE, (self.pad, self.pad)), self.fir[1:])
+        zm_re, zm_im = self.zm(fe[:, 1], fe[:, 2], fi[:, 0], fi[:, 1])
+        return self.hue0 * fe[:, 0], torch.sqrt(zm_re * zm_re + zm_im * zm_im)
 
     def forward(self, e: torch.Tensor, i: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

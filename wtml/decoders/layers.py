@@ -43,6 +43,41 @@ class ZmFromZe(nn.Module):
                 self.a_im + self.b_re * inv_im + self.b_im * inv_re)
 
 
+class ZmFromEI(nn.Module):
+    """Eq. 5.6 on analytic signals or phasors: ``Zm = (t22 E - t12 I)/(t11 I - t21 E)`` with
+    a calibrated T at one frequency, in float32 real arithmetic. The current enters in µA
+    (T's current-side elements are scaled to match), which keeps both terms of each
+    difference of similar size in float32.
+
+    Args:
+        t: complex T ``(2, 2)`` (numpy).
+
+    Forward: ``e_re, e_im`` (V) and ``i_re, i_im`` (µA), any equal shapes -> ``zm_re, zm_im``
+    (N·s/m).
+    """
+
+    I_SCALE = 1e6
+    """A -> µA."""
+
+    def __init__(self, t: np.ndarray) -> None:
+        super().__init__()
+        t = np.asarray(t, dtype=complex)
+        for name, value in (("t11", t[0, 0] / self.I_SCALE), ("t12", t[0, 1] / self.I_SCALE),
+                            ("t21", t[1, 0]), ("t22", t[1, 1])):
+            self.register_buffer(f"{name}_re", torch.tensor(value.real, dtype=torch.float32))
+            self.register_buffer(f"{name}_im", torch.tensor(value.imag, dtype=torch.float32))
+
+    def forward(self, e_re: torch.Tensor, e_im: torch.Tensor, i_re: torch.Tensor,
+                i_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        num_re = self.t22_re * e_re - self.t22_im * e_im - (self.t12_re * i_re - self.t12_im * i_im)
+        num_im = self.t22_re * e_im + self.t22_im * e_re - (self.t12_re * i_im + self.t12_im * i_re)
+        den_re = self.t11_re * i_re - self.t11_im * i_im - (self.t21_re * e_re - self.t21_im * e_im)
+        den_im = self.t11_re * i_im + self.t11_im * i_re - (self.t21_re * e_im + self.t21_im * e_re)
+        mag2 = den_re * den_re + den_im * den_im
+        return ((num_re * den_re + num_im * den_im) / mag2,
+                (num_im * den_re - num_re * den_im) / mag2)
+
+
 class SignedLogZm(nn.Module):
     """Zm through the calibrated T as ``sign(x) log(1 + |x|)``, ``x = Zm / z_scale``, for Re
     and Im side by side: linear below ``z_scale``, logarithmic above (loads that span decades).

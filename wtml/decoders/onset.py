@@ -32,6 +32,7 @@ from torch import nn
 from torch.nn import functional as fn
 
 from wtml.decoders.base import ConfigError, DecoderModule, check_positive
+from wtml.decoders.layers import ZmFromEI
 
 
 def frame_basis(period: int) -> np.ndarray:
@@ -63,34 +64,19 @@ class ProbeFrames(nn.Module):
         self.period = int(period)
         self.register_buffer("basis", torch.tensor(frame_basis(self.period)[:, None, :],
                                                    dtype=torch.float32))
-        t = np.asarray(t_probe, dtype=complex)
-        for name, value in (("t11", t[0, 0]), ("t12", t[0, 1]), ("t21", t[1, 0]),
-                            ("t22", t[1, 1])):
-            self.register_buffer(f"{name}_re", torch.tensor(value.real, dtype=torch.float32))
-            self.register_buffer(f"{name}_im", torch.tensor(value.imag, dtype=torch.float32))
+        self.zm = ZmFromEI(t_probe)
         self.hue0 = float(hue0)
-        self.i_scale = 1e6  # A -> µA inside (T's elements scaled to match)
 
     def fit(self, x: torch.Tensor) -> torch.Tensor:
         """``(batch, n_samples)`` -> ``(batch, 3, n_frames)``: frame level, cos, sin."""
         return fn.conv1d(x[:, None, :], self.basis, stride=self.period)
 
     def forward(self, e: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
-        fe, fi = self.fit(e), self.fit(i * self.i_scale)
+        s = ZmFromEI.I_SCALE
+        fe, fi = self.fit(e), self.fit(i * s)
         # x = c cos + s sin = Re(X e^{jωt}) with X = c - j s
         e_re, e_im, i_re, i_im = fe[:, 1], -fe[:, 2], fi[:, 1], -fi[:, 2]
-        s = self.i_scale
-        num_re = (self.t22_re * e_re - self.t22_im * e_im
-                  - (self.t12_re * i_re - self.t12_im * i_im) / s)
-        num_im = (self.t22_re * e_im + self.t22_im * e_re
-                  - (self.t12_re * i_im + self.t12_im * i_re) / s)
-        den_re = ((self.t11_re * i_re - self.t11_im * i_im) / s
-                  - (self.t21_re * e_re - self.t21_im * e_im))
-        den_im = ((self.t11_re * i_im + self.t11_im * i_re) / s
-                  - (self.t21_re * e_im + self.t21_im * e_re))
-        mag2 = den_re * den_re + den_im * den_im
-        zm_re = (num_re * den_re + num_im * den_im) / mag2
-        zm_im = (num_im * den_re - num_re * den_im) / mag2
+        zm_re, zm_im = self.zm(e_re, e_im, i_re, i_im)
         return torch.stack([self.hue0 * fe[:, 0], zm_re, zm_im,
                             torch.sqrt(e_re * e_re + e_im * e_im),
                             torch.sqrt(i_re * i_re + i_im * i_im) / s], -1)

@@ -1,5 +1,6 @@
-"""The onset slice: labels, the step's effect, the thesis pipeline's cross-check, and the
-exported graphs (ONNX against torch, records read on a device)."""
+"""The onset slice: labels, the step's effect, the thesis pipeline's cross-check, the timing
+rule, and the exported graphs (ONNX against torch, the streaming graph chunk by chunk against
+the offline one, records read on a device)."""
 
 import dataclasses
 import subprocess
@@ -10,7 +11,13 @@ import pytest
 import torch
 
 from tests.conftest import ROOT
-from wtml.runtime.onset import predict_records, read_record, thesis_pipeline
+from wtml.runtime.onset import (
+    contacts_from,
+    predict_records,
+    read_record,
+    stream_record,
+    thesis_pipeline,
+)
 from wtml.runtime.predict import InputError, OnnxModel
 from wtml.scenes import load_scene
 from wtml.scenes.onset import intervals
@@ -118,9 +125,88 @@ def test_exported_graphs_match_torch(onset_export, scene):
     cl = OnnxModel(onset_export["model"] / "classical.onnx").run(rec["e"], rec["i"])
     np.testing.assert_allclose(dec["gap"], ref[0].numpy(), rtol=1e-4, atol=1e-10)
     np.testing.assert_allclose(dec["contact"], ref[2].numpy(), atol=1e-4)
-    np.testing.assert_array_equal(dec["in_domain"], ref[3].numpy())
+    for k, name in ((3, "onset_margin"), (4, "detach_margin")):
+        np.testing.assert_allclose(dec[name], ref[k].numpy(),
+                                   atol=1e-4 * scene.whisk_amplitude_m())
+    np.testing.assert_array_equal(dec["in_domain"], ref[-2].numpy())
     np.testing.assert_allclose(cl["gap"], ref_cl[0].numpy(), rtol=1e-4, atol=1e-10)
     assert np.mean(cl["contact"] == ref_cl[2].numpy()) > 0.9999
+
+
+def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene):
+    """stream.onnx, fed one probe period at a time with its state carried, gives the offline
+    graph's contact probabilities frame by frame and, after the last chunk, its gap, sigma
+    and domain score."""
+    rec = scene.simulate(3, np.random.default_rng(7))
+    offline = OnnxModel(onset_export["model"] / "model.onnx").run(rec["e"], rec["i"])
+    stream = OnnxModel(onset_export["model"] / "stream.onnx")
+    streamed = stream_record(stream, rec["e"], rec["i"])
+    assert streamed["contact"].shape == offline["contact"].shape
+    np.testing.assert_allclose(streamed["contact"], offline["contact"], atol=1e-5)
+    np.testing.assert_allclose(streamed["gap"], offline["gap"], rtol=1e-5, atol=1e-12)
+    np.testing.assert_allclose(streamed["sigma"], offline["sigma"], rtol=1e-4, atol=1e-12)
+    # the record summary's sums run over chunks in another order than the offline mean:
+    # float32 rounding (RESOLUTION) whitened, a few parts in 1e3 of the score
+    np.testing.assert_allclose(streamed["domain_score"], offline["domain_score"], rtol=1e-2,
+                               atol=1e-3)
+    np.testing.assert_array_equal(streamed["in_domain"], offline["in_domain"])
+    with pytest.raises(InputError, match="do not split into chunks"):
+        stream_record(stream, rec["e"][:, :-1], rec["i"][:, :-1])
+
+
+def test_timing_rule_finds_every_contact_from_levels_inside_their_brackets(scene):
+    """The decoder's timing rule is exact up to the phase in a frame: with each record's
+    onset and detachment levels in the middle of their brackets (level_brackets), the rule on
+    the calibrated reach (contacts_from) finds every onset and detachment within 0.3 ms."""
+    import json
+
+    from wtml.bench.onset import event_metrics, match_events
+    from wtml.decoders.onset import OnsetDecoder, edge_offsets, frame_period, level_brackets
+
+    rec = scene.simulate(4, np.random.default_rng(8))
+    targets = np.concatenate([rec["gap"][:, None], rec["onset"], rec["detachment"],
+                              rec["coupling"][:, None]], 1)
+    frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
+    offsets = edge_offsets(targets, frame_s, scene.max_contacts)
+    net = OnsetDecoder()._make(scene, torch.stack([torch.zeros(5), torch.ones(5)]),
+                               offsets[0] / frame_s - 0.5)
+    with torch.no_grad():
+        f = net.frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double()
+        reach, reach_on = net.double().reaches(f, net.steps(f, f[:, :1, 0]))
+    lo_on, hi_on, lo_off, hi_off = level_brackets(torch.tensor(targets), reach_on, reach,
+                                                  frame_s, scene.max_contacts)
+    on = torch.nanmean((lo_on + hi_on) / 2, 1)[:, None]
+    off = torch.nanmean((lo_off + hi_off) / 2, 1)[:, None]
+    assert torch.all(torch.nan_to_num(lo_on, -1.0) < on)
+    assert torch.all(on <= torch.nan_to_num(hi_on, 1.0))
+    meta = {"frame_s": json.dumps(frame_s), "merge_s": json.dumps(2 / scene.drive.probe_hz),
+            "scene": json.dumps({"max_contacts": scene.max_contacts}),
+            "onset_offset_s": json.dumps(offsets[0]), "detach_offset_s": json.dumps(offsets[1])}
+    pred = {"contact": np.ones(reach.shape), "onset_margin": (reach_on - on).numpy(),
+            "detach_margin": (reach - off).numpy()}
+    onset, detach = contacts_from(pred, meta)
+    assert event_metrics(rec, onset, detach)["f1"] == 1.0
+    for key, found in (("onset", onset), ("detachment", detach)):
+        tp, fp, fn, err = match_events(rec[key], found, 0.3e-3)
+        assert fp == fn == 0 and tp == np.isfinite(rec[key]).sum(), (key, err)
+
+
+def test_ruptures_peer_is_pelt_with_the_l2_cost():
+    """The peer's compiled PELT (linear kernel) finds the change points of ruptures's
+    reference ``Pelt(model="l2")``, and marks the raised segment as the contact."""
+    import ruptures
+
+    from wtml.baselines.onset_classical import ruptures_contacts
+
+    rng = np.random.default_rng(9)
+    x = np.concatenate([rng.normal(0, 1, 60), rng.normal(8, 1, 40), rng.normal(0, 1, 50)])
+    pen = 10 * np.log(len(x))
+    reference = ruptures.Pelt(model="l2", min_size=2, jump=1).fit(x).predict(pen=pen)
+    u = np.linspace(0.0, 1.0, len(x))
+    gap, state = ruptures_contacts(x, u, threshold=4.0, penalty=pen)
+    assert reference == [60, 100, 150]
+    assert np.array_equal(np.flatnonzero(state), np.arange(60, 100))
+    assert gap == pytest.approx((u[60] + u[99]) / 2)
 
 
 def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_path):

@@ -106,7 +106,7 @@ def _bench_onset(args: argparse.Namespace) -> int:
     from wtml.bench.onset import run_bench
 
     print(run_bench(args.data, args.model, args.out, free_records=args.free_records,
-                    variant_records=args.variant_records))
+                    variant_records=args.variant_records, repeats=args.repeats))
     return 0
 
 
@@ -235,13 +235,16 @@ def build_parser() -> argparse.ArgumentParser:
                            description="Every onset method on the test shard: location error "
                                        "by range of g, onset/detachment time error, F1 at "
                                        "±1 ms, false contacts in free whisking, domain flag on "
-                                       "untrained drives, Figure 5.22, latency; the modal "
-                                       "convergence table and the simulator's speed.")
+                                       "untrained drives, Figure 5.22, latency, the streaming "
+                                       "graph's delay; the modal convergence table and the "
+                                       "simulator's speed.")
     _bench_options(bo, "onset")
     bo.add_argument("--free-records", type=int, default=50,
                     help="records of 2 s of free whisking (no wall) for false contacts")
     bo.add_argument("--variant-records", type=int, default=16,
                     help="records per untrained-drive variant for the domain flag")
+    bo.add_argument("--repeats", type=int, default=3,
+                    help="records per wall position of Figure 5.22 (15 positions)")
     bo.set_defaults(func=_bench_onset)
 
     pl = verb("pipeline", "the main job: generate, train, export, predict, bench, summary")

@@ -277,14 +277,14 @@ def _onset_lines(onset: dict, stages: Stages) -> list[str]:
 
 
 def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:
-    """The main job for ``task`` (``"all"``: fluid and radial; or one of ``"fluid"``,
-    ``"radial"``, ``"onset"``); prints and returns the closing summary."""
+    """The main job for ``task`` (``"all"``, or one of ``"fluid"``, ``"radial"``,
+    ``"onset"``); prints and returns the closing summary."""
     stages, results = Stages(), {}
     if task in ("fluid", "all"):
         results["fluid"] = run_fluid(stages, max_epochs=max_epochs)
     if task in ("radial", "all"):
         results["radial"] = run_radial(stages, max_epochs=max_epochs)
-    if task == "onset":  # not yet in "all": it would take the main job past 10 minutes
+    if task in ("onset", "all"):
         results["onset"] = run_onset(stages, max_epochs=max_epochs)
     text = summary(results, stages)
     print(text)

@@ -80,14 +80,16 @@ class ThesisOnset(nn.Module):
 
 def ruptures_contacts(zm_frames: np.ndarray, u_frames: np.ndarray, threshold: float,
                       penalty: float) -> tuple[float, np.ndarray]:
-    """The peer: PELT change points (ruptures, l2 cost) on one record's |Zm| per probe frame;
+    """The peer: PELT change points (ruptures, l2 cost: ``KernelCPD`` with the linear kernel,
+    ruptures's compiled PELT, which finds the same points as ``Pelt(model="l2")`` about a
+    thousand times faster) on one record's |Zm| per probe frame;
     segments whose mean |Zm| exceeds ``threshold`` are contacts. Returns the location (mean
     ``u_L`` at every contact segment's two ends, m; NaN if none) and the per-frame contact
     state ``(n_frames,)`` bool."""
     import ruptures
 
     x = np.asarray(zm_frames, dtype=float)
-    bkps = ruptures.Pelt(model="l2", min_size=2, jump=1).fit(x).predict(pen=penalty)
+    bkps = ruptures.KernelCPD(kernel="linear", min_size=2).fit(x).predict(pen=penalty)
     state = np.zeros(len(x), bool)
     ends = []
     start = 0

@@ -27,7 +27,8 @@ def split_shards(n_shards: int, val_shards: int, test_shards: int) -> dict[str, 
 TARGETS = {
     "fluid": lambda a: np.stack([np.log10(a["eta"]), a["rho"]], -1),  # log10 Pa·s, kg/m³
     "radial": lambda a: a["distance"][:, None],  # m from the tip
-    "onset": lambda a: np.concatenate([a["gap"][:, None], a["onset"], a["detachment"]], 1),
+    "onset": lambda a: np.concatenate([a["gap"][:, None], a["onset"], a["detachment"],
+                                       a["coupling"][:, None]], 1),
 }
 """The training targets of each task, shape ``(n, n_targets)``."""
 

@@ -28,6 +28,11 @@ from torch import nn
 QUANTILE = 0.999
 """The training data's score quantile that sets the threshold (0.1 % of training inputs
 score above 1)."""
+RESOLUTION = 1e-5
+"""The smallest change of a feature, relative to its magnitude, that the gate resolves: a
+float32 feature summed over a record (or over chunks, in another order) is rounded at about
+this level, so a feature that the training data hold nearly constant (a drive level) must not
+turn that rounding into a score."""
 
 
 class ZeParts(nn.Module):
@@ -65,7 +70,10 @@ class DomainGate(nn.Module):
         self.register_buffer("high", torch.tensor(hi, dtype=torch.float32))
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
-        x = self.features(ze_re, ze_im)
+        return self.score(self.features(ze_re, ze_im))
+
+    def score(self, x: torch.Tensor) -> torch.Tensor:
+        """The score of features already computed, ``(batch, n_feat)`` -> ``(batch,)``."""
         z = (x - self.mean) @ self.whiten
         # the box: |(x - low)/m - 10| - 10 is 0 on [low, low + 20 m] = the training span's
         # edges, 1 one margin m (5 % of the span) beyond either edge
@@ -97,16 +105,23 @@ class DomainGate(nn.Module):
 
         Whitening: the standardised features' covariance eigenvectors, each scaled by
         ``1/sqrt(max(λ, floor·λ_max))`` (the floor keeps directions that the training data
-        never vary in from dividing by zero, and float32 rounding from mattering there)."""
+        never vary in from dividing by zero, and float32 rounding from mattering there); each
+        feature's scale and box margin are at least :data:`RESOLUTION` of its magnitude, and
+        the covariance holds that much independent noise on each feature."""
         if not 0.5 <= quantile < 1:
             raise ValueError(f"quantile must be in [0.5, 1), got {quantile}")
         x = torch.cat([self.features(ze_re[s:s + 65536], ze_im[s:s + 65536])
                        for s in range(0, len(ze_re), 65536)]).double()
-        mean, scale = x.mean(0), x.std(0).clamp_min(1e-30)
-        lam, vec = torch.linalg.eigh(torch.cov(((x - mean) / scale).T))
+        size = x.abs().amax(0)
+        mean, scale = x.mean(0), torch.maximum(x.std(0), RESOLUTION * size).clamp_min(1e-30)
+        # rounding at RESOLUTION is independent noise on each feature: the covariance holds
+        # it, so no direction is whitened finer than float32 resolves
+        cov = torch.cov(((x - mean) / scale).T) + torch.diag((RESOLUTION * size / scale) ** 2)
+        lam, vec = torch.linalg.eigh(cov)
         whiten = (vec / lam.clamp_min(floor * float(lam.max())).sqrt()) / scale[:, None]
         low, high = x.min(0).values, x.max(0).values
-        margin = ((high - low) / 20).clamp_min(1e-30)  # 5 % of each feature's span
+        # 5 % of each feature's span, at least what float32 resolves
+        margin = torch.maximum((high - low) / 20, RESOLUTION * size).clamp_min(1e-30)
         self.box_a.copy_((1 / margin).float())
         self.box_b.copy_((-low / margin - 10).float())
         self.mean.copy_(mean.float())

@@ -29,6 +29,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.linalg import eigh, expm
 
 from wtml.physics.beam import BeamTransducer
@@ -238,29 +239,14 @@ class ModalTransducer(Structure):
         de_step = np.diff(e, axis=1, append=e[:, -1:]) / dt
         free = self.step_matrices(dt, np.zeros(bsz), np.zeros(bsz), coupling_scale)
         engaged = self.step_matrices(dt, load.stiffness, load.damping, coupling_scale)
-        both = np.stack([free, engaged])  # (2, B, ns+4, nz)
-        ns = 2 * self.n_modes + 1
-        z = np.zeros((bsz, ns + 4))
-        z[:, ns + 2] = load.offset
-        state = load.initial_state()
-        rows = np.arange(bsz)
-        cols = [OUTPUTS.index(r) for r in record]
-        out = {r: np.empty((bsz, n_steps), dtype) for r in record}
+        both = np.ascontiguousarray(np.stack([free, engaged], 1).transpose(0, 1, 3, 2))
+        cols = np.array([OUTPUTS.index(r) for r in record])
+        values = np.empty((len(record), bsz, n_steps))
         contact = np.empty((bsz, n_steps), bool)
-        for step in range(n_steps):
-            z[:, ns], z[:, ns + 1], z[:, ns + 3] = e[:, step], de_step[:, step], de_out[:, step]
-            res = np.matmul(both, z[None, :, :, None])[..., 0]  # (2, B, ns+4)
-            new = load.switch(state, res[0, :, ns:], res[1, :, ns:])
-            changed = new != state
-            if changed.any():
-                z[changed, ns - 1] = 0.0  # an engaged load's force starts (and ends) at 0
-                res = np.matmul(both, z[None, :, :, None])[..., 0]
-            state = new
-            pick = res[state.astype(int), rows]
-            for r, col in zip(record, cols, strict=True):
-                out[r][:, step] = pick[:, ns + col]
-            contact[:, step] = state
-            z[:, :ns] = pick[:, :ns]
+        _step_records(both, np.ascontiguousarray(e), np.ascontiguousarray(de_step),
+                      np.ascontiguousarray(de_out), load.initial_state(), load.unilateral,
+                      load.offset, load.stiffness, load.damping, cols, values, contact)
+        out = {r: values[j].astype(dtype) for j, r in enumerate(record)}
         out["contact"] = contact
         return out
 
@@ -270,12 +256,16 @@ class TipLoad(ABC):
     back with ``F = k (u - g) + c u'``; while not, ``F = 0``.
 
     Attributes (arrays of shape ``(B,)``): ``stiffness`` k (N/m), ``damping`` c (N·s/m),
-    ``offset`` g (m).
+    ``offset`` g (m); and ``unilateral``: whether it switches, by the one rule the stepper
+    knows (:func:`_step_records`): a free tip touches when ``u > g`` while the load would
+    push (``k (u - g) + c u' > 0``), an engaged one leaves when its force turns tensile.
+    A load that is not unilateral stays as :meth:`initial_state` says.
     """
 
     stiffness: np.ndarray
     damping: np.ndarray
     offset: np.ndarray
+    unilateral: bool = False
 
     @property
     def batch(self) -> int:
@@ -284,12 +274,6 @@ class TipLoad(ABC):
     @abstractmethod
     def initial_state(self) -> np.ndarray:
         """Engaged at rest, bool ``(B,)``."""
-
-    @abstractmethod
-    def switch(self, engaged: np.ndarray, if_free: np.ndarray,
-               if_engaged: np.ndarray) -> np.ndarray:
-        """The new engagement from the outputs ``(u, u', F, i)`` that the sample would have
-        free and engaged, each ``(B, 4)``; ``engaged`` is the current state, bool ``(B,)``."""
 
 
 def _batch(name: str, value, unit: str, size: int | None = None, positive: bool = False):
@@ -316,9 +300,6 @@ class LinearTipLoad(TipLoad):
     def initial_state(self) -> np.ndarray:
         return np.ones(self.batch, bool)
 
-    def switch(self, engaged, if_free, if_engaged) -> np.ndarray:
-        return engaged
-
 
 class Wall(TipLoad):
     """A unilateral wall at ``gap`` g (m) from the tip's rest position, along +u: the tip
@@ -338,13 +319,63 @@ class Wall(TipLoad):
         self.stiffness = _batch("stiffness", stiffness, "N/m", size, positive=True)
         self.damping = _batch("damping", damping, "N·s/m", size)
 
+    unilateral = True
+
     def initial_state(self) -> np.ndarray:
         return self.offset < 0
 
-    def switch(self, engaged, if_free, if_engaged) -> np.ndarray:
-        u, v = if_free[:, 0], if_free[:, 1]
-        touches = (u > self.offset) & (self.stiffness * (u - self.offset) + self.damping * v > 0)
-        return np.where(engaged, if_engaged[:, 2] >= 0, touches)
+
+@njit(cache=True)
+def _step_records(both, e, de_step, de_out, engaged0, unilateral, offset, stiffness, damping,
+                  cols, values, contact):
+    """The stepper. For each record b, from rest: the next state and the outputs at step k
+    are ``both[b, engaged].T @ z_k`` with ``z = [x, E_k, Ė_k, g, Ė_out]`` (see
+    :meth:`ModalTransducer.step_matrices`; ``both`` holds the maps transposed, ``(B, 2, nz,
+    ns+4)``, so the product runs along contiguous memory). A unilateral load switches by
+    the rule of :class:`TipLoad`, judged on the outputs of the state it is in; a switch
+    restarts the load's force state at 0 and recomputes the step. Writes ``values``
+    ``(len(cols), B, n_steps)`` (the outputs at ``cols``) and ``contact`` ``(B, n_steps)``.
+    """
+    bsz, n_steps = e.shape
+    nz = both.shape[2]
+    ns = nz - 4
+    z = np.zeros(nz)
+    res = np.zeros(both.shape[3])
+    for b in range(bsz):
+        z[:] = 0.0
+        z[ns + 2] = offset[b]
+        state = engaged0[b]
+        for k in range(n_steps):
+            z[ns] = e[b, k]
+            z[ns + 1] = de_step[b, k]
+            z[ns + 3] = de_out[b, k]
+            _matvec(both, b, 1 if state else 0, z, res)
+            if unilateral:
+                if state:
+                    new = res[ns + 2] >= 0.0
+                else:
+                    u = res[ns] - offset[b]
+                    new = u > 0.0 and stiffness[b] * u + damping[b] * res[ns + 1] > 0.0
+                if new != state:
+                    state = new
+                    z[ns - 1] = 0.0  # an engaged load's force starts (and ends) at 0
+                    _matvec(both, b, 1 if state else 0, z, res)
+            for j in range(len(cols)):
+                values[j, b, k] = res[ns + cols[j]]
+            contact[b, k] = state
+            for r in range(ns):
+                z[r] = res[r]
+
+
+@njit(cache=True)
+def _matvec(both, b, s, z, res):
+    """``res = both[b, s].T @ z`` (the map stored transposed, ``(nz, n_out)``), column by
+    column: independent sums, in the same order as row by row."""
+    res[:] = 0.0
+    for c in range(both.shape[2]):
+        zc = z[c]
+        for r in range(both.shape[3]):
+            res[r] += both[b, s, c, r] * zc
 
 
 def convergence_table(beam: BeamTransducer, omega, n_modes=(1, 2, 3, 4, 6, 10)) -> list[dict]:

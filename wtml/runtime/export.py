@@ -76,10 +76,11 @@ class PolynomialNet(nn.Module):
 
 
 def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str],
-            inputs: tuple[str, ...] = INPUTS) -> None:
-    """Write ``module`` (inputs ``inputs``, each ``(batch, n_freq)`` float32, dynamic batch)
-    to ``path`` with ``metadata``, and check the file."""
-    example = (torch.ones(2, n_freq), torch.ones(2, n_freq))
+            inputs: tuple[str, ...] = INPUTS, widths: tuple[int, ...] | None = None) -> None:
+    """Write ``module`` (inputs ``inputs``, each ``(batch, n_freq)`` float32, or
+    ``(batch, widths[k])`` where given; dynamic batch) to ``path`` with ``metadata``, and
+    check the file."""
+    example = tuple(torch.ones(2, w) for w in (widths or (n_freq,) * len(inputs)))
     batch = torch.export.Dim("batch", min=1)
     names = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
     registry = logging.getLogger("torch.onnx._internal.exporter._registration")

@@ -4,9 +4,13 @@ Both graphs (``model.onnx``: the decoder; ``classical.onnx``: the thesis's pipel
 ``e`` (V) and ``i`` (A), float32 ``(batch, n_samples)`` at the trained sampling rate, and
 return ``gap`` (m), ``sigma`` (m; NaN for the classical path and out of domain), ``contact``
 (``(batch, n_frames)``: a probability per probe frame for the decoder, a 0/1 state per sample
-for the classical path), ``in_domain`` and ``domain_score``. The metadata says how frames map
-to time (``frame_s``, ``onset_offset_s``, ``detach_offset_s``, ``merge_s``), so every device
-turns ``contact`` into intervals the same way (:func:`contacts_from`).
+for the classical path), the decoder also ``onset_margin`` and ``detach_margin`` (m per frame:
+the free tip's reach past its onset and detachment levels), then ``in_domain`` and
+``domain_score``. The metadata says how frames map to time (``frame_s``, ``onset_offset_s``,
+``detach_offset_s``, ``merge_s``), so every device turns these into intervals the same way
+(:func:`contacts_from`). A third graph, ``stream.onnx``, is the decoder's streaming form
+(:class:`wtml.decoders.onset_stream.StreamingOnset`): one chunk of e and i and the carried
+state in, the chunk's frames and the running answers out (:func:`stream_record`).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from wtml import __version__
 from wtml.baselines.onset_classical import ThesisOnset
 from wtml.decoders.domain import Gated
 from wtml.decoders.onset import frame_period
+from wtml.decoders.onset_stream import StreamingOnset
 from wtml.runtime.export import _export, domain_metadata
 from wtml.runtime.predict import InputError
 from wtml.scenes import config_hash
@@ -28,6 +33,11 @@ from wtml.scenes.onset import intervals
 
 ONSET_INPUTS = ("e", "i")
 ONSET_OUTPUTS = ("gap", "sigma", "contact")
+DECODER_OUTPUTS = ONSET_OUTPUTS + ("onset_margin", "detach_margin")
+STREAM_INPUTS = ("e", "i", "state")
+STREAM_OUTPUTS = ("contact", "onset_margin", "detach_margin", "gap", "sigma", "next_state")
+STREAM_CHUNK_FRAMES = 1
+"""Probe periods per chunk of the exported streaming graph (2.4 ms at the defaults)."""
 FRESH_RECORDS = 64
 """Fresh records of the scene on which the exported decoder's false-alarm rate is measured."""
 
@@ -46,7 +56,9 @@ def thesis_pipeline(scene) -> ThesisOnset:
 @torch.no_grad()
 def export_onset(module, scene, out: Path) -> dict[str, Path]:
     """Write the onset decoder and the thesis pipeline, each with the decoder's domain gate,
-    to ``out/model.onnx`` and ``out/classical.onnx``."""
+    to ``out/model.onnx`` and ``out/classical.onnx``, and the decoder's streaming form to
+    ``out/stream.onnx`` (inputs ``e``, ``i`` of one chunk and ``state``, zeros at a record's
+    start; outputs :data:`STREAM_OUTPUTS` then ``in_domain``, ``domain_score``)."""
     decoder = Gated(module.net, module.gate, (1,)).eval()
     fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
     inside = decoder(torch.tensor(fresh["e"]), torch.tensor(fresh["i"]))[-2]
@@ -69,20 +81,48 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
     samples = {"frame_s": json.dumps(1 / rate), "onset_offset_s": "0.0",
                "detach_offset_s": "0.0"}
     _export(decoder, scene.n_samples, paths["decoder"],
-            meta | frames | {"kind": "decoder", "label": "decoder"}, ONSET_INPUTS)
+            meta | frames | {"kind": "decoder", "label": "decoder",
+                             "outputs": json.dumps(list(DECODER_OUTPUTS))}, ONSET_INPUTS)
     classical = Gated(thesis_pipeline(scene), module.gate.inputs_only()).eval()
     _export(classical, scene.n_samples, paths["classical"],
             meta | samples | {"kind": "classical", "label": "thesis pipeline"}, ONSET_INPUTS)
+    stream = StreamingOnset(module.net, module.gate, STREAM_CHUNK_FRAMES).eval()
+    paths["stream"] = out / "stream.onnx"
+    _export(stream, stream.chunk_samples, paths["stream"],
+            meta | frames | {"kind": "stream", "label": "decoder (streaming)",
+                             "outputs": json.dumps(list(STREAM_OUTPUTS)),
+                             "inputs": json.dumps(list(STREAM_INPUTS)),
+                             "chunk_samples": json.dumps(stream.chunk_samples),
+                             "state_size": json.dumps(stream.state_size)},
+            STREAM_INPUTS, (stream.chunk_samples,) * 2 + (stream.state_size,))
     return paths
 
 
-def contacts_from(contact: np.ndarray, metadata: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Onset and detachment times (s) of each record's contacts from a graph's ``contact``
-    output ``(n, n_frames)`` and its metadata; each ``(n, max_contacts)``, NaN-padded."""
+def contacts_from(pred: dict, metadata: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Onset and detachment times (s) of each record's contacts from a graph's outputs and
+    its metadata; each ``(n, max_contacts)``, NaN-padded.
+
+    With margins (the decoder), a contact is a run of frames where either margin is >= 0; it
+    starts on the run's first frame with ``onset_margin >= 0`` and ends on its last with
+    ``detach_margin >= 0``. Without (the classical path), a run of ``contact > 0.5``.
+    Runs closer than ``merge_s`` are one contact.
+    """
     frame_s = json.loads(metadata["frame_s"])
     max_count = json.loads(metadata["scene"]).get("max_contacts", 8)
-    start, end = intervals(contact > 0.5, 1 / frame_s, json.loads(metadata["merge_s"]),
-                           max_count)
+    merge = json.loads(metadata["merge_s"])
+    if "onset_margin" not in pred:
+        start, end = intervals(pred["contact"] > 0.5, 1 / frame_s, merge, max_count)
+    else:
+        rise, fall = pred["onset_margin"] >= 0, pred["detach_margin"] >= 0
+        start, end = intervals(rise | fall, 1 / frame_s, merge, max_count)
+        n_frames = rise.shape[1]
+        for r, k in zip(*np.nonzero(np.isfinite(start)), strict=True):
+            a = int(round(start[r, k] / frame_s))
+            b = n_frames if np.isnan(end[r, k]) else int(round(end[r, k] / frame_s))
+            on, off = np.flatnonzero(rise[r, a:b]), np.flatnonzero(fall[r, a:b])
+            start[r, k] = (a + (on[0] if len(on) else 0)) * frame_s
+            if np.isfinite(end[r, k]):
+                end[r, k] = (a + (off[-1] + 1 if len(off) else b - a)) * frame_s
     # intervals() gives frame boundaries; the contact starts/ends at a fixed phase in a frame
     onset = start + json.loads(metadata["onset_offset_s"])
     detach = end - frame_s + json.loads(metadata["detach_offset_s"])
@@ -155,7 +195,7 @@ def predict_records(model_dir: str | Path, input_path: str | Path) -> list[dict]
     rows = []
     for label, model in (("decoder", decoder), ("classical", classical)):
         pred = model.run(x[0], x[1])
-        onset, detach = contacts_from(pred["contact"], model.metadata)
+        onset, detach = contacts_from(pred, model.metadata)
         odd = impossible(model, pred)["gap"]
         for r in range(x.shape[1]):
             flags = []
@@ -177,3 +217,27 @@ def predict_records(model_dir: str | Path, input_path: str | Path) -> list[dict]
                              **{key: v for key, v in base.items()
                                 if key not in ("record", "method")}})
     return rows
+
+
+def stream_record(stream, e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
+    """Feed records through the streaming graph chunk by chunk, as a device would.
+
+    Args:
+        stream: the loaded ``stream.onnx`` (:class:`wtml.runtime.predict.OnnxModel`).
+        e, i: V and A, ``(n, n_samples)``; ``n_samples`` a multiple of the chunk.
+
+    Returns:
+        ``contact`` ``(n, n_frames)`` (the chunks' probabilities side by side), and the
+        running ``gap``, ``sigma``, ``in_domain``, ``domain_score`` after the last chunk.
+    """
+    chunk = json.loads(stream.metadata["chunk_samples"])
+    if e.shape[1] % chunk:
+        raise InputError(f"records of {e.shape[1]} samples do not split into chunks of {chunk}")
+    state = np.zeros((len(e), json.loads(stream.metadata["state_size"])), np.float32)
+    probs = []
+    for k in range(0, e.shape[1], chunk):
+        out = stream.run(e[:, k:k + chunk], i[:, k:k + chunk], state)
+        state = out["next_state"].astype(np.float32)
+        probs.append(out["contact"])
+    return {"contact": np.concatenate(probs, 1),
+            **{key: out[key] for key in ("gap", "sigma", "in_domain", "domain_score")}}

@@ -267,6 +267,10 @@ def _onset_lines(onset: dict, stages: Stages) -> list[str]:
         f"  F1 at ±1 ms {dec['f1']:.3f} (target ≥ 0.995: {_met(dec['f1'] >= 0.995)}); false "
         f"contacts {dec['false_per_s']:.3f}/s of free whisking (target 0: "
         f"{_met(dec['false_per_s'] == 0)}); Fig 5.22 R² {dec['fig522_r2']:.4f}",
+        f"  streaming (stream.onnx, {onset['streaming']['chunk_ms']:.1f} ms chunks): detection "
+        f"delay p50 {onset['streaming']['delay_ms_p50']:.1f} ms (aim ≤ 5 ms: "
+        f"{_met(onset['streaming']['delay_ms_p50'] <= 5)}); after the last chunk, gap within "
+        f"{1e6 * onset['streaming']['gap_max_diff_m']:.1e} µm of the offline graph",
         "  domain flag on untrained drives: " + ", ".join(
             f"{k} {100 * v:.0f} %" for k, v in onset["domain_flag"].items())
         + f"; held-out test rows flagged {100 * onset['false_alarm_held_out']:.1f} %",

@@ -48,9 +48,11 @@ from wtml.decoders.base import ConfigError, DecoderModule, check_positive
 from wtml.decoders.domain import RESOLUTION
 from wtml.decoders.layers import ZmFromEI
 
-LEVEL_SCALE = 0.01
+LEVEL_SCALE = 0.001
 """The reach levels' loss is log cosh of their error in units of this fraction of the
-whisking amplitude (0.13 µm at the defaults: quadratic below, linear above)."""
+whisking amplitude (13 nm at the defaults: quadratic below, linear above). The onset level
+must land in a bracket of 0.11-0.19 µm, often within ~10 nm of its edge, so the loss stays
+steep down to that scale."""
 
 
 def frame_basis(period: int) -> np.ndarray:
@@ -324,7 +326,7 @@ class OnsetDecoder(DecoderModule):
     """
 
     def __init__(self, channels: int = 32, dilations: list[int] | None = None,
-                 contact_weight: float = 10.0, location_weight: float = 1.0,
+                 contact_weight: float = 30.0, location_weight: float = 1.0,
                  timing_weight: float = 1.0, lr: float = 3e-3,
                  weight_decay: float = 1e-5) -> None:
         super().__init__(lr, weight_decay)

@@ -329,24 +329,24 @@ def _plots(results, test, fig, positions, amp, scene, methods, out: Path) -> Non
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    def save(fig, ax, name: str) -> None:
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / name, dpi=120)
+        plt.close(fig)
+
     f, ax = plt.subplots(figsize=(6, 4))
     for r in results:
         ax.plot(test["gap"] * 1e6, np.abs(r["err"]) * 1e6, ".", label=r["name"])
     ax.set(xlabel="wall location g (µm)", ylabel="|error| (µm)", yscale="log",
            title="location error vs g")
-    ax.legend(fontsize=7)
-    f.tight_layout()
-    f.savefig(out / "error_vs_g.png", dpi=120)
-    plt.close(f)
+    save(f, ax, "error_vs_g.png")
     f, ax = plt.subplots(figsize=(5, 4))
     for r in results:
         ax.plot(r["latency_ms_per_s"], 1e6 * r["rows"][-1]["rmse"], "o", label=r["name"])
     ax.set(xlabel="p50 latency, ms per s of signal", ylabel="location RMSE (µm)",
            xscale="log", yscale="log", title="error vs latency")
-    ax.legend(fontsize=7)
-    f.tight_layout()
-    f.savefig(out / "error_vs_latency.png", dpi=120)
-    plt.close(f)
+    save(f, ax, "error_vs_latency.png")
     f, ax = plt.subplots(figsize=(5, 5))
     for r in results:
         ax.plot(positions * 1e6, np.array(r["fig522"]) * 1e6, "o", ms=3,
@@ -354,10 +354,7 @@ def _plots(results, test, fig, positions, amp, scene, methods, out: Path) -> Non
     ax.plot(positions * 1e6, positions * 1e6, "k-", lw=0.5)
     ax.set(xlabel="actual location (µm)", ylabel="measured location (µm)",
            title=f"Figure 5.22: 15 positions × {len(positions) // 15} repeats")
-    ax.legend(fontsize=7)
-    f.tight_layout()
-    f.savefig(out / "fig5_22.png", dpi=120)
-    plt.close(f)
+    save(f, ax, "fig5_22.png")
     pipe = thesis_pipeline(scene).eval()
     with torch.no_grad():
         u, zm = pipe.bands(torch.tensor(test["e"][:1]), torch.tensor(test["i"][:1]))

@@ -84,19 +84,21 @@ def ruptures_contacts(zm_frames: np.ndarray, u_frames: np.ndarray, threshold: fl
     ruptures's compiled PELT, which finds the same points as ``Pelt(model="l2")`` about a
     thousand times faster) on one record's |Zm| per probe frame;
     segments whose mean |Zm| exceeds ``threshold`` are contacts. Returns the location (mean
-    ``u_L`` at every contact segment's two ends, m; NaN if none) and the per-frame contact
-    state ``(n_frames,)`` bool."""
+    ``u_L`` at every contact's two ends, m; NaN if none) and the per-frame contact state
+    ``(n_frames,)`` bool."""
     import ruptures
 
     x = np.asarray(zm_frames, dtype=float)
     bkps = ruptures.KernelCPD(kernel="linear", min_size=2).fit(x).predict(pen=penalty)
     state = np.zeros(len(x), bool)
-    ends = []
     start = 0
     for stop in bkps:
         if x[start:stop].mean() > threshold:
             state[start:stop] = True
-            ends += [start, stop - 1]
         start = stop
-    gap = float(np.mean(u_frames[ends])) if ends else float("nan")
+    # the ends of each contact (adjacent contact segments are one contact: a segment end
+    # inside a contact lies deep past the wall)
+    edges = np.diff(np.concatenate([[0], state.astype(np.int8), [0]]))
+    ends = np.concatenate([np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1])
+    gap = float(np.mean(u_frames[ends])) if len(ends) else float("nan")
     return gap, state

@@ -17,8 +17,8 @@ The graph takes the raw records and computes its own features per probe period (
    its state carried) gives the offline answer.
 3. Each quantity is pooled over the frames by softmax weights, ``g = Σ_t w_t (u_L(t) + δ_t)``:
    each frame near an edge says where the wall is relative to the whisking position, which
-   accounts for the tip touching on the probe's peaks before u_L reaches g (§10). g's std
-   combines the frames' stds and their spread.
+   accounts for the tip touching on the probe's peaks before u_L reaches g (§10). g's
+   variance is the same weighted mean of the frames' variances.
 4. Timing from the trajectory: the free tip reaches ``u_L + |u_H|`` on each probe peak
    (``|u_H| = |E_H| / (ωH |t12|)``, the calibrated free-tip response), known per frame to
    ~1e-12 m from e alone. A contact starts on the first frame whose reach on its probe peak
@@ -173,12 +173,6 @@ class OnsetNet(nn.Module):
             c_in = channels
         self.body = nn.Sequential(*layers)
         self.head = nn.Conv1d(channels, self.HEADS, 1)
-
-    def heads(self, f: torch.Tensor, du: torch.Tensor) -> torch.Tensor:
-        """Frames ``(batch, n, 5)`` and the normalised step of u_L from the previous frame
-        ``(batch, n, 1)`` -> the heads ``(batch, 8, n)``."""
-        x = (f - self.mean) / self.std
-        return self.head(self.body(torch.cat([x, du * 10.0], -1).transpose(1, 2)))
 
     def steps(self, f: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
         """u_L's step from the frame before (m), ``(batch, n)``, given the u_L of the frame

@@ -6,7 +6,7 @@ Everything the offline graph computes over a whole record is causal or a running
 - the probe frames are per frame (a chunk holds whole probe periods);
 - u_L's step needs the previous frame's u_L;
 - each causal convolution needs its last ``(kernel - 1) dilation`` inputs;
-- each softmax pooling is a running (max, Σ exp, Σ exp·x, Σ exp·x²), merged chunk by chunk;
+- each softmax pooling is a running (max, Σ exp, Σ exp·x[, Σ exp·σ²]), merged chunk by chunk;
 - the domain gate's record summary is running sums, a maximum and a minimum.
 
 So after the last chunk of a record, the running ``gap``, ``sigma``, levels and domain score

@@ -74,6 +74,68 @@ def test_a_wall_never_reached_gives_exactly_the_linear_answer(micro):
     assert np.all(free["force"] == 0)
 
 
+def dense_steps(model, e, de, dt, wall):
+    """The stepper's reference: each record stepped with the dense one-step maps of
+    :meth:`ModalTransducer.step_matrices` (no eigenbasis), by the switching rule of
+    :class:`TipLoad`. Returns u, v, F, i ``(B, n)`` and contact."""
+    bsz, n = wall.batch, len(e)
+    maps = (model.step_matrices(dt, np.zeros(bsz), np.zeros(bsz)),
+            model.step_matrices(dt, wall.stiffness, wall.damping))
+    ns = 2 * model.n_modes + 1
+    slope = np.diff(e, append=e[-1]) / dt
+    out, contact = np.empty((4, bsz, n)), np.empty((bsz, n), bool)
+    for b in range(bsz):
+        z = np.zeros(ns + 4)
+        z[ns + 2], engaged = wall.offset[b], bool(wall.initial_state()[b])
+        for k in range(n):
+            z[ns], z[ns + 1], z[ns + 3] = e[k], slope[k], de[k]
+            res = maps[engaged][b] @ z
+            if engaged:
+                new = res[ns + 2] >= 0
+            else:
+                u = res[ns] - wall.offset[b]
+                new = u > 0 and wall.stiffness[b] * u + wall.damping[b] * res[ns + 1] > 0
+            if new != engaged:
+                engaged, z[ns - 1] = bool(new), 0.0
+                res = maps[engaged][b] @ z
+            out[:, b, k], contact[b, k] = res[ns:], engaged
+            z[:ns] = res[:ns]
+    return out, contact
+
+
+@pytest.mark.parametrize("n_modes", [3, 6])
+def test_eigenbasis_stepper_equals_dense_stepping_through_contacts(n_modes):
+    """The stepper (each regime diagonal, a change of basis at every switch) against the dense
+    exact maps stepped one by one: the same contacts at the same samples, the same outputs to
+    rounding, for stiff and soft, damped and undamped walls, touched on many probe peaks."""
+    model = ModalTransducer.from_beam(build("micro"), n_modes, reference_hz=420.0)
+    fs = 26880
+    t = np.arange(int(0.12 * fs)) / fs
+    e = 9.5 * np.sin(2 * np.pi * t) + 0.02 * np.cos(W_H * t)
+    de = 9.5 * 2 * np.pi * np.cos(2 * np.pi * t) - 0.02 * W_H * np.sin(W_H * t)
+    wall = Wall([2e-6, 4.5e-6, -0.1e-6, 1.0], [5.0, 3.0, 8.0, 5.0], [1e-4, 0.0, 3e-4, 1e-4])
+    ref, ref_contact = dense_steps(model, e, de, 1 / fs, wall)
+    got = model.simulate(e, 1 / fs, wall, drive_rate=de, dtype=np.float64)
+    switches = np.abs(np.diff(ref_contact.astype(int))).sum(1)
+    assert switches[0] > 4 and switches[1] > 2 and switches[3] == 0, switches
+    np.testing.assert_array_equal(got["contact"], ref_contact)
+    for j, key in enumerate(("u", "v", "force", "i")):
+        scale = np.abs(ref[j]).max()
+        assert np.abs(got[key] - ref[j]).max() < 1e-9 * scale, key
+
+
+def test_the_answer_does_not_depend_on_the_threads():
+    model = ModalTransducer.from_beam(build("micro"), 3)
+    fs = 26880
+    t = np.arange(2000) / fs
+    e = 9.5 * np.sin(2 * np.pi * t) + 0.02 * np.cos(W_H * t)
+    gaps = np.linspace(0.2e-6, 3e-6, 70)
+    one, two = (model.simulate(e, 1 / fs, Wall(gaps, 5.0, 1e-4), threads=n) for n in (1, 2))
+    assert one["contact"].any()
+    for key in one:
+        np.testing.assert_array_equal(one[key], two[key])
+
+
 def test_single_mode_impact_oscillator_matches_its_closed_form():
     """u'' + w0² u = E0 - F from rest under a step E0, against a stiff undamped wall at g:
     the first impact at ``cos w0 t1 = 1 - g w0²/E0``; in contact it oscillates about
@@ -109,3 +171,6 @@ def test_loads_refuse_bad_parameters():
         ModalTransducer.from_beam(build("micro"), 0)
     with pytest.raises(ValueError, match="dt must be in"):
         ModalTransducer.from_beam(build("micro"), 2).simulate(np.zeros(4), 0.0, Wall([1], 1, 0))
+    with pytest.raises(ValueError, match="drive: shape"):
+        ModalTransducer.from_beam(build("micro"), 2).simulate(np.zeros((3, 4)), 1e-5,
+                                                              Wall([1, 2], 1, 0))

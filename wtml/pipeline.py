@@ -259,6 +259,7 @@ def _onset_lines(onset: dict, stages: Stages) -> list[str]:
     by = {m["name"]: m for m in onset["methods"]}
     dec, thesis = by["decoder (ONNX)"], by["thesis pipeline (ONNX)"]
     rmse = dec["rows"][-1]["rmse"]
+    six = max(r["per_core"] for r in onset["simulator"] if r["modes"] >= 6 and r["threads"] == 1)
     return [
         f"onset ({onset['n_test']} test records, decoder ONNX):",
         f"  location RMSE {1e6 * rmse:.3f} µm (target ≤ 0.1 µm: {_met(rmse <= 1e-7)}); thesis "
@@ -274,8 +275,10 @@ def _onset_lines(onset: dict, stages: Stages) -> list[str]:
         "  domain flag on untrained drives: " + ", ".join(
             f"{k} {100 * v:.0f} %" for k, v in onset["domain_flag"].items())
         + f"; held-out test rows flagged {100 * onset['false_alarm_held_out']:.1f} %",
-        f"  simulator {onset['simulator']['real_time_factor']:.0f}× real time (target ≥ 1000×"
-        f": {_met(onset['simulator']['real_time_factor'] >= 1000)})",
+        "  simulator: " + ", ".join(
+            f"{r['modes']} modes {r['per_core']:.0f}×" for r in onset["simulator"]
+            if r["threads"] == 1)
+        + f" real time per core (target ≥ 1000× at ~6 modes: {_met(six >= 1000)})",
         "  report runs/onset/bench/report.md, plots runs/onset/bench/*.png",
         f"  time: {stages.line('onset')}"]
 

@@ -209,6 +209,24 @@ def test_ruptures_peer_is_pelt_with_the_l2_cost():
     assert gap == pytest.approx((u[60] + u[99]) / 2)
 
 
+def test_cramer_rao_bound_scales_with_the_noise_and_not_with_its_numerics(scene):
+    """The bound on g is proportional to the current's noise, NaN without a wall, and moves
+    by less than 2x with the finite-difference step and the simulation's upsampling."""
+    from wtml.bench.onset import cramer_rao_bound
+
+    labels = scene.simulate(3, np.random.default_rng(4))
+    labels["gap"][2] = np.nan
+    base = cramer_rao_bound(scene, labels, upsample=2, step_m=10e-9)
+    other = cramer_rao_bound(scene, labels, upsample=4, step_m=40e-9)
+    acq = scene.acquisition
+    noisy = dataclasses.replace(scene, acquisition=dataclasses.replace(
+        acq, i_noise_a=10 * acq.i_noise_a))
+    louder = cramer_rao_bound(noisy, labels, upsample=2, step_m=10e-9)
+    assert np.isnan(base[2]) and np.all(np.isfinite(base[:2])) and np.all(base[:2] > 0)
+    assert np.all(np.abs(np.log(other[:2] / base[:2])) < np.log(2)), (base, other)
+    np.testing.assert_allclose(louder[:2] / base[:2], 10.0, rtol=1e-3)
+
+
 def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_path):
     rec = scene.simulate(1, np.random.default_rng(6))
     rate = scene.acquisition.sample_rate_hz

@@ -264,7 +264,8 @@ def _onset_lines(onset: dict, stages: Stages) -> list[str]:
         f"onset ({onset['n_test']} test records, decoder ONNX):",
         f"  location RMSE {1e6 * rmse:.3f} µm (target ≤ 0.1 µm: {_met(rmse <= 1e-7)}); thesis "
         f"pipeline {1e6 * thesis['rows'][-1]['rmse']:.3f} µm (target ours ≤ half: "
-        f"{_met(rmse <= thesis['rows'][-1]['rmse'] / 2)})",
+        f"{_met(rmse <= thesis['rows'][-1]['rmse'] / 2)}); Cramér–Rao bound "
+        f"{1e6 * onset['reference'][-1]['rows'][-1]['rmse']:.2g} µm",
         f"  F1 at ±1 ms {dec['f1']:.3f} (target ≥ 0.995: {_met(dec['f1'] >= 0.995)}); false "
         f"contacts {dec['false_per_s']:.3f}/s of free whisking (target 0: "
         f"{_met(dec['false_per_s'] == 0)}); Fig 5.22 R² {dec['fig522_r2']:.4f}",

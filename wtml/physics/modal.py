@@ -15,11 +15,11 @@ The two damping models differ off resonance (1.3 % in the micro preset's free-ti
 
 Loads at the tip (:class:`TipLoad`) are piecewise linear: each is a linear force law
 ``F = k (u - g) + c u'`` while engaged and 0 while not, with a rule for switching. Between
-switches the system is linear and time-invariant and is stepped exactly, the drive held
-first-order (piecewise linear E: the matrix exponential of the system augmented with E, E'
-and g). Each regime's exact map is diagonalised once, so a step costs O(n) per record, not
-O(n²); a switch changes basis through the physical state. Records are stepped side by side
-in blocks, one block per core. The force of an engaged load is part of the linear system, never fed back explicitly
+switches the system is linear and time-invariant and is stepped exactly, the drive held first-order
+(piecewise linear E: the matrix exponential of the system augmented with E, E' and g). Each
+regime's exact map is diagonalised once, so a step costs O(n) per record, not O(n²); a switch
+changes basis through the physical state. Records are stepped side by side in blocks, one block
+per core. The force of an engaged load is part of the linear system, never fed back explicitly
 (explicit feedback is unstable for stiff walls, §9). With a residual compliance ``a_r > 0`` and
 a damped load, ``F`` is a state: ``c a_r F' + (1 + k a_r) F = k (u_m - g) + c u_m'`` where
 ``u_m = φb·q + β_r E``; otherwise it is algebraic.

@@ -363,6 +363,7 @@ def _blocks(bsz: int, threads: int | None) -> list[slice]:
     size = min(BLOCK[1], max(BLOCK[0], -(-bsz // (threads or available_cores()))))
     return [slice(lo, min(bsz, lo + size)) for lo in range(0, bsz, size)]
 
+
 TEST_ROW = (0, 2)
 """The output each regime's switching rule reads first: u when free, F when engaged."""
 

@@ -259,7 +259,7 @@ def simulator_speed(scene, records: int = 64, modes=(None, 6), repeats: int = 3)
             wall_s = _timed(run, repeats=repeats)
             factor = records * len(e) / rate / wall_s
             rows.append({"modes": model.n_modes, "threads": threads, "records": records,
-                         "seconds": len(e) / rate,
+                         "seconds": len(e) / rate, "repeats": repeats,
                          "sample_steps_per_s": records * len(e) / wall_s,
                          "real_time_factor": factor, "per_core": factor / threads})
     return rows
@@ -371,7 +371,7 @@ def _report(results, reference, streaming, flags, held_in, conv, speed, scene, n
     lines += [f"| {c['n_modes']} | {c['vs_all_modes']:.2e} | {c['vs_beam']:.2e} | "
               f"{c['hue0']:.1e} |" for c in conv]
     lines += ["", f"Simulator: {speed[0]['records']} walls over {speed[0]['seconds']:g} s "
-              "records (median of 3, side by side in one run):", "",
+              f"records (median of {speed[0]['repeats']}, side by side in one run):", "",
               "| modes | threads | samples·steps/s | × real time | × real time per core |",
               "|---|---|---|---|---|"]
     lines += [f"| {r['modes']} | {r['threads']} | {r['sample_steps_per_s']:.3g} | "

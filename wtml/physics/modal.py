@@ -257,12 +257,13 @@ class ModalTransducer(Structure):
         values = np.empty((len(record), bsz, n_steps), dtype)
         contact = np.empty((bsz, n_steps), bool)
         blocks = _blocks(bsz, threads)
+        engaged0 = load.initial_state()
 
         def step(b: slice) -> None:
             own = b if len(e) > 1 else slice(0, 1)
             _step_block(*(np.ascontiguousarray(a[..., b]) for a in maps),
                         *(np.ascontiguousarray(a[own]) for a in (e, de_step, de_out)),
-                        load.initial_state()[b], load.unilateral, load.offset[b],
+                        engaged0[b], load.unilateral, load.offset[b],
                         load.stiffness[b], load.damping[b], cols, values[:, b], contact[b])
 
         with ThreadPoolExecutor(min(len(blocks), threads or available_cores())) as pool:

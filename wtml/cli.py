@@ -1,6 +1,6 @@
 """The ``wtml`` console script.
 
-Subcommands: ``walkthrough`` (the thesis's calibration), ``presets``, ``generate``,
+Subcommands: ``walkthrough`` (the thesis's calibration), ``presets``, ``fidelity``, ``generate``,
 ``evaluate``, ``export``, ``predict``, ``bench fluid|radial|onset`` and ``pipeline`` (all of them
 in a row). Bad input ends a command with one line on stderr and exit code 2.
 Training runs through LightningCLI: ``python train.py fit --config configs/fluid.yaml``.
@@ -25,6 +25,14 @@ def _walkthrough(args: argparse.Namespace) -> int:
     if args.plot:
         plot_walkthrough(result, args.plot)
         print(f"plot: {args.plot}")
+    return 0
+
+
+def _fidelity(args: argparse.Namespace) -> int:
+    from wtml.fidelity import report
+    from wtml.scenes import load_scene
+
+    print(report(load_scene(args.texture)))
     return 0
 
 
@@ -65,10 +73,15 @@ def _export(args: argparse.Namespace) -> int:
 def _predict(args: argparse.Namespace) -> int:
     from wtml.runtime.predict import domain_warning, format_predictions, predict_file, task_of
 
-    if task_of(args.model) == "onset":
+    task = task_of(args.model)
+    if task == "onset":
         from wtml.runtime.onset import predict_records
 
         rows = predict_records(args.model, args.input)
+    elif task == "texture":
+        from wtml.runtime.texture import predict_records as texture_records
+
+        rows = texture_records(args.model, args.input)
     else:
         rows = predict_file(args.model, args.input)
     if args.out:
@@ -169,6 +182,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     pre = verb("presets", "the beam presets against the thesis (fidelity table)")
     pre.set_defaults(func=_presets)
+
+    fid = verb("fidelity", "every reproduction of a thesis number in one report",
+               "The presets' resonances, and texture: the friction law fitted to Table 4.10, "
+               "the RMS tip speeds, |F| and |V| against grain size, Zm, and the "
+               "kinetic-signature table (spectral peaks beside v/d and the modes).")
+    fid.add_argument("--texture", default="configs/scenes/texture.yaml",
+                     help="the texture scene whose friction law is reported")
+    fid.set_defaults(func=_fidelity)
 
     gen = verb("generate", "simulate a scene into dataset shards (resumable)",
                "Simulate a scene into checksummed shards. Re-running skips complete shards, "

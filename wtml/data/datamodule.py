@@ -29,6 +29,7 @@ TARGETS = {
     "radial": lambda a: a["distance"][:, None],  # m from the tip
     "onset": lambda a: np.concatenate([a["gap"][:, None], a["onset"], a["detachment"],
                                        a["coupling"][:, None]], 1),
+    "texture": lambda a: np.stack([a["grade"], a["grain_m"]], -1),  # class index, m
 }
 """The training targets of each task, shape ``(n, n_targets)``."""
 
@@ -37,7 +38,7 @@ def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor
     """The two input tensors and the targets, float32: ``(ze_re, ze_im, targets)`` for the
     phasor tasks, ``(e, i, targets)`` (V, A; NaN-padded targets: gap m, onsets s,
     detachments s) for the time-domain ones; targets as in ``TARGETS``."""
-    if task == "onset":
+    if task in ("onset", "texture"):
         inputs = (arrays["e"], arrays["i"])
     else:
         inputs = (arrays["ze"].real, arrays["ze"].imag)
@@ -72,7 +73,8 @@ class ShardDataModule(L.LightningDataModule):
         self.scene = dataset_scene(data_dir)
         self.scene_dict = to_dict(self.scene)
         self._data: dict[str, TensorDataset] = {}
-        self.eval_batch = 64 if self.scene.task == "onset" else 4096  # records vs phasors
+        records = self.scene.task in ("onset", "texture")
+        self.eval_batch = 64 if records else 4096  # records vs phasors
 
     def _dataset(self, split: str) -> TensorDataset:
         if split not in self._data:

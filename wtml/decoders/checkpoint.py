@@ -96,8 +96,10 @@ def load_decoder(path: str | Path):
     from wtml.decoders.fluid import FluidDecoder
     from wtml.decoders.onset import OnsetDecoder
     from wtml.decoders.radial import RadialDecoder
+    from wtml.decoders.texture import TextureDecoder
 
-    classes = {"fluid": FluidDecoder, "radial": RadialDecoder, "onset": OnsetDecoder}
+    classes = {"fluid": FluidDecoder, "radial": RadialDecoder, "onset": OnsetDecoder,
+               "texture": TextureDecoder}
     state, data = _checked(Path(path), None)
     task = state["wtml"]["scene"].get("task", "fluid")
     if task not in classes:

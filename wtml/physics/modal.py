@@ -139,7 +139,8 @@ class ModalTransducer(Structure):
         """HUE(0) = ``Σ φb φθ / Ω² + β_r``, m/V: the beam's, whatever n."""
         return float(np.sum(self.tip * self.coupling / self.omega_n**2) + self.residual[1])
 
-    def step_matrices(self, dt: float, stiffness, damping, coupling_scale=1.0):
+    def step_matrices(self, dt: float, stiffness, damping, coupling_scale=1.0,
+                      force_input: bool = False):
         """The exact one-step map and the outputs of the system with an engaged linear load
         ``F = k (u - g) + c u'`` (``k = c = 0``: a free tip), for a batch of B samples.
 
@@ -152,6 +153,11 @@ class ModalTransducer(Structure):
             dt: the step, s.
             stiffness, damping: k (N/m) and c (N·s/m) of the engaged load, shape ``(B,)``.
             coupling_scale: each sample's device as :meth:`with_coupling`, ``(B,)`` or scalar.
+            force_input: with a free tip only: the slot of g carries instead a force F applied
+                by the tip to the load and held over the step (a smooth load evaluated once per
+                step, :mod:`wtml.physics.friction`); it enters u through the residual
+                compliance and is the force output. Its rate is not modelled (the residual's
+                ``-a_r F'`` in u' and ``-β_r F'`` in i are left out).
         """
         k = np.atleast_1d(np.asarray(stiffness, dtype=float))
         bsz = len(k)
@@ -190,6 +196,11 @@ class ModalTransducer(Structure):
         a[:, iv, :] -= self.tip[None, :, None] * force[:, None, :]
         a[:, i_f, :] = np.where(stateful, dforce, 0.0)
         a[:, i_e, i_de] = 1.0
+        if force_input:
+            if np.any(engaged):
+                raise ValueError("force_input: only with a free tip (stiffness = damping = 0)")
+            a[:, iv, i_g] = -self.tip
+            force = np.broadcast_to(gap, (bsz, nz))
         step = expm(a * dt)[:, :ns, :]
         step[:, :, i_do] = 0.0
 
@@ -215,7 +226,8 @@ class ModalTransducer(Structure):
             drive: E in V at the sample instants ``k dt``, shape ``(n_steps,)`` (shared by the
                 batch) or ``(B, n_steps)``.
             dt: the step, s (> 0).
-            load: a :class:`TipLoad` with batch size B (its parameters' length).
+            load: a :class:`TipLoad` with batch size B (its parameters' length), or a smooth
+                load (:class:`~wtml.physics.friction.Friction`) evaluated once per step.
             drive_rate: dE/dt in V/s at the samples, same shape as ``drive`` (default: central
                 differences); used for the outputs (the capacitive current), not the stepping.
             coupling_scale: each sample's device, ``(B,)`` or scalar (:meth:`with_coupling`).
@@ -249,11 +261,18 @@ class ModalTransducer(Structure):
         else:
             de_out = np.broadcast_to(np.asarray(drive_rate, dtype=float), e.shape)
         de_step = np.diff(e, axis=1, append=e[:, -1:]) / dt
+        cols = np.array([OUTPUTS.index(r) for r in record])
+        if getattr(load, "smooth", False):  # friction: evaluated once per step
+            from wtml.physics.friction import simulate_friction
+
+            values = simulate_friction(self, e, de_step, de_out, dt, load, coupling_scale, cols,
+                                       dtype, threads)
+            return {**dict(zip(record, values, strict=True)),
+                    "contact": np.ones((bsz, n_steps), bool)}
         free = _eigenbasis(self.step_matrices(dt, np.zeros(bsz), np.zeros(bsz), coupling_scale))
         engaged = _eigenbasis(self.step_matrices(dt, load.stiffness, load.damping,
                                                  coupling_scale))
         maps = _regimes(free, engaged, load.offset)
-        cols = np.array([OUTPUTS.index(r) for r in record])
         values = np.empty((len(record), bsz, n_steps), dtype)
         contact = np.empty((bsz, n_steps), bool)
         blocks = _blocks(bsz, threads)

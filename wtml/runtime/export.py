@@ -76,10 +76,12 @@ class PolynomialNet(nn.Module):
 
 
 def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str],
-            inputs: tuple[str, ...] = INPUTS, widths: tuple[int, ...] | None = None) -> None:
+            inputs: tuple[str, ...] = INPUTS, widths: tuple[int, ...] | None = None,
+            optimize: bool = True) -> None:
     """Write ``module`` (inputs ``inputs``, each ``(batch, n_freq)`` float32, or
     ``(batch, widths[k])`` where given; dynamic batch) to ``path`` with ``metadata``, and
-    check the file."""
+    check the file. ``optimize=False`` skips the exporter's graph optimisation (for graphs of
+    thousands of small nodes, where it takes minutes and gains little)."""
     example = tuple(torch.ones(2, w) for w in (widths or (n_freq,) * len(inputs)))
     batch = torch.export.Dim("batch", min=1)
     names = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
@@ -94,6 +96,7 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
                                 category=FutureWarning)
         torch.onnx.export(module.eval(), example, str(path), input_names=list(inputs),
                           output_names=names, dynamo=True, external_data=False,
+                          optimize=optimize,
                           dynamic_shapes={name: {0: batch} for name in module_inputs(module)},
                           verbose=False)
     registry.setLevel(level)
@@ -152,6 +155,10 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
         from wtml.runtime.onset import export_onset
 
         return export_onset(module, scene, out)
+    if task == "texture":
+        from wtml.runtime.texture import export_texture
+
+        return export_texture(module, scene, out)
     freq = (scene.excitation.frequency_hz if task == "fluid"
             else np.asarray(scene.excitation.frequencies_hz))
     uncertain = tuple(k for k, name in enumerate(scene.OUTPUTS) if name == "sigma")

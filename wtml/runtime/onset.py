@@ -129,13 +129,15 @@ def contacts_from(pred: dict, metadata: dict) -> tuple[np.ndarray, np.ndarray]:
     return onset, detach
 
 
-def read_record(path: str | Path, sample_rate_hz: float, n_samples: int) -> np.ndarray:
-    """``e`` and ``i`` of a ``rec.npz`` as float32 ``(2, n, n_samples)`` at the trained rate.
+def read_record(path: str | Path, sample_rate_hz: float, n_samples: int, *,
+                at_least: bool = False) -> np.ndarray:
+    """``e`` and ``i`` of a ``rec.npz`` as float32 ``(2, n, n_samples)`` at the trained rate
+    (``at_least``: any length from ``n_samples`` up, for models fed windows).
 
     The file holds ``e`` (V) and ``i`` (A), each ``(n_samples,)`` or ``(n_records,
     n_samples)``, and ``sample_rate_hz``. Another rate is resampled (polyphase, when the two
     rates have a ratio of small whole numbers) or refused; the duration must match the
-    trained record's.
+    trained record's (or reach it, ``at_least``).
 
     Raises:
         InputError: missing keys, mismatched shapes, NaN, an unusable rate or length.
@@ -151,7 +153,7 @@ def read_record(path: str | Path, sample_rate_hz: float, n_samples: int) -> np.n
         with np.load(path, allow_pickle=False) as data:
             missing = {"e", "i", "sample_rate_hz"} - set(data.files)
             if missing:
-                raise InputError(f"{path}: an onset record needs 'e' (V), 'i' (A) and "
+                raise InputError(f"{path}: a record needs 'e' (V), 'i' (A) and "
                                  f"'sample_rate_hz'; missing {sorted(missing)}")
             e, i = np.atleast_2d(data["e"]).astype(float), np.atleast_2d(data["i"]).astype(float)
             rate = float(data["sample_rate_hz"])
@@ -175,10 +177,11 @@ def read_record(path: str | Path, sample_rate_hz: float, n_samples: int) -> np.n
                              "numbers up to 1000: resample it first")
         e = resample_poly(e, ratio.numerator, ratio.denominator, axis=1)
         i = resample_poly(i, ratio.numerator, ratio.denominator, axis=1)
-    if e.shape[1] != n_samples:
+    if e.shape[1] < n_samples if at_least else e.shape[1] != n_samples:
         raise InputError(f"{path}: {e.shape[1]} samples at {sample_rate_hz:g} Hz "
                          f"({e.shape[1] / sample_rate_hz:g} s); the model takes records of "
-                         f"{n_samples} ({n_samples / sample_rate_hz:g} s)")
+                         f"{'at least ' if at_least else ''}{n_samples} "
+                         f"({n_samples / sample_rate_hz:g} s)")
     return np.stack([e, i]).astype(np.float32)
 
 

@@ -6,12 +6,14 @@ from wtml.scenes.config import SceneError, config_hash, load_yaml, to_dict, yaml
 from wtml.scenes.fluid import FluidScene
 from wtml.scenes.onset import OnsetScene
 from wtml.scenes.radial import RadialScene
+from wtml.scenes.texture import TextureScene
 
-SCENES = {"fluid": FluidScene, "radial": RadialScene, "onset": OnsetScene}
+SCENES = {"fluid": FluidScene, "radial": RadialScene, "onset": OnsetScene,
+          "texture": TextureScene}
 """Scene classes by task name."""
 
 
-def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene:
+def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene | TextureScene:
     """Load a scene YAML; its ``task`` key picks the scene class (default ``fluid``)."""
     import yaml
 
@@ -24,12 +26,13 @@ def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene:
     return load_yaml(SCENES[task], path)
 
 
-def scene_from_dict(data: dict) -> FluidScene | RadialScene | OnsetScene:
+def scene_from_dict(data: dict) -> FluidScene | RadialScene | OnsetScene | TextureScene:
     """Rebuild a scene from the mapping stored in a manifest."""
     from wtml.scenes.config import build
 
     return build(SCENES[data.get("task", "fluid")], data)
 
 
-__all__ = ["SCENES", "FluidScene", "OnsetScene", "RadialScene", "SceneError", "config_hash",
+__all__ = ["SCENES", "FluidScene", "OnsetScene", "RadialScene", "SceneError", "TextureScene",
+           "config_hash",
            "load_scene", "scene_from_dict", "to_dict"]

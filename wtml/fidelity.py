@@ -1,0 +1,137 @@
+"""``wtml fidelity``: every reproduction of a thesis number that wtml has, in one report.
+
+Sections: the presets' resonances (``wtml presets``), and texture (thesis §4.5–4.6): the
+friction law's fit to Table 4.10, the RMS tip speed per grade at the nominal set-up against
+Table 4.10 (within 10 %), |F| and |V| against grain size with their line's R² (Figures
+4.28–4.29: > 0.99), Re Zm rising and Im Zm small (Figures 4.30–4.31), and the kinetic-signature
+table: the spectral peaks of e(t) and i(t) per grade (Table 4.11) beside the v/d frequencies
+and the transducer's modes with its tip free and held. Not yet here: the calibration
+walkthrough's errors, Tables 6.1–6.2 and the onset slice's Figure 5.22 fit (each has its own
+verb: ``wtml walkthrough``, ``wtml bench fluid``, ``wtml bench onset``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import eigh
+from scipy.signal import find_peaks, welch
+
+from wtml.physics.beam_presets import build
+from wtml.scenes.texture import (
+    TABLE_4_10_RMS_SPEED,
+    THESIS_GRADES,
+    TextureScene,
+    fit_friction_law,
+    nominal_response,
+)
+
+TABLE_4_11_PEAKS_HZ = (36, 360, 1070, 2080, 3440, 5110, 7110, 9390)
+"""The thesis's spectral peaks, the same for every specimen (Table 4.11), Hz."""
+
+
+def r_squared(x: np.ndarray, y: np.ndarray, degree: int = 1) -> float:
+    """R² of a least-squares polynomial of ``degree`` through ``(x, y)``."""
+    fit = np.polyval(np.polyfit(x, y, degree), x)
+    return float(1 - np.sum((y - fit) ** 2) / np.sum((y - y.mean()) ** 2))
+
+
+def held_tip_modes(preset: str = "macro", count: int = 14) -> np.ndarray:
+    """Natural frequencies (Hz) of the beam with its tip held (tip displacement pinned)."""
+    k, m, theta = build(preset).matrices()
+    keep = [j for j in range(len(theta)) if j != len(theta) - 2]
+    w2 = eigh(k.real[np.ix_(keep, keep)], m[np.ix_(keep, keep)], eigvals_only=True)
+    return np.sqrt(w2[:count]) / (2 * np.pi)
+
+
+def spectral_peaks(x: np.ndarray, rate: float, count: int = 8, top_hz: float = 10e3
+                   ) -> np.ndarray:
+    """The ``count`` most prominent peaks (Hz, ascending) of the Welch spectrum of ``x`` below
+    ``top_hz``, on a log scale (prominence in decades)."""
+    f, p = welch(x - x.mean(), fs=rate, nperseg=min(len(x), 8192))
+    sel = (f > 5) & (f < top_hz)
+    logp = np.log10(p[sel] + 1e-300)
+    idx, props = find_peaks(logp, prominence=0.3)
+    best = idx[np.argsort(props["prominences"])[::-1][:count]]
+    return np.sort(f[sel][best])
+
+
+def texture_fidelity(scene: TextureScene) -> dict:
+    """The texture section's numbers (see the module docstring)."""
+    sizes = np.array(list(THESIS_GRADES.values()))
+    fit = fit_friction_law(scene)
+    nom = nominal_response(scene)
+    rate = nom["rate"]
+    speed = np.array(list(TABLE_4_10_RMS_SPEED.values()))
+    peaks_e = [spectral_peaks(x, rate) for x in nom["e"]]
+    peaks_i = [spectral_peaks(x, rate) for x in nom["i"]]
+    return {"sizes": sizes, "fit": fit, "rms_speed": nom["rms_speed"], "table_speed": speed,
+            "force": np.abs(nom["force"]), "velocity": np.abs(nom["velocity"]),
+            "zm": nom["zm"], "r2_force": r_squared(sizes, np.abs(nom["force"])),
+            "r2_velocity": r_squared(sizes, np.abs(nom["velocity"])),
+            "r2_zm_quadratic": r_squared(sizes, nom["zm"].real, 2),
+            "v_over_d": speed / (sizes * 1e-6), "peaks_e": peaks_e, "peaks_i": peaks_i,
+            "free_modes": scene.transducer().omega_n / (2 * np.pi),
+            "held_modes": held_tip_modes(scene.preset)}
+
+
+def format_texture(r: dict) -> str:
+    names = list(THESIS_GRADES)
+    f = r["fit"]
+    lines = ["## Texture (thesis §4.5-4.6), nominal set-up: 10 V, 36 Hz, 3.3e-4 N, 10°", "",
+             f"Friction law fitted to Table 4.10: μ(d) = {f['intercept']:.3f} + "
+             f"{f['slope']:.4f}·d/µm (line through the per-grade fit, R² {f['r2']:.4f}); "
+             "per grade " + ", ".join(f"{m:.3f}" for m in f["mu_per_grade"]), "",
+             "| grade | d (µm) | RMS tip speed (m/s) | Table 4.10 | error | |F| (N) | |V| (m/s) "
+             "| Re Zm (N·s/m) | Im Zm (N·s/m) |", "|---|---|---|---|---|---|---|---|---|"]
+    for k, n in enumerate(names):
+        err = r["rms_speed"][k] / r["table_speed"][k] - 1
+        lines.append(f"| {n} | {r['sizes'][k]:.1f} | {r['rms_speed'][k]:.3f} | "
+                     f"{r['table_speed'][k]:.3f} | {100 * err:+.1f} % | {r['force'][k]:.3e} | "
+                     f"{r['velocity'][k]:.3f} | {r['zm'][k].real:.3e} | {r['zm'][k].imag:.2e} |")
+    worst = np.max(np.abs(r["rms_speed"] / r["table_speed"] - 1))
+    zm = r["zm"]
+    lines += ["", f"RMS speed within 10 % of Table 4.10: {'yes' if worst <= 0.1 else 'NO'} "
+              f"(worst {100 * worst:.1f} %)",
+              f"|F| vs d: line R² {r['r2_force']:.4f} (thesis 0.9906; > 0.99: "
+              f"{'yes' if r['r2_force'] > 0.99 else 'NO'}); "
+              f"|V| vs d: line R² {r['r2_velocity']:.4f} (thesis 0.9938; > 0.99: "
+              f"{'yes' if r['r2_velocity'] > 0.99 else 'NO'})",
+              f"Re Zm rises with d: {'yes' if np.all(np.diff(zm.real) > 0) else 'NO'} "
+              f"(quadratic R² {r['r2_zm_quadratic']:.4f}); |Im Zm|/Re Zm at most "
+              f"{np.max(np.abs(zm.imag) / zm.real):.2f}", "",
+              "### Kinetic signature (Table 4.11): spectral peaks, Hz", "",
+              "| grade | v/d (Table 4.10 speeds) | peaks of e(t) | peaks of i(t) |",
+              "|---|---|---|---|"]
+    for k, n in enumerate(names):
+        lines.append(f"| {n} | {r['v_over_d'][k]:.0f} | "
+                     f"{', '.join(f'{p:.0f}' for p in r['peaks_e'][k]) or '-'} | "
+                     f"{', '.join(f'{p:.0f}' for p in r['peaks_i'][k])} |")
+    common = _shared(r["peaks_i"])
+    near_vd = [any(abs(p / r["v_over_d"][k] - 1) < 0.05 for p in r["peaks_i"][k])
+               for k in range(len(names))]
+    lines += ["", f"Thesis (Table 4.11), every grade: {', '.join(map(str, TABLE_4_11_PEAKS_HZ))}",
+              "Modes, tip free: " + ", ".join(f"{x:.0f}" for x in r["free_modes"]
+                                             if x < 10e3),
+              "Modes, tip held: " + ", ".join(f"{x:.0f}" for x in r["held_modes"]
+                                             if x < 10e3),
+              f"Peaks of i(t) shared by all five grades (within 3 %): "
+              f"{', '.join(f'{p:.0f}' for p in common) or 'none'}; "
+              f"grades with a peak within 5 % of their v/d: {sum(near_vd)} of {len(names)}"]
+    return "\n".join(lines)
+
+
+def _shared(peaks: list[np.ndarray], tol: float = 0.03) -> list[float]:
+    """The peaks of the first list that every other list has within ``tol`` (relative)."""
+    return [p for p in peaks[0]
+            if all(np.any(np.abs(q / p - 1) < tol) for q in peaks[1:])]
+
+
+def report(scene: TextureScene | None = None) -> str:
+    """The whole fidelity report (markdown)."""
+    from wtml.physics.beam_presets import fidelity_table, format_fidelity
+
+    scene = scene or TextureScene()
+    return "\n".join(["# wtml fidelity: the thesis's numbers as wtml reproduces them", "",
+                      "## Presets (thesis §3.5, §5.1, §6.5)", "",
+                      format_fidelity(fidelity_table()), "",
+                      format_texture(texture_fidelity(scene))])

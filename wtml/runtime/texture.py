@@ -1,0 +1,115 @@
+"""The texture task on a device: export (decoder and classical path, each with the decoder's
+domain gate) and ``wtml predict`` on records.
+
+Both graphs take ``e`` (V) and ``i`` (A), float32 ``(batch, window)`` at the scene's rate,
+and return ``grain`` (m), ``log_sigma`` (std of ln grain; NaN out of domain, 0 for the
+classical path) and ``probabilities`` ``(batch, 5)`` over the thesis's grades, then
+``in_domain`` and ``domain_score``. A longer record is cut into whole windows; its answer is
+the windows' mean log-probabilities and mean ln grain.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wtml import __version__
+from wtml.baselines.texture_classical import ClassicalTexture
+from wtml.decoders.domain import Gated
+from wtml.decoders.texture import WhiskFeatures
+from wtml.runtime.export import _export, domain_metadata
+from wtml.runtime.onset import read_record
+from wtml.scenes import config_hash
+
+TEXTURE_INPUTS = ("e", "i")
+FRESH_RECORDS = 200
+"""Fresh records of the scene (its own seed, not the training data) on which the classical
+path is fitted and the exported decoder's false-alarm rate is measured."""
+
+
+@torch.no_grad()
+def export_texture(module, scene, out: Path) -> dict[str, Path]:
+    """Write ``out/model.onnx`` (decoder) and ``out/classical.onnx`` (the thesis's cues)."""
+    window = module._n
+    decoder = Gated(module.net, module.gate, (1,)).eval()
+    fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
+    inside = decoder(torch.tensor(fresh["e"][:, :window]),
+                     torch.tensor(fresh["i"][:, :window]))[-2]
+    domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
+    features = WhiskFeatures(scene.transducer(), scene.acquisition.sample_rate_hz)
+    classical = ClassicalTexture.fit(features, fresh["e"], fresh["i"], fresh["grade"],
+                                     fresh["grain_m"], window)
+    meta = {"wtml_version": __version__, "task": "texture",
+            "inputs": json.dumps(list(TEXTURE_INPUTS)),
+            "outputs": json.dumps(list(scene.OUTPUTS)),
+            "units": json.dumps(scene.UNITS | {"e": "V", "i": "A"}),
+            "classes": json.dumps(list(scene.class_names())),
+            "frequency_hz": json.dumps(list(scene.drive.whisk_hz)),
+            "sample_rate_hz": json.dumps(scene.acquisition.sample_rate_hz),
+            "n_samples": json.dumps(window), "window_s": json.dumps(module.hparams.window_s),
+            "scene": json.dumps(module.scene, sort_keys=True), "scene_hash": config_hash(scene),
+            "domain": json.dumps(domain)}
+    paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
+    _export(decoder, window, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"},
+            TEXTURE_INPUTS, optimize=False)
+    _export(Gated(classical, module.gate.inputs_only()).eval(), window, paths["classical"],
+            meta | {"kind": "classical", "label": "thesis cues (|F|, |V|, Zm)"}, TEXTURE_INPUTS,
+            optimize=False)
+    return paths
+
+
+def windows(x: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cut ``(2, n_records, n)`` records into whole windows: ``(2, n_windows, window)`` and
+    each window's record index."""
+    per = x.shape[2] // window
+    if per < 1:
+        raise ValueError(f"records of {x.shape[2]} samples are shorter than the model's window "
+                         f"({window} samples)")
+    cut = x[:, :, :per * window].reshape(2, x.shape[1] * per, window)
+    return cut, np.repeat(np.arange(x.shape[1]), per)
+
+
+def pool(pred: dict[str, np.ndarray], owner: np.ndarray, n: int) -> dict[str, np.ndarray]:
+    """Per record: mean log-probabilities (renormalised), mean ln grain, all windows in
+    domain."""
+    logp = np.log(np.clip(pred["probabilities"], 1e-12, 1.0))
+    out = {"probabilities": np.zeros((n, logp.shape[1])), "grain": np.zeros(n),
+           "in_domain": np.zeros(n, bool), "domain_score": np.zeros(n)}
+    for r in range(n):
+        sel = owner == r
+        lp = logp[sel].mean(0)
+        p = np.exp(lp - lp.max())
+        out["probabilities"][r] = p / p.sum()
+        out["grain"][r] = np.exp(np.mean(np.log(pred["grain"][sel])))
+        out["in_domain"][r] = bool(pred["in_domain"][sel].all())
+        out["domain_score"][r] = float(pred["domain_score"][sel].max())
+    return out
+
+
+def predict_records(model_dir: str | Path, input_path: str | Path) -> list[dict]:
+    """One row per record and method: grade probabilities, the likeliest grade, grain size
+    (µm), ``in_domain``, ``domain_score`` and flags."""
+    from wtml.runtime.predict import load_export
+
+    decoder, classical = load_export(model_dir)
+    meta = decoder.metadata
+    window = json.loads(meta["n_samples"])
+    x = read_record(input_path, json.loads(meta["sample_rate_hz"]), window, at_least=True)
+    cut, owner = windows(x, window)
+    names = json.loads(meta["classes"])
+    rows = []
+    for label, model in (("decoder", decoder), ("classical", classical)):
+        pred = pool(model.run(cut[0], cut[1]), owner, x.shape[1])
+        for r in range(x.shape[1]):
+            p = pred["probabilities"][r]
+            flags = [] if pred["in_domain"][r] else ["outside the trained domain"]
+            rows.append({"record": r, "method": label, "grade": names[int(np.argmax(p))],
+                         **{f"p({n})": float(v) for n, v in zip(names, p, strict=True)},
+                         "grain (um)": float(pred["grain"][r] * 1e6),
+                         "in_domain": bool(pred["in_domain"][r]),
+                         "domain_score": float(pred["domain_score"][r]),
+                         "flags": "; ".join(flags)})
+    return rows

@@ -1,0 +1,341 @@
+"""The texture scene: the macro WT's tip sweeping sandpaper (thesis §4.5, physics.md §11).
+
+The macro WT is driven at ``whisk_v`` volts and ``whisk_hz`` (nominal 10 V at 36 Hz); its tip
+slides on a specimen under a normal force N at a contact angle θ, with the friction of
+:mod:`wtml.physics.friction`. The friction law's dependence on the mean grain size d is stated
+here and fitted to the thesis (:func:`fit_friction_law`, printed by ``wtml fidelity``):
+
+    μ(d) = mu_0 + mu_per_um · d/µm,     a(d) = asperity · d / 35 µm
+
+Each specimen (``specimens_per_grade`` per grade per shard, so a shard's specimens are its own
+and a split by shard holds out specimens) draws its own Coulomb coefficient
+(``μ(d) + N(0, mu_spread)``), asperity factor (log-normal ``asperity_spread``), grain-size
+spread and grain positions. Each record draws the nuisance: whisking amplitude and frequency,
+N, θ, and the device's coupling (calibration error). Both channels go through a 24-bit ADC with
+noise; the current through an I-V converter.
+
+``grades: thesis`` holds the five sandpapers of the thesis as classes; ``grades: fepa`` the ten
+other FEPA P-grades (the regression test of unseen grain sizes; their class label is -1).
+Labels: ``grade`` (class index), ``grain_m`` (the grade's mean grain size, m), ``specimen``
+(an id unique within the dataset), and the nuisance drawn. Stored: ``e`` (V) and ``i`` (A)
+float32 ``(n, n_samples)``, 2 × 4 bytes × 51200 = 410 kB per 1 s record.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+from scipy.signal import resample_poly
+
+from wtml.interface import OutputRange
+from wtml.physics.beam_presets import build
+from wtml.physics.friction import Friction, grains, pad_grains
+from wtml.physics.modal import ModalTransducer
+from wtml.scenes.config import SceneError, bounded, one_of
+from wtml.scenes.onset import Acquisition
+
+THESIS_GRADES = {"P1200": 15.3, "P800": 21.8, "P400": 35.0, "P320": 46.2, "P280": 52.2}
+"""The five specimens of the thesis (Table 4.9): mean grain size, µm."""
+FEPA_GRADES = {"P2500": 8.4, "P2000": 10.3, "P1500": 12.6, "P1000": 18.3, "P600": 25.8,
+               "P500": 30.2, "P360": 40.5, "P240": 58.5, "P220": 68.0, "P180": 82.0}
+"""The other FEPA P-grades (physics.md §11), unseen in training: mean grain size, µm."""
+TABLE_4_10_RMS_SPEED = {"P1200": 0.361, "P800": 0.335, "P400": 0.293, "P320": 0.242,
+                        "P280": 0.213}
+"""The thesis's RMS tip speed per grade at 10 V, 36 Hz (Table 4.10), m/s."""
+
+
+@dataclass(frozen=True)
+class TextureDrive:
+    """Whisking voltage amplitude (V) and frequency (Hz) ranges (uniform; nominal 10 V at
+    36 Hz), the recorded length and the unrecorded lead-in (raised-cosine ramp), s."""
+
+    whisk_v: tuple[float, float] = bounded(0.1, 200.0, default=(8.0, 12.0))
+    whisk_hz: tuple[float, float] = bounded(1.0, 1e3, default=(35.0, 37.0))
+    record_s: float = bounded(0.05, 10.0, default=1.0)
+    lead_s: float = bounded(0.0, 5.0, default=1.0)
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Normal force (N) and contact angle (degrees) ranges (uniform)."""
+
+    normal_force: tuple[float, float] = bounded(0.0, 1.0, default=(2.5e-4, 4.1e-4))
+    angle_deg: tuple[float, float] = bounded(0.0, 80.0, default=(5.0, 15.0))
+
+
+@dataclass(frozen=True)
+class FrictionLaw:
+    """The friction law against grain size (see the module docstring) and each specimen's
+    deviations from it: ``mu_0`` and ``mu_per_um`` (the line μ(d)), ``asperity`` a at 35 µm,
+    ``slip_speed`` v_s (m/s), ``viscous`` c (N·s/m); ``mu_spread`` (std of μ),
+    ``asperity_spread`` (log-normal σ of a), ``grain_spread`` (range of the coefficient of
+    variation of grain spacing and size)."""
+
+    mu_0: float = bounded(-1.0, 2.0, default=0.488)
+    mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
+    asperity: float = bounded(0.0, 10.0, default=0.2)
+    slip_speed: float = bounded(1e-4, 1.0, default=0.01)
+    viscous: float = bounded(0.0, 1.0, default=0.0)
+    mu_spread: float = bounded(0.0, 0.5, default=0.005)
+    asperity_spread: float = bounded(0.0, 1.0, default=0.08)
+    grain_spread: tuple[float, float] = bounded(0.05, 1.5, default=(0.25, 0.4))
+
+
+@dataclass(frozen=True)
+class TextureScene:
+    """A texture scene (``configs/scenes/texture.yaml``)."""
+
+    OUTPUTS: ClassVar[tuple[str, ...]] = ("grain", "log_sigma", "probabilities")
+    """What a texture decoder returns per window: the mean grain size (m), the std of its
+    natural log, and the five thesis grades' probabilities ``(batch, 5)``."""
+    UNITS: ClassVar[dict[str, str]] = {"grain": "m", "log_sigma": "1", "probabilities": "1"}
+
+    name: str = "texture"
+    task: str = one_of("texture", default="texture")
+    seed: int = bounded(0, 2**32 - 1, default=0)
+    samples: int = bounded(1, 10**7, default=240)
+    shards: int = bounded(1, 10**5, default=6)
+    grades: str = one_of("thesis", "fepa", default="thesis")
+    specimens_per_grade: int = bounded(1, 1000, default=2)
+    preset: str = one_of("macro", default="macro")
+    n_modes: int = bounded(1, 40, default=14)
+    reach_m: float = bounded(1e-4, 0.1, default=5e-3)
+    drive: TextureDrive = field(default_factory=TextureDrive)
+    contact: Contact = field(default_factory=Contact)
+    friction: FrictionLaw = field(default_factory=FrictionLaw)
+    acquisition: Acquisition = field(default_factory=lambda: Acquisition(
+        sample_rate_hz=51200.0, e_full_scale_v=20.0, i_full_scale_a=1e-4, e_noise_v=1e-4,
+        i_noise_a=2e-8))
+    calibration_error: float = bounded(0.0, 0.2, default=0.01)
+    oversample: int = bounded(1, 16, default=2)
+    """The simulation steps at ``oversample`` × the sampling rate (the asperities' impulses
+    land on the step grid: at 102.4 kS/s halving the step moves the current's phasor by less
+    than a 0.25 s window's noise, at 51.2 kS/s by about twice it); records are then decimated
+    by a polyphase FIR (``scipy.signal.resample_poly``)."""
+
+    def check(self, path: str) -> None:
+        pre = path + "." if path else ""
+        if self.shards > self.samples:
+            raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
+                             "must be <= samples")
+        if self.drive.lead_s * self.acquisition.sample_rate_hz < 64:
+            raise SceneError(f"{pre}drive.lead_s: at least 64 samples "
+                             f"({64 / self.acquisition.sample_rate_hz:g} s) for the decimation")
+        if self.drive.whisk_hz[1] >= self.acquisition.sample_rate_hz / 8:
+            raise SceneError(f"{pre}drive.whisk_hz: must stay below an eighth of the sample "
+                             f"rate ({self.acquisition.sample_rate_hz / 8:g} Hz)")
+
+    # --- the model -----------------------------------------------------------------------
+    @property
+    def grade_table(self) -> dict[str, float]:
+        """Grade name -> mean grain size, µm, of this scene's specimens."""
+        return THESIS_GRADES if self.grades == "thesis" else FEPA_GRADES
+
+    def output_ranges(self) -> dict[str, OutputRange]:
+        """The grain size over the thesis's five grades (15.3-52.2 µm), 5 % of its log span
+        beyond still in domain; physically positive and below 1 mm."""
+        sizes = list(THESIS_GRADES.values())
+        return {"grain": OutputRange(min(sizes) * 1e-6, max(sizes) * 1e-6, (0.0, 1e-3),
+                                     margin=0.05, log=True)}
+
+    @staticmethod
+    def class_names() -> tuple[str, ...]:
+        """The classes a texture decoder names: the thesis's five grades, finest first."""
+        return tuple(THESIS_GRADES)
+
+    def transducer(self) -> ModalTransducer:
+        """The calibrated modal model, dielectric loss exact at the nominal 36 Hz."""
+        return ModalTransducer.from_beam(build(self.preset), self.n_modes, reference_hz=36.0)
+
+    @property
+    def n_samples(self) -> int:
+        return int(round(self.drive.record_s * self.acquisition.sample_rate_hz))
+
+    def mu(self, grain_um) -> np.ndarray:
+        """The law's Coulomb coefficient at mean grain size ``grain_um`` (µm)."""
+        return self.friction.mu_0 + self.friction.mu_per_um * np.asarray(grain_um, float)
+
+    def asperity(self, grain_um) -> np.ndarray:
+        """The law's asperity factor a at ``grain_um`` (µm)."""
+        return self.friction.asperity * np.asarray(grain_um, float) / 35.0
+
+    def drive_voltage(self, volts, hz) -> tuple[np.ndarray, np.ndarray, int]:
+        """E (V) and dE/dt (V/s) of each record at the simulation rate (``oversample`` × the
+        sampling rate), ``(B, n_lead + oversample · n_samples)``, lead-in first, and the
+        lead-in's length in steps. The tone is ``volts · sin(2π hz t)``."""
+        rate = self.acquisition.sample_rate_hz * self.oversample
+        n_lead = int(round(self.drive.lead_s * rate))
+        t = np.arange(-n_lead, self.n_samples * self.oversample) / rate
+        w = 2 * np.pi * np.asarray(hz, float)[:, None]
+        a = np.asarray(volts, float)[:, None]
+        e, de = a * np.sin(w * t), a * w * np.cos(w * t)
+        if n_lead:
+            x = np.clip((t + self.drive.lead_s) / self.drive.lead_s, 0.0, 1.0)
+            ramp = 0.5 - 0.5 * np.cos(np.pi * x)
+            dramp = 0.5 * np.pi / self.drive.lead_s * np.sin(np.pi * x)
+            e, de = e * ramp, de * ramp + e * dramp
+        return e, de, n_lead
+
+    def decimate(self, x: np.ndarray) -> np.ndarray:
+        """From the simulation rate to the sampling rate, along the last axis."""
+        if self.oversample == 1:
+            return x
+        return resample_poly(x, 1, self.oversample, axis=-1)
+
+    def quantise(self, x: np.ndarray, full_scale: float) -> np.ndarray:
+        lsb = 2 * full_scale / 2**self.acquisition.adc_bits
+        return np.round(np.clip(x, -full_scale, full_scale - lsb) / lsb) * lsb
+
+    def specimens(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """This shard's specimens, ``specimens_per_grade`` of each grade: ``grade`` (index),
+        ``grain_um``, ``mu``, ``asperity`` and ``spread`` each ``(n_specimens,)``."""
+        f = self.friction
+        sizes = np.array(list(self.grade_table.values()))
+        grade = np.repeat(np.arange(len(sizes)), self.specimens_per_grade)
+        n = len(grade)
+        return {"grade": grade, "grain_um": sizes[grade],
+                "mu": self.mu(sizes[grade]) + f.mu_spread * rng.standard_normal(n),
+                "asperity": self.asperity(sizes[grade]) * np.exp(
+                    f.asperity_spread * rng.standard_normal(n)),
+                "spread": rng.uniform(*f.grain_spread, n),
+                "seed": rng.integers(0, 2**32 - 1, n)}
+
+    def friction_load(self, spec: dict, which: np.ndarray, normal: np.ndarray,
+                      angle: np.ndarray, *, asperities: bool = True,
+                      mu: np.ndarray | None = None) -> Friction:
+        """The records' friction: specimen ``which[r]`` under normal force ``normal[r]`` (N)
+        and angle ``angle[r]`` (rad); ``mu`` overrides the specimens' Coulomb coefficients."""
+        rows = []
+        for r, s in enumerate(which):
+            if asperities:
+                rows.append(grains(np.random.default_rng(int(spec["seed"][s])),
+                                   spec["grain_um"][s] * 1e-6, self.reach_m,
+                                   spread=spec["spread"][s], asperity=spec["asperity"][s],
+                                   pressing_n=normal[r] * np.cos(angle[r])))
+            else:
+                rows.append((np.array([np.inf]), np.zeros(1)))
+        pos, imp = pad_grains(rows)
+        coulomb = spec["mu"][which] if mu is None else mu
+        return Friction(np.clip(coulomb, 0.0, None), normal, angle, self.friction.slip_speed,
+                        self.friction.viscous, pos, imp)
+
+    def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64,
+                 asperities: bool = True, mean_friction: bool = True,
+                 nominal: bool = False) -> dict[str, np.ndarray]:
+        """``n`` records spread evenly over this shard's specimens.
+
+        ``asperities=False`` leaves the grains out; ``mean_friction=False`` gives every
+        specimen the Coulomb coefficient of the law at the middle grade (the ablations of the
+        bench); ``nominal`` fixes the set-up at the thesis's (10 V, 36 Hz, 3.3e-4 N, 10°, the
+        calibrated device, no specimen deviations)."""
+        spec = self.specimens(rng)
+        if nominal:
+            spec["mu"] = self.mu(spec["grain_um"])
+            spec["asperity"] = self.asperity(spec["grain_um"])
+        n_spec = len(spec["grade"])
+        which = np.arange(n) % n_spec
+        d, c, a = self.drive, self.contact, self.acquisition
+        volts = rng.uniform(*d.whisk_v, n)
+        hz = rng.uniform(*d.whisk_hz, n)
+        normal = rng.uniform(*c.normal_force, n)
+        angle = np.deg2rad(rng.uniform(*c.angle_deg, n))
+        scale = 1 + self.calibration_error * rng.standard_normal(n)
+        if nominal:
+            volts, hz, normal = np.full(n, 10.0), np.full(n, 36.0), np.full(n, 3.3e-4)
+            angle, scale = np.full(n, np.deg2rad(10.0)), np.ones(n)
+        mid = float(self.mu(np.median(list(THESIS_GRADES.values()))))
+        mu = None if mean_friction else np.full(n, mid)
+        model = self.transducer()
+        dt = 1 / (a.sample_rate_hz * self.oversample)
+        cur = np.empty((n, self.n_samples))
+        vel = np.empty((n, self.n_samples), np.float32)
+        volt = np.empty((n, self.n_samples))
+        for start in range(0, n, batch):
+            sl = slice(start, min(n, start + batch))
+            e, de, n_lead = self.drive_voltage(volts[sl], hz[sl])
+            load = self.friction_load(spec, which[sl], normal[sl], angle[sl],
+                                      asperities=asperities,
+                                      mu=None if mu is None else mu[sl])
+            out = model.simulate(e, dt, load, drive_rate=de, coupling_scale=scale[sl],
+                                 record=("v", "i"), dtype=np.float64)
+            for dst, x in ((cur, out["i"]), (vel, out["v"]), (volt, e)):
+                dst[sl] = self.decimate(x[:, n_lead - 64 * self.oversample:])[:, 64:]
+        e_rec = self.quantise(volt + a.e_noise_v * rng.standard_normal(volt.shape),
+                              a.e_full_scale_v)
+        i_rec = self.quantise(cur + a.i_noise_a * rng.standard_normal(cur.shape),
+                              a.i_full_scale_a)
+        grade = spec["grade"][which] if self.grades == "thesis" else np.full(n, -1)
+        return {"e": e_rec.astype(np.float32), "i": i_rec.astype(np.float32),
+                "grade": grade, "grain_m": spec["grain_um"][which] * 1e-6,
+                "specimen": rng.integers(0, 2**62) + which, "mu": spec["mu"][which],
+                "asperity": spec["asperity"][which], "whisk_v": volts, "whisk_hz": hz,
+                "normal_force": normal, "angle": angle, "coupling": scale,
+                "rms_speed": np.sqrt(np.mean(vel.astype(float) ** 2, axis=1))}
+
+
+def fit_friction_law(scene: TextureScene, *, iterations: int = 6) -> dict:
+    """Fit μ per thesis grade so that the simulated RMS tip speed at the nominal set-up matches
+    Table 4.10 (secant steps on all five at once, asperities included), then a line μ(d).
+
+    Returns ``mu_per_grade``, ``intercept``, ``slope`` (per µm), ``r2`` of the line and the
+    achieved ``rms_speed`` per grade (m/s).
+    """
+    sizes = np.array(list(THESIS_GRADES.values()))
+    target = np.array(list(TABLE_4_10_RMS_SPEED.values()))
+
+    def speeds(mu: np.ndarray) -> np.ndarray:
+        return nominal_response(scene, mu=mu)["rms_speed"]
+
+    mu0, mu1 = scene.mu(sizes), scene.mu(sizes) + 0.05
+    s0, s1 = speeds(mu0), speeds(mu1)
+    for _ in range(iterations):
+        slope = (s1 - s0) / np.where(mu1 != mu0, mu1 - mu0, 1.0)
+        mu2 = mu1 + (target - s1) / np.where(slope != 0, slope, -1.0)
+        mu0, s0, mu1, s1 = mu1, s1, mu2, speeds(mu2)
+        if np.all(np.abs(s1 / target - 1) < 1e-4):
+            break
+    line = np.polyfit(sizes, mu1, 1)
+    fit = np.polyval(line, sizes)
+    r2 = 1 - np.sum((mu1 - fit) ** 2) / np.sum((mu1 - mu1.mean()) ** 2)
+    return {"mu_per_grade": mu1, "intercept": float(line[1]), "slope": float(line[0]),
+            "r2": float(r2), "rms_speed": s1}
+
+
+def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None,
+                     seconds: float = 1.0) -> dict[str, np.ndarray]:
+    """The five thesis grades at the nominal set-up (10 V, 36 Hz, 3.3e-4 N, 10°), the law's
+    own parameters (``mu`` overrides μ per grade), no noise: the fundamental phasors of the
+    tip's force and velocity (``force``, ``velocity``, complex, N and m/s, over the last
+    ``seconds``), ``zm`` = F/V and ``rms_speed`` (m/s), each ``(5,)``; ``e``, ``i``, ``v``
+    (the records, ``(5, n)``) and ``rate`` (Hz) for the spectra."""
+    sizes = np.array(list(THESIS_GRADES.values()))
+    rate = scene.acquisition.sample_rate_hz * scene.oversample
+    record = max(scene.drive.record_s, seconds)
+    rows = []
+    for k, d in enumerate(sizes):
+        rows.append(grains(np.random.default_rng(1000 + k), d * 1e-6, scene.reach_m,
+                           spread=float(np.mean(scene.friction.grain_spread)),
+                           asperity=float(scene.asperity(d)),
+                           pressing_n=3.3e-4 * np.cos(np.deg2rad(10.0))))
+    pos, imp = pad_grains(rows)
+    load = Friction(scene.mu(sizes) if mu is None else mu, 3.3e-4, np.deg2rad(10.0),
+                    scene.friction.slip_speed, scene.friction.viscous, pos, imp)
+    n_lead = int(round(scene.drive.lead_s * rate))
+    t = np.arange(-n_lead, int(round(record * rate))) / rate
+    w = 2 * np.pi * 36.0
+    ramp = np.clip((t + scene.drive.lead_s) / max(scene.drive.lead_s, 1e-9), 0, 1)
+    ramp = 0.5 - 0.5 * np.cos(np.pi * ramp)
+    e = 10.0 * np.sin(w * t) * ramp
+    out = scene.transducer().simulate(e, 1 / rate, load, record=("v", "force", "i"),
+                                      dtype=np.float64)
+    keep = slice(len(t) - int(round(seconds * rate)), len(t))
+    tt = t[keep]
+    basis = np.exp(-1j * w * tt)
+    force = 2 * np.mean(out["force"][:, keep] * basis, axis=1)
+    vel = 2 * np.mean(out["v"][:, keep] * basis, axis=1)
+    return {"force": force, "velocity": vel, "zm": force / vel,
+            "rms_speed": np.sqrt(np.mean(out["v"][:, keep] ** 2, axis=1)),
+            "e": np.broadcast_to(e[keep], (5, len(tt))), "i": out["i"][:, keep],
+            "v": out["v"][:, keep], "rate": rate}

@@ -85,7 +85,12 @@ class DecoderModule(L.LightningModule, ABC):
         ze_re, ze_im, targets = dm.train_tensors()
         self.net = self.build_net(dm.scene, ze_re, ze_im, targets)
         self.scene = dm.scene_dict
-        self.gate = self.make_gate(dm.scene).fit(ze_re, ze_im)
+        self.gate = self.make_gate(dm.scene).fit(*self.gate_inputs(ze_re, ze_im))
+
+    def gate_inputs(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The training inputs the domain gate is fitted on (after :meth:`build_net`): the
+        training tensors themselves, unless a task feeds its net pieces of them."""
+        return x, y
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["wtml"] = {"scene": self.scene, "shape": self.net_shape(),

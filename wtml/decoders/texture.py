@@ -267,17 +267,11 @@ class TextureDecoder(DecoderModule):
         net.log_grain.copy_(torch.stack([logd.mean(), logd.std().clamp_min(1e-3)]))
         return net
 
-    def setup(self, stage: str) -> None:
-        if self.net is not None:
-            return
-        dm = self.trainer.datamodule
-        e, i, targets = dm.train_tensors()
-        self.net = self.build_net(dm.scene, e, i, targets)
-        self.scene = dm.scene_dict
+    def gate_inputs(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Every whole window of the training records, ``(n · per, window)`` each."""
         n = self._n
-        per = e.shape[1] // n  # every whole window of the training records
-        self.gate = self.make_gate(dm.scene).fit(
-            e[:, :per * n].reshape(-1, n), i[:, :per * n].reshape(-1, n))
+        per = e.shape[1] // n
+        return e[:, :per * n].reshape(-1, n), i[:, :per * n].reshape(-1, n)
 
     def net_shape(self) -> dict:
         return {"window": self._n}

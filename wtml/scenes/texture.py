@@ -35,6 +35,7 @@ from wtml.physics.friction import Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.scenes.config import SceneError, bounded, one_of
 from wtml.scenes.onset import Acquisition
+from wtml.signals.noise import quantize
 
 THESIS_GRADES = {"P1200": 15.3, "P800": 21.8, "P400": 35.0, "P320": 46.2, "P280": 52.2}
 """The five specimens of the thesis (Table 4.9): mean grain size, µm."""
@@ -184,10 +185,6 @@ class TextureScene:
             return x
         return resample_poly(x, 1, self.oversample, axis=-1)
 
-    def quantise(self, x: np.ndarray, full_scale: float) -> np.ndarray:
-        lsb = 2 * full_scale / 2**self.acquisition.adc_bits
-        return np.round(np.clip(x, -full_scale, full_scale - lsb) / lsb) * lsb
-
     def specimens(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """This shard's specimens, ``specimens_per_grade`` of each grade: ``grade`` (index),
         ``grain_um``, ``mu``, ``asperity`` and ``spread`` each ``(n_specimens,)``."""
@@ -262,10 +259,10 @@ class TextureScene:
                                  record=("v", "i"), dtype=np.float64)
             for dst, x in ((cur, out["i"]), (vel, out["v"]), (volt, e)):
                 dst[sl] = self.decimate(x[:, n_lead - 64 * self.oversample:])[:, 64:]
-        e_rec = self.quantise(volt + a.e_noise_v * rng.standard_normal(volt.shape),
-                              a.e_full_scale_v)
-        i_rec = self.quantise(cur + a.i_noise_a * rng.standard_normal(cur.shape),
-                              a.i_full_scale_a)
+        e_rec = quantize(volt + a.e_noise_v * rng.standard_normal(volt.shape), a.adc_bits,
+                         a.e_full_scale_v)
+        i_rec = quantize(cur + a.i_noise_a * rng.standard_normal(cur.shape), a.adc_bits,
+                         a.i_full_scale_a)
         grade = spec["grade"][which] if self.grades == "thesis" else np.full(n, -1)
         return {"e": e_rec.astype(np.float32), "i": i_rec.astype(np.float32),
                 "grade": grade, "grain_m": spec["grain_um"][which] * 1e-6,
@@ -303,16 +300,15 @@ def fit_friction_law(scene: TextureScene, *, iterations: int = 6) -> dict:
             "r2": float(r2), "rms_speed": s1}
 
 
-def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None,
-                     seconds: float = 1.0) -> dict[str, np.ndarray]:
+def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None
+                     ) -> dict[str, np.ndarray]:
     """The five thesis grades at the nominal set-up (10 V, 36 Hz, 3.3e-4 N, 10°), the law's
-    own parameters (``mu`` overrides μ per grade), no noise: the fundamental phasors of the
-    tip's force and velocity (``force``, ``velocity``, complex, N and m/s, over the last
-    ``seconds``), ``zm`` = F/V and ``rms_speed`` (m/s), each ``(5,)``; ``e``, ``i``, ``v``
-    (the records, ``(5, n)``) and ``rate`` (Hz) for the spectra."""
+    own parameters (``mu`` overrides μ per grade), no noise, at the simulation rate: the
+    fundamental phasors of the tip's force and velocity over the recorded part (``force``,
+    ``velocity``, complex, N and m/s), ``zm`` = F/V and ``rms_speed`` (m/s), each ``(5,)``;
+    ``e``, ``i``, ``v`` (the records, ``(5, n)``) and ``rate`` (Hz) for the spectra."""
     sizes = np.array(list(THESIS_GRADES.values()))
     rate = scene.acquisition.sample_rate_hz * scene.oversample
-    record = max(scene.drive.record_s, seconds)
     rows = []
     for k, d in enumerate(sizes):
         rows.append(grains(np.random.default_rng(1000 + k), d * 1e-6, scene.reach_m,
@@ -322,20 +318,14 @@ def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None,
     pos, imp = pad_grains(rows)
     load = Friction(scene.mu(sizes) if mu is None else mu, 3.3e-4, np.deg2rad(10.0),
                     scene.friction.slip_speed, scene.friction.viscous, pos, imp)
-    n_lead = int(round(scene.drive.lead_s * rate))
-    t = np.arange(-n_lead, int(round(record * rate))) / rate
-    w = 2 * np.pi * 36.0
-    ramp = np.clip((t + scene.drive.lead_s) / max(scene.drive.lead_s, 1e-9), 0, 1)
-    ramp = 0.5 - 0.5 * np.cos(np.pi * ramp)
-    e = 10.0 * np.sin(w * t) * ramp
-    out = scene.transducer().simulate(e, 1 / rate, load, record=("v", "force", "i"),
-                                      dtype=np.float64)
-    keep = slice(len(t) - int(round(seconds * rate)), len(t))
-    tt = t[keep]
-    basis = np.exp(-1j * w * tt)
+    e, de, n_lead = scene.drive_voltage(np.array([10.0]), np.array([36.0]))
+    out = scene.transducer().simulate(e[0], 1 / rate, load, drive_rate=de[0],
+                                      record=("v", "force", "i"), dtype=np.float64)
+    keep = slice(n_lead, e.shape[1])
+    basis = np.exp(-2j * np.pi * 36.0 * np.arange(e.shape[1] - n_lead) / rate)
     force = 2 * np.mean(out["force"][:, keep] * basis, axis=1)
     vel = 2 * np.mean(out["v"][:, keep] * basis, axis=1)
     return {"force": force, "velocity": vel, "zm": force / vel,
             "rms_speed": np.sqrt(np.mean(out["v"][:, keep] ** 2, axis=1)),
-            "e": np.broadcast_to(e[keep], (5, len(tt))), "i": out["i"][:, keep],
+            "e": np.broadcast_to(e[0, keep], (5, e.shape[1] - n_lead)), "i": out["i"][:, keep],
             "v": out["v"][:, keep], "rate": rate}

@@ -3,12 +3,9 @@
 import numpy as np
 import pytest
 
-from wtml.physics.fluids import glycerol_water, water
+from wtml.physics.fluids import TABLES_6_1_6_2, glycerol_water, water
 
-# Thesis Table 6.1 / 6.2 "literature" at 25 °C; 38 % and 67 % are 3/8 and 2/3 by volume
-CV = np.array([0.0, 0.25, 0.30, 3 / 8, 0.50, 0.60, 2 / 3, 0.75])
-ETA_LIT = np.array([8.93e-4, 2.10e-3, 2.57e-3, 3.60e-3, 6.88e-3, 1.28e-2, 2.07e-2, 4.15e-2])
-RHO_LIT = np.array([997.0, 1080.0, 1090.0, 1110.0, 1140.0, 1170.0, 1190.0, 1210.0])
+CV, ETA_LIT, RHO_LIT = (TABLES_6_1_6_2[k] for k in ("cv", "eta", "rho"))
 
 
 def test_table_6_1_viscosity_within_one_percent():

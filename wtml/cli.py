@@ -1,8 +1,8 @@
 """The ``wtml`` console script.
 
 Subcommands: ``walkthrough`` (the thesis's calibration), ``presets``, ``fidelity``, ``generate``,
-``evaluate``, ``export``, ``predict``, ``bench fluid|radial|onset`` and ``pipeline`` (all of them
-in a row). Bad input ends a command with one line on stderr and exit code 2.
+``evaluate``, ``export``, ``predict``, ``bench fluid|radial|onset|texture`` and ``pipeline``
+(all of them in a row). Bad input ends a command with one line on stderr and exit code 2.
 Training runs through LightningCLI: ``python train.py fit --config configs/fluid.yaml``.
 """
 
@@ -32,7 +32,7 @@ def _fidelity(args: argparse.Namespace) -> int:
     from wtml.fidelity import report
     from wtml.scenes import load_scene
 
-    print(report(load_scene(args.texture)))
+    print(report(load_scene(args.texture), load_scene(args.onset)))
     return 0
 
 
@@ -123,6 +123,15 @@ def _bench_onset(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_texture(args: argparse.Namespace) -> int:
+    from wtml.bench.texture import run_bench
+
+    print(run_bench(args.data, args.fepa, args.checkpoint, args.model, args.out,
+                    peer_kernels=args.peer_kernels,
+                    ablation_records=args.ablation_records))
+    return 0
+
+
 def _pipeline(args: argparse.Namespace) -> int:
     from wtml.pipeline import run_all
 
@@ -184,11 +193,15 @@ def build_parser() -> argparse.ArgumentParser:
     pre.set_defaults(func=_presets)
 
     fid = verb("fidelity", "every reproduction of a thesis number in one report",
-               "The presets' resonances, and texture: the friction law fitted to Table 4.10, "
-               "the RMS tip speeds, |F| and |V| against grain size, Zm, and the "
+               "The presets' resonances, the calibration walkthrough's errors (Tables "
+               "4.3-4.4), glycerol-water against Tables 6.1-6.2, the onset slice's Figure "
+               "5.22 (the thesis's pipeline), and texture: the friction law fitted to Table "
+               "4.10, the RMS tip speeds, |F| and |V| against grain size, Zm, and the "
                "kinetic-signature table (spectral peaks beside v/d and the modes).")
     fid.add_argument("--texture", default="configs/scenes/texture.yaml",
                      help="the texture scene whose friction law is reported")
+    fid.add_argument("--onset", default="configs/scenes/onset.yaml",
+                     help="the onset scene of Figure 5.22")
     fid.set_defaults(func=_fidelity)
 
     gen = verb("generate", "simulate a scene into dataset shards (resumable)",
@@ -268,8 +281,28 @@ def build_parser() -> argparse.ArgumentParser:
                     help="records per wall position of Figure 5.22 (15 positions)")
     bo.set_defaults(func=_bench_onset)
 
+    bt = be_sub.add_parser("texture", help="the texture slice", formatter_class=_Help,
+                           description="Every texture method on held-out specimens: accuracy "
+                                       "and confusion (decoder, thesis cues, MiniRocket, "
+                                       "kinetic signature, the amplitude oracle), accuracy "
+                                       "against window length and each nuisance, grain size "
+                                       "on unseen FEPA grades, the cue ablation, latency.")
+    bt.add_argument("--data", default="datasets/texture", help="the thesis grades' dataset")
+    bt.add_argument("--fepa", default="datasets/texture_fepa",
+                    help="the unseen FEPA grades' dataset (configs/scenes/texture_fepa.yaml)")
+    bt.add_argument("--checkpoint", default="runs/texture/checkpoints/last.ckpt",
+                    help="the decoder's checkpoint (its graph at other window lengths)")
+    bt.add_argument("--model", default="export/texture", help="the export folder")
+    bt.add_argument("--out", default="runs/texture/bench",
+                    help="report.md, summary.json and plots go here")
+    bt.add_argument("--peer-kernels", type=int, default=10000, help="MiniRocket's kernels")
+    bt.add_argument("--ablation-records", type=int, default=40,
+                    help="fresh records per ablation variant")
+    bt.set_defaults(func=_bench_texture)
+
     pl = verb("pipeline", "the main job: generate, train, export, predict, bench, summary")
-    pl.add_argument("task", nargs="?", choices=["all", "fluid", "radial", "onset"], default="all",
+    pl.add_argument("task", nargs="?", choices=["all", "fluid", "radial", "onset", "texture"],
+                    default="all",
                     help="which slice")
     pl.add_argument("--max-epochs", type=int, default=None,
                     help="override the training configs' epochs (default: the configs')")

@@ -1,18 +1,21 @@
 """``wtml fidelity``: every reproduction of a thesis number that wtml has, in one report.
 
-Sections: the presets' resonances (``wtml presets``), and texture (thesis §4.5–4.6): the
+Sections: the presets' resonances (``wtml presets``); the calibration walkthrough's errors
+(Tables 4.3–4.4, ``wtml walkthrough``); the glycerol–water properties against Tables 6.1–6.2;
+the onset slice's Figure 5.22 (the thesis's own pipeline, ``classical.onnx`` of the onset
+export, on 15 wall positions × 3 records: measured against actual location, R²); and texture
+(thesis §4.5–4.6): the
 friction law's fit to Table 4.10, the RMS tip speed per grade at the nominal set-up against
 Table 4.10 (within 10 %), |F| and |V| against grain size with their line's R² (Figures
 4.28–4.29: > 0.99), Re Zm rising and Im Zm small (Figures 4.30–4.31), and the kinetic-signature
 table: the spectral peaks of e(t) and i(t) per grade (Table 4.11) beside the v/d frequencies
-and the transducer's modes with its tip free and held. Not yet here: the calibration
-walkthrough's errors, Tables 6.1–6.2 and the onset slice's Figure 5.22 fit (each has its own
-verb: ``wtml walkthrough``, ``wtml bench fluid``, ``wtml bench onset``).
+and the transducer's modes with its tip free and held.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 from scipy.linalg import eigh
 from scipy.signal import find_peaks, welch
 
@@ -126,12 +129,68 @@ def _shared(peaks: list[np.ndarray], tol: float = 0.03) -> list[float]:
             if all(np.any(np.abs(q / p - 1) < tol) for q in peaks[1:])]
 
 
-def report(scene: TextureScene | None = None) -> str:
-    """The whole fidelity report (markdown)."""
+def format_tables_6_1_6_2() -> str:
+    """The glycerol–water models at 25 °C against the thesis's literature columns."""
+    from wtml.physics.fluids import TABLES_6_1_6_2 as lit
+    from wtml.physics.fluids import glycerol_water
+
+    eta, rho = glycerol_water(lit["cv"], 25.0)
+    lines = ["## Glycerol-water at 25 °C (Tables 6.1-6.2, literature columns)", "",
+             "| glycerol (vol) | η Table 6.1 (Pa·s) | η wtml | error | ρ Table 6.2 (kg/m³) | "
+             "ρ wtml | error |", "|---|---|---|---|---|---|---|"]
+    for k, cv in enumerate(lit["cv"]):
+        lines.append(f"| {100 * cv:.1f} % | {lit['eta'][k]:.3g} | {eta[k]:.4g} | "
+                     f"{100 * (eta[k] / lit['eta'][k] - 1):+.2f} % | {lit['rho'][k]:.0f} | "
+                     f"{rho[k]:.1f} | {100 * (rho[k] / lit['rho'][k] - 1):+.2f} % |")
+    worst = (np.max(np.abs(eta / lit["eta"] - 1)), np.max(np.abs(rho / lit["rho"] - 1)))
+    lines += ["", f"worst: η {100 * worst[0]:.2f} % (Cheng 2008), ρ {100 * worst[1]:.2f} % "
+              "(Volk & Kähler 2018; the table prints three digits)"]
+    return "\n".join(lines)
+
+
+@torch.no_grad()
+def figure_5_22(scene, repeats: int = 3, seed: int = 0) -> dict:
+    """The thesis's pipeline on 15 wall positions across the onset scene's reach, ``repeats``
+    records each: ``actual`` and ``measured`` gap (m), the line's ``r2`` and ``slope``, and
+    the ``rmse`` (m)."""
+    from wtml.runtime.onset import thesis_pipeline
+
+    positions = np.repeat(np.linspace(*scene.gap_range_m(), 15), repeats)
+    rec = scene.simulate(len(positions), np.random.default_rng([scene.seed, seed, 522]),
+                         gaps=positions)
+    gap = thesis_pipeline(scene).eval()(torch.tensor(rec["e"]), torch.tensor(rec["i"]))[0]
+    gap = gap.double().numpy()
+    ok = np.isfinite(gap)
+    slope = np.polyfit(positions[ok], gap[ok], 1)[0]
+    return {"actual": positions, "measured": gap, "found": int(ok.sum()),
+            "r2": r_squared(positions[ok], gap[ok]), "slope": float(slope),
+            "rmse": float(np.sqrt(np.mean((gap[ok] - positions[ok]) ** 2)))}
+
+
+def format_figure_5_22(r: dict) -> str:
+    n = len(r["actual"])
+    return "\n".join([
+        "## Onset: Figure 5.22, the thesis's pipeline (measured against actual location)", "",
+        f"15 wall positions × {n // 15} records, {1e6 * r['actual'].min():.1f}-"
+        f"{1e6 * r['actual'].max():.1f} µm; contacts found in {r['found']} of {n}",
+        f"R² {r['r2']:.4f} (thesis 0.9981), slope {r['slope']:.4f}, RMSE "
+        f"{1e6 * r['rmse']:.3f} µm (thesis: uncertainty 0.27 µm)"])
+
+
+def report(scene: TextureScene | None = None, onset=None) -> str:
+    """The whole fidelity report (markdown): ``scene`` the texture scene, ``onset`` the onset
+    scene (defaults: their configs' defaults)."""
     from wtml.physics.beam_presets import fidelity_table, format_fidelity
+    from wtml.scenes.onset import OnsetScene
+    from wtml.walkthrough import format_report, run_walkthrough
 
     scene = scene or TextureScene()
+    onset = onset or OnsetScene()
     return "\n".join(["# wtml fidelity: the thesis's numbers as wtml reproduces them", "",
                       "## Presets (thesis §3.5, §5.1, §6.5)", "",
                       format_fidelity(fidelity_table()), "",
+                      "## Calibration walkthrough (Tables 4.3-4.4)", "",
+                      format_report(run_walkthrough(), noise=2e-4, repeats=5), "",
+                      format_tables_6_1_6_2(), "",
+                      format_figure_5_22(figure_5_22(onset)), "",
                       format_texture(texture_fidelity(scene))])

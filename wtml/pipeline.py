@@ -1,4 +1,4 @@
-"""The main job, end to end on small defaults, for the fluid, radial and onset slices:
+"""The main job, end to end on small defaults, for the fluid, radial, onset and texture slices:
 generate -> train -> export -> predict -> bench, then one summary of every slice.
 
 Each stage prints the command that does it alone. Work already done is kept: complete shards
@@ -223,6 +223,8 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
             f"  time: {stages.line('radial')}"]
     if results.get("onset"):
         lines += _onset_lines(results["onset"], stages)
+    if results.get("texture"):
+        lines += _texture_lines(results["texture"], stages)
     lines.append(f"total: {duration(time.perf_counter() - stages.start)}")
     return "\n".join(lines)
 
@@ -284,9 +286,71 @@ def _onset_lines(onset: dict, stages: Stages) -> list[str]:
         f"  time: {stages.line('onset')}"]
 
 
+def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
+    """The texture slice end to end; returns its bench summary."""
+    from wtml.bench.texture import run_bench
+    from wtml.runtime.texture import predict_records
+
+    data, fepa = Path("datasets/texture"), Path("datasets/texture_fepa")
+    model, bench = Path("export/texture"), Path("runs/texture/bench")
+    manifest = _generate(stages, "texture", "configs/scenes/texture.yaml", data)
+    _generate(stages, "texture", "configs/scenes/texture_fepa.yaml", fepa)
+    ckpt = _train(stages, "texture", "configs/texture.yaml", data, manifest["scene_hash"],
+                  max_epochs)
+    stages.begin("texture", "export texture", f"wtml export --checkpoint {ckpt} --out {model}")
+    for kind, path in export_model(ckpt, model).items():
+        print(f"{kind}: {path}")
+    test = load_shards(data, split_shards(manifest["n_shards"], 1, 1)["test"])
+    sample = model / "rec.npz"
+    np.savez(sample, e=test["e"][:2], i=test["i"][:2],
+             sample_rate_hz=dataset_scene(data).acquisition.sample_rate_hz)
+    stages.begin("texture", "predict", f"wtml predict --model {model} --input {sample}")
+    print(format_predictions(predict_records(model, sample)))
+    names = dataset_scene(data).class_names()
+    print("true: " + ", ".join(f"{names[g]} ({1e6 * d:.1f} µm)"
+                               for g, d in zip(test["grade"][:2], test["grain_m"][:2],
+                                               strict=True)))
+    stages.begin("texture", "bench", f"wtml bench texture --out {bench}")
+    report = run_bench(data, fepa, ckpt, model, bench)
+    print(report.split("\n\nConfusion matrices")[0])
+    stages.end()
+    return json.loads((bench / "summary.json").read_text())
+
+
+def _texture_lines(s: dict, stages: Stages) -> list[str]:
+    by = {m["name"]: m for m in s["methods"]}
+    dec, cues = by["decoder (ONNX)"], by["thesis cues (ONNX)"]
+    peer = by["MiniRocket (aeon)"]
+    kin = by["kinetic signature (peak nearest v/d)"]
+    inter = next(r for r in s["unseen"]["pooled"]
+                 if r["name"] == "decoder (ONNX)" and r["range"] == "interpolated")
+    extra = next(r for r in s["unseen"]["pooled"]
+                 if r["name"] == "decoder (ONNX)" and r["range"] == "extrapolated")
+    short = min((r for r in s["by_window"] if r["name"] == "decoder graph (torch)"),
+                key=lambda r: r["window_s"])
+    return [
+        f"texture ({s['n_test_windows']} windows of {s['window_s']:g} s from "
+        f"{s['n_test_records']} records of held-out specimens, decoder ONNX):",
+        f"  accuracy {100 * dec['accuracy']:.1f} % (target ≥ 99 %: "
+        f"{_met(dec['accuracy'] >= 0.99)}; the amplitude oracle under the scene's prior "
+        f"{100 * s['oracle']['accuracy']:.1f} %); MiniRocket {100 * peer['accuracy']:.1f} % "
+        f"(target above it: {_met(dec['accuracy'] > peer['accuracy'])}); thesis cues "
+        f"{100 * cues['accuracy']:.1f} %",
+        f"  kinetic signature {100 * kin['accuracy']:.1f} % (chance 20 %; target near chance: "
+        f"{_met(kin['accuracy'] <= 0.3)})",
+        f"  unseen FEPA grades, grain size RMS {inter['rms_pct']:.1f} % inside the trained "
+        f"range (target ≤ 10 %: {_met(inter['rms_pct'] <= 10)}), {extra['rms_pct']:.1f} % "
+        f"outside it, of which {100 * extra['flagged']:.0f} % flagged",
+        f"  {1e3 * dec['latency_s']:.1f} ms per window at batch 1 (MiniRocket "
+        f"{1e3 * peer['latency_s']:.0f} ms); {short['window_s']:g} s windows "
+        f"{100 * short['accuracy']:.1f} %",
+        "  report runs/texture/bench/report.md, plots runs/texture/bench/*.png",
+        f"  time: {stages.line('texture')}"]
+
+
 def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:
     """The main job for ``task`` (``"all"``, or one of ``"fluid"``, ``"radial"``,
-    ``"onset"``); prints and returns the closing summary."""
+    ``"onset"``, ``"texture"``); prints and returns the closing summary."""
     stages, results = Stages(), {}
     if task in ("fluid", "all"):
         results["fluid"] = run_fluid(stages, max_epochs=max_epochs)
@@ -294,6 +358,8 @@ def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:
         results["radial"] = run_radial(stages, max_epochs=max_epochs)
     if task in ("onset", "all"):
         results["onset"] = run_onset(stages, max_epochs=max_epochs)
+    if task in ("texture", "all"):
+        results["texture"] = run_texture(stages, max_epochs=max_epochs)
     text = summary(results, stages)
     print(text)
     sys.stdout.flush()

@@ -32,10 +32,18 @@ import numpy as np
 from wtml.physics.loads.sphere import fluid_from_zm
 from wtml.physics.validation import check_range
 
-__all__ = ["fluid_from_zm", "glycerol_density", "glycerol_viscosity", "glycerol_water",
-           "water", "water_density", "water_viscosity"]
+__all__ = ["TABLES_6_1_6_2", "fluid_from_zm", "glycerol_density", "glycerol_viscosity",
+           "glycerol_water", "water", "water_density", "water_viscosity"]
 
 _T_RANGE = (0.0, 100.0)
+
+TABLES_6_1_6_2 = {
+    "cv": np.array([0.0, 0.25, 0.30, 3 / 8, 0.50, 0.60, 2 / 3, 0.75]),
+    "eta": np.array([8.93e-4, 2.10e-3, 2.57e-3, 3.60e-3, 6.88e-3, 1.28e-2, 2.07e-2, 4.15e-2]),
+    "rho": np.array([997.0, 1080.0, 1090.0, 1110.0, 1140.0, 1170.0, 1190.0, 1210.0]),
+}
+"""The thesis's "literature" columns at 25 °C: glycerol volume fraction (its 38 % and 67 %
+specimens are 3/8 and 2/3), viscosity (Pa·s, Table 6.1) and density (kg/m³, Table 6.2)."""
 
 
 def _temperature(temperature_c) -> np.ndarray:

@@ -25,7 +25,7 @@ from wtml.runtime.onset import read_record
 from wtml.scenes import config_hash
 
 TEXTURE_INPUTS = ("e", "i")
-FRESH_RECORDS = 200
+FRESH_RECORDS = 100
 """Fresh records of the scene (its own seed, not the training data) on which the classical
 path is fitted and the exported decoder's false-alarm rate is measured."""
 

@@ -1,0 +1,92 @@
+"""The texture bench's references: the amplitude oracle's exact limits, the kinetic-signature
+classifier's rule, and the MiniRocket peer on a problem it must solve."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from wtml.baselines.texture_peers import KineticSignature, MiniRocketPeer
+from wtml.bench.texture import amplitude_oracle, confusion
+from wtml.decoders.texture import WhiskFeatures
+from wtml.scenes import load_scene
+from wtml.scenes.texture import THESIS_GRADES, TextureScene
+
+RATE = 51200.0
+
+
+@pytest.fixture(scope="module")
+def scene() -> TextureScene:
+    return load_scene("configs/scenes/texture.yaml")
+
+
+def test_confusion_counts_rows_as_truth():
+    m = confusion(np.array([0, 0, 1, 2]), np.array([0, 1, 1, 2]), 3)
+    np.testing.assert_array_equal(m, [[1, 1, 0], [0, 1, 0], [0, 0, 1]])
+
+
+def test_amplitude_oracle_is_perfect_without_spread_and_loses_to_the_nuisance(scene):
+    """With no specimen spread and one normal force and angle, the two amplitudes name the
+    grade exactly; the scene's own prior makes P320 and P280 overlap; a wider normal-force
+    range can only lower it."""
+    exact = dataclasses.replace(
+        scene, friction=dataclasses.replace(scene.friction, mu_spread=0.0,
+                                            asperity_spread=0.0, grain_spread=(0.3, 0.3)),
+        contact=dataclasses.replace(scene.contact, normal_force=(3.3e-4, 3.3e-4),
+                                    angle_deg=(10.0, 10.0)))
+    assert amplitude_oracle(exact, 20000)["accuracy"] == 1.0
+    own = amplitude_oracle(scene, 50000)
+    conf = np.array(own["confusion"], float)
+    conf /= conf.sum(1, keepdims=True)
+    assert 0.8 < own["accuracy"] < 0.99
+    assert conf[3, 4] + conf[4, 3] > 10 * (conf[0, 1] + conf[1, 0])  # the coarse pair mixes
+    wide = dataclasses.replace(scene, contact=dataclasses.replace(
+        scene.contact, normal_force=(1.5e-4, 6e-4)))
+    assert amplitude_oracle(wide, 50000)["accuracy"] < own["accuracy"]
+
+
+def test_kinetic_signature_finds_a_planted_peak_and_names_the_nearest_v_over_d(scene):
+    t = np.arange(12800) / RATE
+    e = np.tile(10 * np.sin(2 * np.pi * 36 * t), (3, 1))
+    i = np.tile(2e-5 * np.sin(2 * np.pi * 36 * t), (3, 1))
+    tones = np.array([2000.0, 6000.0, 15000.0])
+    i += 1e-7 * np.sin(2 * np.pi * tones[:, None] * t)
+    sizes = np.array(list(THESIS_GRADES.values())) * 1e-6
+    kin = KineticSignature(WhiskFeatures(scene.transducer(), RATE), sizes, RATE)
+    np.testing.assert_allclose(kin.peaks(i), tones, atol=RATE / 2048)
+    v = kin.speed(e, i)
+    assert np.all(v > 0) and np.ptp(v) < 1e-6 * v.max()
+    got = kin.predict(e, i)
+    expected = np.argmin(np.abs(np.log(v[:, None] / sizes / kin.peaks(i)[:, None])), 1)
+    np.testing.assert_array_equal(got["grade"], expected)
+    np.testing.assert_allclose(got["grain"], v / kin.peaks(i))
+
+
+def test_minirocket_separates_two_textures_of_different_roughness():
+    """Windows whose current carries broadband noise of two different levels: a trivial
+    problem for the peer (its channels are scaled by their training std)."""
+    rng = np.random.default_rng(0)
+    n, length = 40, 512
+    t = np.arange(length) / RATE
+    grade = np.arange(n) % 2
+    e = 10 * np.sin(2 * np.pi * 36 * t + rng.uniform(0, 6, (n, 1)))
+    i = 2e-5 * np.sin(2 * np.pi * 36 * t) + np.where(grade[:, None] == 1, 3e-7, 1e-8) \
+        * rng.standard_normal((n, length))
+    peer = MiniRocketPeer(n_kernels=500)
+    with pytest.raises(RuntimeError, match="before fit"):
+        peer.predict(e, i)
+    peer.fit(e[:30], i[:30], grade[:30])
+    out = peer.predict(e[30:], i[30:])
+    np.testing.assert_array_equal(out["grade"], grade[30:])
+    assert np.all(np.isnan(out["grain"]))
+
+
+def test_fidelity_figure_5_22_is_a_line_through_the_origin():
+    """The thesis's pipeline on 15 wall positions: measured against actual location is the
+    identity line up to the 1 % calibration error and the probe's peaks (thesis R² 0.9981)."""
+    from wtml.fidelity import figure_5_22
+
+    r = figure_5_22(load_scene("configs/scenes/onset.yaml"), repeats=1)
+    assert r["found"] == 15
+    assert r["r2"] > 0.95 and abs(r["slope"] - 1) < 0.1
+    assert r["rmse"] < 0.1 * np.ptp(r["actual"])

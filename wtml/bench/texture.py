@@ -1,0 +1,462 @@
+"""``wtml bench texture``: every texture method on held-out specimens, in one run.
+
+Methods, each on the test shard's windows (its specimens were never seen in training: every
+shard draws its own): our decoder (``model.onnx``), the thesis's cues (``classical.onnx``),
+the MiniRocket peer (fitted here on the training shards' windows) and the kinetic-signature
+classifier (the hypothesis the thesis refuted). For each: accuracy and confusion matrix,
+accuracy by range of each nuisance (robustness), p50 latency at batch 1 and throughput.
+Beside them the best achievable from the friction's amplitudes (:func:`amplitude_oracle`).
+Also: accuracy and grain size against window length (the decoder's graph in torch, the one
+exported, whose features take any length, with its domain gate; and for whole multiples of
+the trained window, the ONNX graph's windows pooled per record as ``wtml predict`` pools
+them), grain size on the unseen FEPA grades (interpolated and extrapolated, with the fraction the
+domain gate flags), and an ablation: fresh held-out specimens simulated with both cues, with
+asperities only (every grade the middle grade's mean friction) and with mean friction only
+(no grains). Writes ``report.md``, ``summary.json`` and PNGs.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wtml.baselines.texture_peers import KineticSignature, MiniRocketPeer
+from wtml.bench.timing import latency_p50, throughput
+from wtml.data.datamodule import split_shards
+from wtml.data.shards import dataset_scene, load_shards, read_manifest
+from wtml.decoders.checkpoint import load_decoder
+from wtml.decoders.domain import Gated
+from wtml.decoders.texture import WhiskFeatures
+from wtml.runtime.predict import load_export
+from wtml.runtime.texture import pool, windows
+from wtml.scenes.texture import FEPA_GRADES, THESIS_GRADES
+
+WINDOWS_S = (0.05, 0.1, 0.25, 0.5, 1.0)
+NUISANCES = {"whisk_v": ("whisking amplitude", "V", 1.0),
+             "whisk_hz": ("whisking frequency", "Hz", 1.0),
+             "normal_force": ("normal force", "mN", 1e3),
+             "angle": ("contact angle", "deg", 180 / np.pi),
+             "coupling": ("device coupling / calibrated", "1", 1.0)}
+"""Label -> (name, unit, factor from the stored SI value) of the robustness plot."""
+
+
+def _progress(text: str) -> None:
+    print(f"bench texture: {text}", file=sys.stderr, flush=True)
+
+
+def amplitude_oracle(scene, n: int = 200_000, seed: int = 0) -> dict:
+    """The best accuracy from the friction's two amplitudes, known exactly, under the scene's
+    prior: the mean friction ``μ N cosθ`` (what the thesis's cues measure) and the asperities'
+    strength ``a N cosθ √(d (1 + cv²))`` (the RMS of their impulse train per √(speed):
+    impulses ``a N cosθ d_j`` at the rate ``v/d``, sizes of spread cv). N, θ, and each
+    specimen's μ, a and cv are drawn as the scene draws them; a gradient-boosted classifier
+    on ``n`` draws approximates the Bayes rule on these two numbers (scored on ``n`` more).
+    Not a bound: the grains' spacing (the kinetic signature) could add to it.
+
+    Returns ``accuracy``, ``confusion`` ``(5, 5)`` (rows true) and ``n``."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    rng = np.random.default_rng(seed)
+    f, c = scene.friction, scene.contact
+    sizes = np.array(list(scene.grade_table.values()))
+
+    def draw(m: int) -> tuple[np.ndarray, np.ndarray]:
+        grade = rng.integers(0, len(sizes), m)
+        d = sizes[grade]
+        mu = scene.mu(d) + f.mu_spread * rng.standard_normal(m)
+        a = scene.asperity(d) * np.exp(f.asperity_spread * rng.standard_normal(m))
+        cv = rng.uniform(*f.grain_spread, m)
+        press = rng.uniform(*c.normal_force, m) * np.cos(np.deg2rad(rng.uniform(*c.angle_deg,
+                                                                                m)))
+        x = np.stack([np.log(np.clip(mu, 1e-9, None) * press),
+                      np.log(a * press * np.sqrt(d * (1 + cv**2)))], 1)
+        return x, grade
+
+    x, y = draw(n)
+    model = HistGradientBoostingClassifier(max_iter=300, random_state=seed).fit(x, y)
+    x, y = draw(n)
+    pred = model.predict(x)
+    return {"accuracy": float(np.mean(pred == y)), "confusion": confusion(y, pred, len(sizes)),
+            "n": n}
+
+
+def confusion(true: np.ndarray, pred: np.ndarray, k: int) -> np.ndarray:
+    """Counts ``(k, k)``, rows the true class."""
+    out = np.zeros((k, k), int)
+    np.add.at(out, (np.asarray(true, int), np.asarray(pred, int)), 1)
+    return out
+
+
+class _Timed:
+    """A method behind the timing helpers' ``predict(x)``, with x a :class:`_Batch`."""
+
+    def __init__(self, fn) -> None:
+        self.fn = fn
+
+    def predict(self, x: _Batch):
+        return self.fn(x.e, x.i)
+
+
+class _Batch:
+    """Windows e, i ``(n, window)`` as one argument; its length is n."""
+
+    def __init__(self, e: np.ndarray, i: np.ndarray) -> None:
+        self.e, self.i = e, i
+
+    def __len__(self) -> int:
+        return len(self.e)
+
+
+def _onnx(model):
+    def run(e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
+        out = model.run(e, i)
+        return {"grade": np.argmax(out["probabilities"], 1), "grain": out["grain"],
+                "in_domain": out["in_domain"]}
+    return run
+
+
+def _cut(data: dict, seconds: float, rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whole windows of ``seconds``: e, i ``(n_windows, window)`` and each one's record."""
+    cut, owner = windows(np.stack([data["e"], data["i"]]), int(round(seconds * rate)))
+    return cut[0], cut[1], owner
+
+
+def _grain_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, float]:
+    return {"rmse_um": float(np.sqrt(np.mean((pred - true) ** 2)) * 1e6),
+            "rms_pct": float(100 * np.sqrt(np.mean((pred / true - 1) ** 2)))}
+
+
+def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path,
+              model_dir: str | Path, out: str | Path, *, peer_kernels: int = 10000,
+              ablation_records: int = 40, oracle_draws: int = 100_000) -> str:
+    """The whole bench; returns the markdown report (also written to ``out/report.md``)."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = dataset_scene(data_dir)
+    rate = scene.acquisition.sample_rate_hz
+    split = split_shards(read_manifest(data_dir)["n_shards"], 1, 1)
+    test = load_shards(data_dir, split["test"])
+    decoder, classical = load_export(model_dir)
+    window_s = json.loads(decoder.metadata["window_s"])
+    e, i, owner = _cut(test, window_s, rate)
+    truth = test["grade"][owner]
+    sizes = np.array(list(THESIS_GRADES.values())) * 1e-6
+    features = WhiskFeatures(scene.transducer(), rate)
+    methods = {"decoder (ONNX)": _onnx(decoder), "thesis cues (ONNX)": _onnx(classical)}
+    train = load_shards(data_dir, split["train"])
+    e_tr, i_tr, own_tr = _cut(train, window_s, rate)
+    _progress(f"fitting MiniRocket ({peer_kernels} kernels) on {len(e_tr)} training windows")
+    t0 = time.perf_counter()
+    peer = MiniRocketPeer(peer_kernels).fit(e_tr, i_tr, train["grade"][own_tr])
+    peer_fit_s = time.perf_counter() - t0
+    del train, e_tr, i_tr
+    methods[peer.name] = peer.predict
+    kinetic = KineticSignature(features, sizes, rate)
+    methods[kinetic.name] = kinetic.predict
+
+    _progress(f"{len(methods)} methods on {len(e)} held-out windows of {window_s:g} s")
+    results = []
+    for name, run in methods.items():
+        pred = run(e, i)
+        timed = _Timed(run)
+        row = {"name": name, "accuracy": float(np.mean(pred["grade"] == truth)),
+               "confusion": confusion(truth, pred["grade"], 5).tolist(),
+               "latency_s": latency_p50(timed, _Batch(e[:1], i[:1]), 50),
+               "throughput": throughput(timed, _Batch(e[:64], i[:64]), 5),
+               "robustness": _robustness(test, owner, pred["grade"] == truth)}
+        if "in_domain" in pred:
+            row["flagged"] = float(1 - np.mean(pred["in_domain"]))
+        results.append(row)
+    _progress("the amplitude oracle")
+    oracle = amplitude_oracle(scene, oracle_draws)
+    _progress("accuracy against window length")
+    module = load_decoder(checkpoint)
+    graph = Gated(module.net, module.gate, (1,)).eval()
+    by_window, parity = _by_window(test, graph, decoder, window_s, rate)
+    _progress("unseen FEPA grades")
+    fepa = load_shards(fepa_dir, list(range(read_manifest(fepa_dir)["n_shards"])))
+    unseen = _unseen(fepa, {"decoder (ONNX)": _onnx(decoder),
+                            "thesis cues (ONNX)": _onnx(classical),
+                            kinetic.name: kinetic.predict}, window_s, rate)
+    _progress(f"ablation on {ablation_records} fresh held-out records per variant")
+    ablation = _ablation(scene, {"decoder (ONNX)": _onnx(decoder),
+                                 "thesis cues (ONNX)": _onnx(classical)}, window_s,
+                         ablation_records)
+    summary = {"task": "texture", "n_test_records": len(test["grade"]),
+               "n_test_windows": len(truth), "window_s": window_s,
+               "n_train_windows": len(own_tr), "peer_fit_s": peer_fit_s,
+               "onnx_torch_max_diff": parity,
+               "methods": results, "oracle": oracle | {"confusion": oracle["confusion"].tolist()},
+               "by_window": by_window, "unseen": unseen, "ablation": ablation}
+    report = _report(summary)
+    (out / "report.md").write_text(report)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    _plots(summary, out)
+    return report
+
+
+def _robustness(test: dict, owner: np.ndarray, correct: np.ndarray) -> dict:
+    """Accuracy in quartiles of each nuisance: ``{label: {"edges": (5,), "accuracy": (4,)}}``
+    (edges in the plot's units)."""
+    rows = {}
+    for key, (_, _, factor) in NUISANCES.items():
+        x = test[key][owner] * factor
+        edges = np.quantile(x, np.linspace(0, 1, 5))
+        k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 3)
+        rows[key] = {"edges": edges.tolist(),
+                     "accuracy": [float(correct[k == b].mean()) for b in range(4)]}
+    return rows
+
+
+def _torch(graph):
+    @torch.no_grad()
+    def run(e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
+        grain, _, prob, inside, _ = graph(torch.tensor(e), torch.tensor(i))
+        return {"grade": prob.argmax(1).numpy(), "grain": grain.double().numpy(),
+                "in_domain": inside.numpy()}
+    return run
+
+
+def _by_window(test: dict, graph, onnx_model, window_s: float, rate: float
+               ) -> tuple[list[dict], float]:
+    """Rows per window length: the decoder's graph in torch on windows of that length, and
+    the ONNX graph's trained windows pooled per record where the length is a multiple of
+    them; and the largest difference of the two graphs' probabilities on trained windows."""
+    rows = []
+    for seconds in WINDOWS_S:
+        e, i, owner = _cut(test, seconds, rate)
+        runs = {"decoder graph (torch)": (_torch(graph), e, i, owner)}
+        per = seconds / window_s
+        if per >= 1 and abs(per - round(per)) < 1e-9:
+            runs[f"decoder (ONNX), {window_s:g} s windows pooled"] = (
+                _pooled(onnx_model, test, window_s, rate), e, i, owner)
+        for name, (run, ee, ii, own) in runs.items():
+            pred = run(ee, ii)
+            rows.append({"window_s": seconds, "name": name, "n": len(own),
+                         "accuracy": float(np.mean(pred["grade"] == test["grade"][own])),
+                         "flagged": float(1 - np.mean(pred["in_domain"])),
+                         "latency_s": latency_p50(_Timed(run), _Batch(ee[:1], ii[:1]), 30),
+                         **_grain_errors(pred["grain"], test["grain_m"][own])})
+    e, i, _ = _cut(test, window_s, rate)
+    diff = np.abs(_probabilities(graph, e, i) - onnx_model.run(e, i)["probabilities"]).max()
+    return rows, float(diff)
+
+
+@torch.no_grad()
+def _probabilities(graph, e: np.ndarray, i: np.ndarray) -> np.ndarray:
+    return graph(torch.tensor(e), torch.tensor(i))[2].double().numpy()
+
+
+def _pooled(model, test: dict, window_s: float, rate: float):
+    """Longer windows as ``wtml predict`` answers them: the trained windows' mean
+    log-probabilities and mean ln grain, in domain if all of them are."""
+    n = int(round(window_s * rate))
+
+    def run(e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
+        cut, owner = windows(np.stack([e, i]), n)
+        p = pool(model.run(cut[0], cut[1]), owner, len(e))
+        return {"grade": p["probabilities"].argmax(1), "grain": p["grain"],
+                "in_domain": p["in_domain"]}
+    return run
+
+
+def _unseen(fepa: dict, methods: dict, window_s: float, rate: float) -> dict:
+    """Grain size on the unseen grades, per grade and pooled: interpolated (inside the
+    thesis's 15.3-52.2 µm) and extrapolated."""
+    e, i, owner = _cut(fepa, window_s, rate)
+    true = fepa["grain_m"][owner]
+    lo, hi = min(THESIS_GRADES.values()) * 1e-6, max(THESIS_GRADES.values()) * 1e-6
+    inside = (true >= lo) & (true <= hi)
+    out = {"grades": [], "pooled": []}
+    preds = {name: run(e, i) for name, run in methods.items()}
+    for grade, d_um in sorted(FEPA_GRADES.items(), key=lambda kv: kv[1]):
+        sel = np.isclose(true, d_um * 1e-6)
+        row = {"grade": grade, "d_um": d_um, "n": int(sel.sum())}
+        for name, pred in preds.items():
+            g = pred["grain"][sel]
+            row[name] = {"median_um": float(np.median(g) * 1e6), **_grain_errors(g, true[sel]),
+                         "flagged": float(1 - np.mean(pred["in_domain"][sel]))
+                         if "in_domain" in pred else None}
+        out["grades"].append(row)
+    for name, pred in preds.items():
+        for label, sel in (("interpolated", inside), ("extrapolated", ~inside)):
+            row = {"name": name, "range": label, "n": int(sel.sum()),
+                   **_grain_errors(pred["grain"][sel], true[sel])}
+            if "in_domain" in pred:
+                row["flagged"] = float(1 - np.mean(pred["in_domain"][sel]))
+                kept = sel & pred["in_domain"]
+                row["unflagged_rms_pct"] = (_grain_errors(pred["grain"][kept], true[kept])
+                                            ["rms_pct"] if kept.any() else None)
+            out["pooled"].append(row)
+    return out
+
+
+def _ablation(scene, methods: dict, window_s: float, n: int) -> list[dict]:
+    """The methods on fresh held-out specimens (one seed: the same specimens and nuisance in
+    every variant) with both cues, asperities only and mean friction only."""
+    rows = []
+    variants = (("both cues", {}), ("asperities only", {"mean_friction": False}),
+                ("mean friction only", {"asperities": False}))
+    for label, kwargs in variants:
+        data = scene.simulate(n, np.random.default_rng([scene.seed, 2**20 + 3]), **kwargs)
+        e, i, owner = _cut(data, window_s, scene.acquisition.sample_rate_hz)
+        row = {"variant": label}
+        for name, run in methods.items():
+            pred = run(e, i)
+            row[name] = float(np.mean(pred["grade"] == data["grade"][owner]))
+        rows.append(row)
+    return rows
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f} %"
+
+
+def _report(s: dict) -> str:
+    names = list(THESIS_GRADES)
+    lines = ["# wtml bench texture", "",
+             f"Held-out specimens: the test shard, {s['n_test_records']} records of specimens "
+             f"never seen in training, cut into {s['n_test_windows']} windows of "
+             f"{s['window_s']:g} s. MiniRocket fitted here on {s['n_train_windows']} training "
+             f"windows ({s['peer_fit_s']:.0f} s). Latency: p50 of one window at batch 1; "
+             "throughput: windows per second at batch 64. The decoder's ONNX graph and its "
+             f"torch graph differ by at most {s['onnx_torch_max_diff']:.1e} in probability "
+             "on these windows.", "",
+             "| method | accuracy | flagged | p50 latency | throughput |",
+             "|---|---|---|---|---|"]
+    for r in s["methods"]:
+        flag = _pct(r["flagged"]) if "flagged" in r else "-"
+        lines.append(f"| {r['name']} | {_pct(r['accuracy'])} | {flag} | "
+                     f"{1e3 * r['latency_s']:.2f} ms | {r['throughput']:.3g} /s |")
+    o = s["oracle"]
+    lines += [f"| amplitude oracle (μN cosθ and the asperities' strength, exact; "
+              f"{o['n']} draws of the prior) | {_pct(o['accuracy'])} | - | - | - |", "",
+              "Confusion matrices (rows true, columns predicted; " + ", ".join(names) + "):", ""]
+    for r in s["methods"] + [{"name": "amplitude oracle (fractions)",
+                              "confusion": np.round(np.array(o["confusion"])
+                                                    / np.sum(o["confusion"], 1, keepdims=True),
+                                                    3).tolist()}]:
+        lines += [f"**{r['name']}**", "", "| true \\ predicted | " + " | ".join(names) + " |",
+                  "|---" * (len(names) + 1) + "|"]
+        for k, row in enumerate(r["confusion"]):
+            lines.append(f"| {names[k]} | " + " | ".join(str(v) for v in row) + " |")
+        lines.append("")
+    lines += ["## Window length", "",
+              "| window | method | windows | accuracy | grain RMS | flagged | p50 latency |",
+              "|---|---|---|---|---|---|---|"]
+    for r in s["by_window"]:
+        lines.append(f"| {r['window_s']:g} s | {r['name']} | {r['n']} | {_pct(r['accuracy'])} "
+                     f"| {r['rms_pct']:.1f} % | {_pct(r['flagged'])} | "
+                     f"{1e3 * r['latency_s']:.2f} ms |")
+    lines += ["", "## Grain size on unseen FEPA grades", "",
+              "| method | grades | windows | RMSE | RMS | flagged | RMS of the unflagged |",
+              "|---|---|---|---|---|---|---|"]
+    for r in s["unseen"]["pooled"]:
+        flag = _pct(r["flagged"]) if "flagged" in r else "-"
+        kept = r.get("unflagged_rms_pct")
+        lines.append(f"| {r['name']} | {r['range']} | {r['n']} | {r['rmse_um']:.2f} µm | "
+                     f"{r['rms_pct']:.1f} % | {flag} | "
+                     f"{'-' if kept is None else f'{kept:.1f} %'} |")
+    methods = [k for k in s["unseen"]["grades"][0] if k not in ("grade", "d_um", "n")]
+    lines += ["", "Per grade, median prediction (µm) and RMS error:", "",
+              "| grade | d (µm) | " + " | ".join(methods) + " |",
+              "|---" * (len(methods) + 2) + "|"]
+    for r in s["unseen"]["grades"]:
+        lines.append(f"| {r['grade']} | {r['d_um']:g} | " + " | ".join(
+            f"{r[m]['median_um']:.1f} ({r[m]['rms_pct']:.0f} %)" for m in methods) + " |")
+    abl = s["ablation"]
+    cols = [k for k in abl[0] if k != "variant"]
+    lines += ["", "## Ablation: which cue the methods read", "",
+              "Fresh held-out specimens, the same specimens and nuisance in each variant. "
+              "*Asperities only*: every grade has the middle grade's mean friction; *mean "
+              "friction only*: no grains.", "",
+              "| variant | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for r in abl:
+        lines.append(f"| {r['variant']} | " + " | ".join(_pct(r[c]) for c in cols) + " |")
+    lines += ["", "## Robustness: accuracy by quartile of each nuisance", ""]
+    for key, (label, unit, _) in NUISANCES.items():
+        edges = s["methods"][0]["robustness"][key]["edges"]
+        bins = [f"{a:.3g}-{b:.3g}" for a, b in zip(edges[:-1], edges[1:], strict=True)]
+        lines += [f"**{label} ({unit})**", "", "| method | " + " | ".join(bins) + " |",
+                  "|---" * (len(bins) + 1) + "|"]
+        for r in s["methods"]:
+            lines.append(f"| {r['name']} | " + " | ".join(
+                _pct(a) for a in r["robustness"][key]["accuracy"]) + " |")
+        lines.append("")
+    lines += ["Plots: confusion.png, window.png, robustness.png, unseen.png."]
+    return "\n".join(lines)
+
+
+def _plots(s: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(THESIS_GRADES)
+    mats = [(r["name"], np.array(r["confusion"], float)) for r in s["methods"]]
+    mats.append(("amplitude oracle", np.array(s["oracle"]["confusion"], float)))
+    fig, axes = plt.subplots(1, len(mats), figsize=(3.2 * len(mats), 3.4))
+    for ax, (name, m) in zip(axes, mats, strict=True):
+        frac = m / m.sum(1, keepdims=True)
+        ax.imshow(frac, vmin=0, vmax=1, cmap="Blues")
+        for (r, c), v in np.ndenumerate(frac):
+            ax.text(c, r, f"{v:.2f}", ha="center", va="center", fontsize=7,
+                    color="white" if v > 0.6 else "black")
+        ax.set_xticks(range(5), names, rotation=90, fontsize=7)
+        ax.set_yticks(range(5), names, fontsize=7)
+        ax.set_title(f"{name}\n{100 * np.trace(m) / m.sum():.1f} %", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "confusion.png", dpi=110)
+    plt.close(fig)
+
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.6))
+    for name in dict.fromkeys(r["name"] for r in s["by_window"]):
+        rows = [r for r in s["by_window"] if r["name"] == name]
+        w = [r["window_s"] for r in rows]
+        a1.plot(w, [100 * r["accuracy"] for r in rows], "o-", label=name)
+        a2.plot([1e3 * r["latency_s"] for r in rows], [100 * r["accuracy"] for r in rows],
+                "o-", label=name)
+    a1.axhline(100 * s["oracle"]["accuracy"], color="k", ls=":", label="amplitude oracle")
+    a1.set(xscale="log", xlabel="window (s)", ylabel="accuracy (%)", title="held-out specimens")
+    a2.set(xscale="log", xlabel="p50 latency per window (ms)", ylabel="accuracy (%)",
+           title="speed against accuracy")
+    a1.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "window.png", dpi=110)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(1, len(NUISANCES), figsize=(3.2 * len(NUISANCES), 3.2),
+                             sharey=True)
+    for ax, (key, (label, unit, _)) in zip(axes, NUISANCES.items(), strict=True):
+        for r in s["methods"]:
+            edges = np.array(r["robustness"][key]["edges"])
+            ax.plot(0.5 * (edges[:-1] + edges[1:]),
+                    [100 * a for a in r["robustness"][key]["accuracy"]], "o-", label=r["name"])
+        ax.set(xlabel=f"{label} ({unit})", ylim=(0, 102))
+    axes[0].set_ylabel("accuracy (%)")
+    axes[0].legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(out / "robustness.png", dpi=110)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(5, 4))
+    grades = s["unseen"]["grades"]
+    d = [r["d_um"] for r in grades]
+    methods = [k for k in grades[0] if k not in ("grade", "d_um", "n")]
+    for m in methods:
+        ax.plot(d, [r[m]["median_um"] for r in grades], "o", label=m)
+    ax.plot([5, 90], [5, 90], "k:", lw=1)
+    lo, hi = min(THESIS_GRADES.values()), max(THESIS_GRADES.values())
+    ax.axvspan(lo, hi, color="0.9", label="trained grades' range")
+    ax.set(xscale="log", yscale="log", xlabel="true mean grain size (µm)",
+           ylabel="median predicted (µm)", title="unseen FEPA grades")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "unseen.png", dpi=110)
+    plt.close(fig)

@@ -229,6 +229,23 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
     return "\n".join(lines)
 
 
+def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: Path,
+                                data: Path, predict_records) -> dict:
+    """Export a time-domain slice, write two test records as ``model/rec.npz`` (e, i,
+    sample_rate_hz), print ``wtml predict`` on them; returns the test shard."""
+    stages.begin(slice_, f"export {model.name}",
+                 f"wtml export --checkpoint {ckpt} --out {model}")
+    for kind, path in export_model(ckpt, model).items():
+        print(f"{kind}: {path}")
+    test = load_shards(data, split_shards(read_manifest(data)["n_shards"], 1, 1)["test"])
+    sample = model / "rec.npz"
+    np.savez(sample, e=test["e"][:2], i=test["i"][:2],
+             sample_rate_hz=dataset_scene(data).acquisition.sample_rate_hz)
+    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}")
+    print(format_predictions(predict_records(model, sample)))
+    return test
+
+
 def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
     """The onset slice end to end; returns its bench summary."""
     from wtml.bench.onset import run_bench
@@ -238,16 +255,7 @@ def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
     manifest = _generate(stages, "onset", "configs/scenes/onset.yaml", data)
     ckpt = _train(stages, "onset", "configs/onset.yaml", data, manifest["scene_hash"],
                   max_epochs)
-    stages.begin("onset", "export onset", f"wtml export --checkpoint {ckpt} --out {model}")
-    for kind, path in export_model(ckpt, model).items():
-        print(f"{kind}: {path}")
-    test = load_shards(data, split_shards(manifest["n_shards"], 1, 1)["test"])
-    sample = model / "rec.npz"
-    np.savez(sample, e=test["e"][:2], i=test["i"][:2],
-             sample_rate_hz=dataset_scene(data).acquisition.sample_rate_hz)
-    stages.begin("onset", "predict", f"wtml predict --model {model} --input {sample}")
-    rows = predict_records(model, sample)
-    print(format_predictions(rows))
+    test = _export_and_predict_records(stages, "onset", ckpt, model, data, predict_records)
     print("true: gap " + ", ".join(f"{g:.4g} m" for g in test["gap"][:2]) + "; onsets "
           + ", ".join(f"{t:.4f}" for t in test["onset"][:2].ravel() if np.isfinite(t)) + " s")
     stages.begin("onset", "bench", f"wtml bench onset --out {bench} --free-records 20 "
@@ -297,15 +305,7 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
     _generate(stages, "texture", "configs/scenes/texture_fepa.yaml", fepa)
     ckpt = _train(stages, "texture", "configs/texture.yaml", data, manifest["scene_hash"],
                   max_epochs)
-    stages.begin("texture", "export texture", f"wtml export --checkpoint {ckpt} --out {model}")
-    for kind, path in export_model(ckpt, model).items():
-        print(f"{kind}: {path}")
-    test = load_shards(data, split_shards(manifest["n_shards"], 1, 1)["test"])
-    sample = model / "rec.npz"
-    np.savez(sample, e=test["e"][:2], i=test["i"][:2],
-             sample_rate_hz=dataset_scene(data).acquisition.sample_rate_hz)
-    stages.begin("texture", "predict", f"wtml predict --model {model} --input {sample}")
-    print(format_predictions(predict_records(model, sample)))
+    test = _export_and_predict_records(stages, "texture", ckpt, model, data, predict_records)
     names = dataset_scene(data).class_names()
     print("true: " + ", ".join(f"{names[g]} ({1e6 * d:.1f} µm)"
                                for g, d in zip(test["grade"][:2], test["grain_m"][:2],

@@ -147,7 +147,8 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     truth = test["grade"][owner]
     sizes = np.array(list(THESIS_GRADES.values())) * 1e-6
     features = WhiskFeatures(scene.transducer(), rate)
-    methods = {"decoder (ONNX)": _onnx(decoder), "thesis cues (ONNX)": _onnx(classical)}
+    graphs = {"decoder (ONNX)": _onnx(decoder), "thesis cues (ONNX)": _onnx(classical)}
+    methods = dict(graphs)
     train = load_shards(data_dir, split["train"])
     e_tr, i_tr, own_tr = _cut(train, window_s, rate)
     _progress(f"fitting MiniRocket ({peer_kernels} kernels) on {len(e_tr)} training windows")
@@ -180,13 +181,9 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     by_window, parity = _by_window(test, graph, decoder, window_s, rate)
     _progress("unseen FEPA grades")
     fepa = load_shards(fepa_dir, list(range(read_manifest(fepa_dir)["n_shards"])))
-    unseen = _unseen(fepa, {"decoder (ONNX)": _onnx(decoder),
-                            "thesis cues (ONNX)": _onnx(classical),
-                            kinetic.name: kinetic.predict}, window_s, rate)
+    unseen = _unseen(fepa, graphs | {kinetic.name: kinetic.predict}, window_s, rate)
     _progress(f"ablation on {ablation_records} fresh held-out records per variant")
-    ablation = _ablation(scene, {"decoder (ONNX)": _onnx(decoder),
-                                 "thesis cues (ONNX)": _onnx(classical)}, window_s,
-                         ablation_records)
+    ablation = _ablation(scene, graphs, window_s, ablation_records)
     summary = {"task": "texture", "n_test_records": len(test["grade"]),
                "n_test_windows": len(truth), "window_s": window_s,
                "n_train_windows": len(own_tr), "peer_fit_s": peer_fit_s,

@@ -1,6 +1,8 @@
 """The texture scene and decoder: the in-graph feature layer against numpy, the scene's
 fidelity to the thesis (Table 4.10, Figures 4.28-4.31) and its kinetic signature."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -82,3 +84,93 @@ def test_scene_records_and_labels(scene):
     assert d["e"].shape == (5, small.n_samples) and d["i"].dtype == np.float32
     np.testing.assert_array_equal(d["grade"], np.arange(5))
     assert np.all(np.isfinite(d["i"])) and np.all(d["rms_speed"] > 0.05)
+
+
+SMALL = {"samples": 30, "shards": 3, "specimens_per_grade": 2}
+
+
+@pytest.fixture(scope="module")
+def texture_export(tmp_path_factory):
+    """A tiny texture flow: generate, train 2 epochs, export."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    from tests.conftest import ROOT
+
+    root = tmp_path_factory.mktemp("texture")
+    cfg = root / "scene.yaml"
+    cfg.write_text(yaml.safe_dump({"name": "texture", "task": "texture", **SMALL}))
+    data, run, model = root / "data", root / "run", root / "export"
+    for args in (["-m", "wtml.cli", "generate", "--config", str(cfg), "--out", str(data)],
+                 ["train.py", "fit", "--config", "configs/texture.yaml",
+                  "--data.init_args.data_dir", str(data), "--trainer.max_epochs", "2",
+                  "--trainer.default_root_dir", str(run)],
+                 ["-m", "wtml.cli", "export", "--checkpoint",
+                  str(run / "checkpoints/last.ckpt"), "--out", str(model)]):
+        subprocess.run([sys.executable, *args], check=True, capture_output=True, cwd=ROOT)
+    return {"run": run, "model": model}
+
+
+def test_exported_graphs_match_torch_and_compute_the_features_once(texture_export, scene):
+    """The ONNX decoder against the torch net and gate each computing their own features,
+    and the ONNX thesis cues against torch; the gate and both nets share one feature layer."""
+    from dataclasses import replace
+
+    from wtml.baselines.texture_classical import ClassicalTexture
+    from wtml.decoders.checkpoint import load_decoder
+    from wtml.decoders.domain import Gated
+    from wtml.runtime.predict import OnnxModel
+
+    module = load_decoder(texture_export["run"] / "checkpoints/last.ckpt")
+    graph = Gated(module.net, module.gate, (1,)).eval()
+    assert graph.shared and module.gate.features is module.net.features
+    n = module._n
+    rec = replace(scene, **SMALL).simulate(5, np.random.default_rng(7))
+    e, i = rec["e"][:, :n], rec["i"][:, :n]
+    with torch.no_grad():
+        et, it = torch.tensor(e), torch.tensor(i)
+        grain, _, prob = module.net(et, it)  # features computed by the net itself
+        score = module.gate(et, it)  # and again by the gate
+    dec = OnnxModel(texture_export["model"] / "model.onnx").run(e, i)
+    np.testing.assert_allclose(dec["grain"], grain.numpy(), rtol=1e-4)
+    np.testing.assert_allclose(dec["probabilities"], prob.numpy(), atol=1e-5)
+    np.testing.assert_allclose(dec["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
+    assert OnnxModel(texture_export["model"] / "classical.onnx").metadata["kind"] == "classical"
+
+    # the thesis cues: fitted on one record per grade, exported, against torch
+    from wtml.runtime.export import _export
+
+    fit = replace(scene, specimens_per_grade=1).simulate(5, np.random.default_rng(9))
+    classical = ClassicalTexture.fit(module.net.features, fit["e"], fit["i"], fit["grade"],
+                                     fit["grain_m"], n)
+    cl_graph = Gated(classical, module.gate.inputs_only()).eval()
+    assert cl_graph.shared
+    path = texture_export["model"].parent / "classical_test.onnx"
+    _export(cl_graph, n, path, {"outputs": json.dumps(list(scene.OUTPUTS))}, ("e", "i"),
+            optimize=False)
+    import onnxruntime as ort
+
+    session = ort.InferenceSession(str(path))
+    cl = dict(zip((o.name for o in session.get_outputs()),
+                  session.run(None, {"e": e, "i": i}), strict=True))
+    with torch.no_grad():
+        ref = classical(et, it)
+    np.testing.assert_allclose(cl["grain"], ref[0].numpy(), rtol=1e-4)
+    np.testing.assert_allclose(cl["probabilities"], ref[2].numpy(), atol=1e-4)
+    np.testing.assert_allclose(cl["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
+
+def test_predict_prints_grades_per_record(texture_export, scene, tmp_path):
+    from wtml.runtime.texture import predict_records
+
+    rec = scene.simulate(2, np.random.default_rng(8))
+    path = tmp_path / "rec.npz"
+    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
+    rows = predict_records(texture_export["model"], path)
+    assert [(r["record"], r["method"]) for r in rows] == [
+        (0, "decoder"), (1, "decoder"), (0, "classical"), (1, "classical")]
+    for r in rows:
+        total = sum(v for k, v in r.items() if k.startswith("p("))
+        assert abs(total - 1) < 1e-6 and r["grade"] in scene.class_names()
+        assert 1 < r["grain (um)"] < 1000

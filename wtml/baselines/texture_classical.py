@@ -19,10 +19,9 @@ def cue_matrix(features: WhiskFeatures, e: np.ndarray, i: np.ndarray, window: in
     rows = []
     with torch.no_grad():
         for s in range(0, len(e), batch):
-            _, (f_re, f_im, v_re, v_im, z_re, z_im), _ = features.cues(
-                torch.tensor(e[s:s + batch, :window]), torch.tensor(i[s:s + batch, :window]))
-            rows.append(torch.stack([(f_re**2 + f_im**2).sqrt(), (v_re**2 + v_im**2).sqrt(),
-                                     z_re, z_im], 1).double().numpy())
+            x = features(torch.tensor(e[s:s + batch, :window]),
+                         torch.tensor(i[s:s + batch, :window]))
+            rows.append(features.cues_from(x).double().numpy())
     return np.concatenate(rows)
 
 
@@ -30,7 +29,7 @@ class ClassicalTexture(nn.Module):
     """``(e, i)`` windows -> ``(grain m, log_sigma (0: none), probabilities (batch, 5))``.
 
     Args:
-        features: the shared feature layer (its :meth:`~WhiskFeatures.cues`).
+        features: the shared feature layer (the cues are four of its columns).
         poly: coefficients of ``d = p0 + p1 x + p2 x²`` in ``x = Re Zm / 1e-3`` (d in µm).
         centroids: ``(5, 4)`` class centroids of the standardised cues; ``scale``: ``(2, 4)``.
     """
@@ -54,13 +53,15 @@ class ClassicalTexture(nn.Module):
         centroids = np.stack([z[grade == k].mean(0) for k in range(5)])
         return cls(features, poly, centroids, scale)
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        _, (f_re, f_im, v_re, v_im, z_re, z_im), _ = self.features.cues(e, i)
-        cues = torch.stack([(f_re**2 + f_im**2).sqrt(), (v_re**2 + v_im**2).sqrt(), z_re,
-                            z_im], 1)
+    def from_features(self, features: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The outputs from :class:`WhiskFeatures` ``(batch, N_FEATURES)`` already computed."""
+        cues = WhiskFeatures.cues_from(features)
         z = (cues - self.scale[0]) / self.scale[1]
         dist = ((z[:, None, :] - self.centroids[None]) ** 2).sum(-1)
-        x = z_re / 1e-3
+        x = cues[:, 2] / 1e-3
         d_um = self.poly[0] + self.poly[1] * x + self.poly[2] * x * x
         grain = d_um.clamp_min(1e-3) * 1e-6
         return grain, torch.zeros_like(grain), torch.softmax(-1e3 * dist, -1)
+
+    def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        return self.from_features(self.features(e, i))

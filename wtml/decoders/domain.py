@@ -140,6 +140,9 @@ class Gated(nn.Module):
     inside its trained range; the outputs at ``uncertain`` (indices) become NaN where it is
     false.
 
+    Where the net's ``features`` is the gate's own module and the net answers from features
+    (``net.from_features``), the graph computes them once for both.
+
     Args:
         net: the exported net, returning a tuple of ``(batch,)`` tensors.
         gate: its fitted :class:`DomainGate`.
@@ -150,10 +153,15 @@ class Gated(nn.Module):
                  ) -> None:
         super().__init__()
         self.net, self.gate, self.uncertain = net, gate, tuple(uncertain)
+        self.shared = (getattr(net, "features", None) is gate.features
+                       and hasattr(net, "from_features"))
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        outputs = tuple(self.net(ze_re, ze_im))
-        score = self.gate(ze_re, ze_im)
+        if self.shared:
+            x = self.gate.features(ze_re, ze_im)
+            outputs, score = tuple(self.net.from_features(x)), self.gate.score(x)
+        else:
+            outputs, score = tuple(self.net(ze_re, ze_im)), self.gate(ze_re, ze_im)
         inside = (score <= 1.0) & self.gate.outputs_in_range(outputs)
         nan = torch.full_like(outputs[0], float("nan"))
         outputs = tuple(torch.where(inside, y, nan) if k in self.uncertain else y

@@ -139,15 +139,20 @@ class WhiskFeatures(nn.Module):
         t = (torch.arange(n, dtype=e.dtype, device=e.device) - (n - 1) / 2) / self.rate
         ph = w[:, None, None] * t[None, :, None] * torch.arange(
             1, HARMONICS + 1, dtype=e.dtype, device=e.device)  # (B, n, K)
-        cols = [torch.ones_like(ph[..., 0])]
-        for k in range(HARMONICS):
-            cols += [torch.cos(ph[..., k]), torch.sin(ph[..., k])]
-        basis = torch.stack(cols, -1)  # (B, n, 7)
-        gram = basis.transpose(1, 2) @ basis
+        # t is symmetric about 0, so the even columns [1, cos kωt] are orthogonal to the odd
+        # ones [sin kωt]: two small systems instead of one of 7
+        even = torch.cat([torch.ones_like(ph[..., :1]), torch.cos(ph)], -1)  # (B, n, K+1)
+        odd = torch.sin(ph)  # (B, n, K)
         scale = torch.stack([e.abs().amax(1), i.abs().amax(1)], 1).clamp_min(1e-30)  # (B, 2)
-        rhs = basis.transpose(1, 2) @ (torch.stack([e, i], -1) / scale[:, None, :])
-        coef = cholesky_solve(gram, rhs) * scale[:, None, :]  # (B, 7, 2)
-        resid = i - (basis @ coef[..., 1:2])[..., 0]
+        y = torch.stack([e, i], -1) / scale[:, None, :]
+        c_even, c_odd = (cholesky_solve(b.transpose(1, 2) @ b, b.transpose(1, 2) @ y)
+                         for b in (even, odd))
+        cols = [c_even[:, :1]]
+        for k in range(HARMONICS):
+            cols += [c_even[:, k + 1:k + 2], c_odd[:, k:k + 1]]
+        coef = torch.cat(cols, 1) * scale[:, None, :]  # (B, 7, 2) on [1, cos ωt, sin ωt, ...]
+        fitted = (even @ c_even[..., 1:2] + odd @ c_odd[..., 1:2])[..., 0] * scale[:, 1:2]
+        resid = i - fitted
         return w, coef[..., 0], coef[..., 1], resid
 
     @staticmethod
@@ -192,6 +197,13 @@ class WhiskFeatures(nn.Module):
             cols.append(0.5 * torch.log((r**2).mean(1) / ii))
         return torch.stack(cols, 1)
 
+    @classmethod
+    def cues_from(cls, x: torch.Tensor) -> torch.Tensor:
+        """The thesis's four cues ``(batch, 4)``: |F| (N), |V| (m/s), Re Zm, Im Zm (N·s/m),
+        from features ``(batch, N_FEATURES)``."""
+        return torch.stack([torch.exp(x[:, 3]), torch.exp(x[:, 4]), x[:, 5] * cls.Z_REF,
+                            x[:, 6] * cls.Z_REF], 1)
+
 
 class TextureNet(nn.Module):
     """Features -> standardised MLP -> (grain m, log std, probabilities ``(batch, 5)``)."""
@@ -210,16 +222,21 @@ class TextureNet(nn.Module):
         self.grain = nn.Linear(width, 2)
         self.register_buffer("log_grain", torch.tensor([np.log(30e-6), 0.5]))  # mean, spread
 
-    def heads(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """Logits ``(batch, 5)``, ln grain mean and log std ``(batch,)``."""
-        h = self.body((self.features(e, i) - self.scale[0]) / self.scale[1])
+    def heads(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Features ``(batch, N_FEATURES)`` -> logits ``(batch, 5)``, ln grain mean and
+        log std ``(batch,)``."""
+        h = self.body((x - self.scale[0]) / self.scale[1])
         g = self.grain(h)
         return (self.classes(h), self.log_grain[0] + self.log_grain[1] * g[:, 0],
                 g[:, 1] + torch.log(self.log_grain[1]))
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        logits, mu, log_sd = self.heads(e, i)
+    def from_features(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """The outputs from features ``(batch, N_FEATURES)`` already computed."""
+        logits, mu, log_sd = self.heads(x)
         return torch.exp(mu), log_sd, torch.softmax(logits, -1)
+
+    def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        return self.from_features(self.features(e, i))
 
 
 class TextureDecoder(DecoderModule):
@@ -252,8 +269,11 @@ class TextureDecoder(DecoderModule):
         return n
 
     def domain_features(self, scene) -> tuple[nn.Module, int]:
-        return WhiskFeatures(scene.transducer(), scene.acquisition.sample_rate_hz), \
-            WhiskFeatures.N_FEATURES
+        """The net's own feature layer, the same module, so the exported graph computes the
+        features once for the net and its gate (a new one before the net exists)."""
+        features = (self.net.features if self.net is not None
+                    else WhiskFeatures(scene.transducer(), scene.acquisition.sample_rate_hz))
+        return features, WhiskFeatures.N_FEATURES
 
     def build_net(self, scene, e, i, targets) -> nn.Module:
         feats = WhiskFeatures(scene.transducer(), scene.acquisition.sample_rate_hz)
@@ -295,7 +315,7 @@ class TextureDecoder(DecoderModule):
             e, i = e.gather(1, idx), i.gather(1, idx)
         else:
             e, i = e[:, :n], i[:, :n]
-        logits, mu, log_sd = self.net.heads(e, i)
+        logits, mu, log_sd = self.net.heads(self.net.features(e, i))
         ce = fn.cross_entropy(logits, targets[:, 0].long())
         z = (torch.log(targets[:, 1]) - mu) / torch.exp(log_sd)
         nll = (0.5 * z**2 + log_sd).mean()

@@ -19,7 +19,6 @@ import torch
 from wtml import __version__
 from wtml.baselines.texture_classical import ClassicalTexture
 from wtml.decoders.domain import Gated
-from wtml.decoders.texture import WhiskFeatures
 from wtml.runtime.export import _export, domain_metadata
 from wtml.runtime.onset import read_record
 from wtml.scenes import config_hash
@@ -39,8 +38,7 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
     inside = decoder(torch.tensor(fresh["e"][:, :window]),
                      torch.tensor(fresh["i"][:, :window]))[-2]
     domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
-    features = WhiskFeatures(scene.transducer(), scene.acquisition.sample_rate_hz)
-    classical = ClassicalTexture.fit(features, fresh["e"], fresh["i"], fresh["grade"],
+    classical = ClassicalTexture.fit(module.net.features, fresh["e"], fresh["i"], fresh["grade"],
                                      fresh["grain_m"], window)
     meta = {"wtml_version": __version__, "task": "texture",
             "inputs": json.dumps(list(TEXTURE_INPUTS)),

@@ -332,8 +332,9 @@ def _texture_lines(s: dict, stages: Stages) -> list[str]:
         f"texture ({s['n_test_windows']} windows of {s['window_s']:g} s from "
         f"{s['n_test_records']} records of held-out specimens, decoder ONNX):",
         f"  accuracy {100 * dec['accuracy']:.1f} % (target ≥ 99 %: "
-        f"{_met(dec['accuracy'] >= 0.99)}; the amplitude oracle under the scene's prior "
-        f"{100 * s['oracle']['accuracy']:.1f} %); MiniRocket {100 * peer['accuracy']:.1f} % "
+        f"{_met(dec['accuracy'] >= 0.99)}; under the scene's prior the amplitude oracle "
+        f"{100 * s['oracle']['accuracy']:.1f} %, the grain-count oracle "
+        f"{100 * s['count_oracle']['accuracy']:.1f} %); MiniRocket {100 * peer['accuracy']:.1f} % "
         f"(target above it: {_met(dec['accuracy'] > peer['accuracy'])}); thesis cues "
         f"{100 * cues['accuracy']:.1f} %",
         f"  kinetic signature {100 * kin['accuracy']:.1f} % (chance 20 %; target near chance: "

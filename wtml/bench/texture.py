@@ -5,7 +5,8 @@ shard draws its own): our decoder (``model.onnx``), the thesis's cues (``classic
 the MiniRocket peer (fitted here on the training shards' windows) and the kinetic-signature
 classifier (the hypothesis the thesis refuted). For each: accuracy and confusion matrix,
 accuracy by range of each nuisance (robustness), p50 latency at batch 1 and throughput.
-Beside them the best achievable from the friction's amplitudes (:func:`amplitude_oracle`).
+Beside them the best achievable from the friction's amplitudes, and from those and a count of
+every grain swept (:func:`amplitude_oracle`).
 Also: accuracy and grain size against window length (the decoder's graph in torch, the one
 exported, whose features take any length, with its domain gate; and for whole multiples of
 the trained window, the ONNX graph's windows pooled per record as ``wtml predict`` pools
@@ -34,7 +35,7 @@ from wtml.decoders.domain import Gated
 from wtml.decoders.texture import WhiskFeatures
 from wtml.runtime.predict import load_export
 from wtml.runtime.texture import pool, windows
-from wtml.scenes.texture import FEPA_GRADES, THESIS_GRADES
+from wtml.scenes.texture import FEPA_GRADES, THESIS_GRADES, nominal_response
 
 WINDOWS_S = (0.05, 0.1, 0.25, 0.5, 1.0)
 TIMING_BUDGET_S = 1.0
@@ -52,14 +53,20 @@ def _progress(text: str) -> None:
     print(f"bench texture: {text}", file=sys.stderr, flush=True)
 
 
-def amplitude_oracle(scene, n: int = 200_000, seed: int = 0) -> dict:
+def amplitude_oracle(scene, n: int = 200_000, seed: int = 0, *,
+                     sweep_m: np.ndarray | None = None) -> dict:
     """The best accuracy from the friction's two amplitudes, known exactly, under the scene's
     prior: the mean friction ``μ N cosθ`` (what the thesis's cues measure) and the asperities'
     strength ``a N cosθ √(d (1 + cv²))`` (the RMS of their impulse train per √(speed):
     impulses ``a N cosθ d_j`` at the rate ``v/d``, sizes of spread cv). N, θ, and each
     specimen's μ, a and cv are drawn as the scene draws them; a gradient-boosted classifier
     on ``n`` draws approximates the Bayes rule on these two numbers (scored on ``n`` more).
-    Not a bound: the grains' spacing (the kinetic signature) could add to it.
+
+    With ``sweep_m`` (m, per grade: the path the tip sweeps at 10 V), the observer also counts
+    every grain it sweeps: it knows the mean of their spacings (gamma of mean d and spread cv,
+    over ``sweep · V/10 / d`` of them, V the drive drawn from the scene's range). The grains
+    swept are the same in every whisk, so a longer window counts no more of them. This is the
+    most the grains' spacing (the kinetic signature) can add.
 
     Returns ``accuracy``, ``confusion`` ``(5, 5)`` (rows true) and ``n``."""
     from sklearn.ensemble import HistGradientBoostingClassifier
@@ -76,9 +83,14 @@ def amplitude_oracle(scene, n: int = 200_000, seed: int = 0) -> dict:
         cv = rng.uniform(*f.grain_spread, m)
         press = rng.uniform(*c.normal_force, m) * np.cos(np.deg2rad(rng.uniform(*c.angle_deg,
                                                                                 m)))
-        x = np.stack([np.log(np.clip(mu, 1e-9, None) * press),
-                      np.log(a * press * np.sqrt(d * (1 + cv**2)))], 1)
-        return x, grade
+        cols = [np.log(np.clip(mu, 1e-9, None) * press),
+                np.log(a * press * np.sqrt(d * (1 + cv**2)))]
+        if sweep_m is not None:
+            swept = np.asarray(sweep_m)[grade] * rng.uniform(*scene.drive.whisk_v, m) / 10.0
+            count = np.maximum(1, np.round(swept / (d * 1e-6)))
+            shape = 1 / cv**2  # a sum of `count` gamma(shape, d/shape) spacings
+            cols.append(np.log(d * rng.gamma(count * shape) / (count * shape)))
+        return np.stack(cols, 1), grade
 
     x, y = draw(n)
     model = HistGradientBoostingClassifier(max_iter=300, random_state=seed).fit(x, y)
@@ -176,8 +188,12 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
         if "in_domain" in pred:
             row["flagged"] = float(1 - np.mean(pred["in_domain"]))
         results.append(row)
-    _progress("the amplitude oracle")
+    _progress("the oracles")
     oracle = amplitude_oracle(scene, oracle_draws)
+    nominal = nominal_response(scene)
+    sweep = 2 * np.abs(nominal["velocity"]) / (2 * np.pi * 36.0)  # peak to peak, m
+    counting = amplitude_oracle(scene, oracle_draws, sweep_m=sweep) | {
+        "sweep_mm": (1e3 * sweep).tolist()}
     _progress("accuracy against window length")
     module = load_decoder(checkpoint)
     graph = Gated(module.net, module.gate, (1,)).eval()
@@ -192,6 +208,7 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
                "n_train_windows": len(own_tr), "peer_fit_s": peer_fit_s,
                "onnx_torch_max_diff": parity,
                "methods": results, "oracle": oracle | {"confusion": oracle["confusion"].tolist()},
+               "count_oracle": counting | {"confusion": counting["confusion"].tolist()},
                "by_window": by_window, "unseen": unseen, "ablation": ablation}
     report = _report(summary)
     (out / "report.md").write_text(report)
@@ -333,14 +350,23 @@ def _report(s: dict) -> str:
         flag = _pct(r["flagged"]) if "flagged" in r else "-"
         lines.append(f"| {r['name']} | {_pct(r['accuracy'])} | {flag} | "
                      f"{1e3 * r['latency_s']:.2f} ms | {r['throughput']:.3g} /s |")
-    o = s["oracle"]
+    o, c = s["oracle"], s["count_oracle"]
     lines += [f"| amplitude oracle (μN cosθ and the asperities' strength, exact; "
-              f"{o['n']} draws of the prior) | {_pct(o['accuracy'])} | - | - | - |", "",
+              f"{o['n']} draws of the prior) | {_pct(o['accuracy'])} | - | - | - |",
+              f"| grain-count oracle (also the mean spacing of every grain swept) "
+              f"| {_pct(c['accuracy'])} | - | - | - |", "",
+              "The oracles know exactly what the friction carries under the scene's prior; "
+              "the grain-count oracle also counts every grain the tip sweeps (peak to peak at "
+              "10 V: " + ", ".join(f"{x:.2f}" for x in c["sweep_mm"]) + " mm), the most the "
+              "grains' spacing can add. Each specimen's realised spacing over those grains "
+              "strays from its grade's d, so even it cannot name every specimen.", "",
               "Confusion matrices (rows true, columns predicted; " + ", ".join(names) + "):", ""]
-    for r in s["methods"] + [{"name": "amplitude oracle (fractions)",
-                              "confusion": np.round(np.array(o["confusion"])
-                                                    / np.sum(o["confusion"], 1, keepdims=True),
-                                                    3).tolist()}]:
+    fractions = [{"name": f"{label} (fractions)",
+                  "confusion": np.round(np.array(x["confusion"])
+                                        / np.sum(x["confusion"], 1, keepdims=True),
+                                        3).tolist()}
+                 for label, x in (("amplitude oracle", o), ("grain-count oracle", c))]
+    for r in s["methods"] + fractions:
         lines += [f"**{r['name']}**", "", "| true \\ predicted | " + " | ".join(names) + " |",
                   "|---" * (len(names) + 1) + "|"]
         for k, row in enumerate(r["confusion"]):
@@ -423,6 +449,8 @@ def _plots(s: dict, out: Path) -> None:
         a2.plot([1e3 * r["latency_s"] for r in rows], [100 * r["accuracy"] for r in rows],
                 "o-", label=name)
     a1.axhline(100 * s["oracle"]["accuracy"], color="k", ls=":", label="amplitude oracle")
+    a1.axhline(100 * s["count_oracle"]["accuracy"], color="k", ls="--",
+               label="grain-count oracle")
     a1.set(xscale="log", xlabel="window (s)", ylabel="accuracy (%)", title="held-out specimens")
     a2.set(xscale="log", xlabel="p50 latency per window (ms)", ylabel="accuracy (%)",
            title="speed against accuracy")

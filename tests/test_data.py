@@ -77,3 +77,23 @@ def test_split_by_shard_and_datamodule(tmp_path):
     np.testing.assert_allclose(10 ** y[:, 0].double().numpy(),
                                load_shards(tmp_path, [0, 1])["eta"], rtol=1e-6)
     assert len(dm.test_dataloader().dataset) == 100
+
+
+def test_loaders_give_the_batches_of_a_per_sample_loader(tmp_path):
+    """Batches indexed whole are the batches a collating, shuffling DataLoader would give
+    under the same seed, the short last one included."""
+    import torch
+    from torch.utils.data import DataLoader
+
+    generate(SCENE, tmp_path, progress=False)
+    dm = ShardDataModule(str(tmp_path), batch_size=48)
+    for make, reference, shuffle in ((dm.train_dataloader, "train", True),
+                                     (dm.test_dataloader, "test", False)):
+        torch.manual_seed(7)
+        ours = list(make())
+        torch.manual_seed(7)
+        batch = 48 if shuffle else dm.eval_batch
+        theirs = list(DataLoader(dm._dataset(reference), batch_size=batch, shuffle=shuffle))
+        assert len(ours) == len(theirs) == -(-len(dm._dataset(reference)) // batch)
+        for a, b in zip(ours, theirs, strict=True):
+            assert all(torch.equal(x, y) for x, y in zip(a, b, strict=True))

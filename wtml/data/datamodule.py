@@ -7,7 +7,13 @@ from pathlib import Path
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, TensorDataset
+from torch.utils.data import (
+    BatchSampler,
+    DataLoader,
+    RandomSampler,
+    SequentialSampler,
+    TensorDataset,
+)
 
 from wtml.data.shards import DatasetError, dataset_scene, load_shards, read_manifest
 from wtml.scenes import to_dict
@@ -86,11 +92,20 @@ class ShardDataModule(L.LightningDataModule):
         """The whole training split, for normalisation statistics."""
         return self._dataset("train").tensors
 
+    def _loader(self, split: str, batch_size: int, shuffle: bool) -> DataLoader:
+        """Whole batches indexed at once from the in-memory tensors: the same batches as
+        ``DataLoader(..., batch_size, shuffle)``, without collating one sample at a time
+        (that took 2 s of every radial epoch)."""
+        data = self._dataset(split)
+        order = RandomSampler(data) if shuffle else SequentialSampler(data)
+        return DataLoader(data, sampler=BatchSampler(order, batch_size, drop_last=False),
+                          batch_size=None)
+
     def train_dataloader(self) -> DataLoader:
-        return DataLoader(self._dataset("train"), batch_size=self.batch_size, shuffle=True)
+        return self._loader("train", self.batch_size, shuffle=True)
 
     def val_dataloader(self) -> DataLoader:
-        return DataLoader(self._dataset("val"), batch_size=self.eval_batch)
+        return self._loader("val", self.eval_batch, shuffle=False)
 
     def test_dataloader(self) -> DataLoader:
-        return DataLoader(self._dataset("test"), batch_size=self.eval_batch)
+        return self._loader("test", self.eval_batch, shuffle=False)

@@ -59,6 +59,17 @@ def test_inversion_recovers_noise_free_contacts():
     np.testing.assert_allclose(inv.predict(scene.ze_of(off, ks))["distance"], off, atol=1e-6)
 
 
+def test_inversion_grid_start_is_the_least_misfit_table_entry(rng):
+    """The grid start's expanded misfit (one matrix product) picks the table entry a direct
+    search of ``Σ |(ze - table)/table|²`` picks, for noisy measurements anywhere in range."""
+    inv = InversionRadial(SMALL, step=20e-6)
+    ze = SMALL.simulate(300, rng)["ze"]
+    misfit = np.sum(np.abs((ze[:, None] - inv.table[None]) / inv.table[None]) ** 2, -1)
+    d, lnk = inv.start(ze)
+    np.testing.assert_array_equal(d, inv.table_d[np.argmin(misfit, -1)])
+    np.testing.assert_array_equal(lnk, inv.table_lnk[np.argmin(misfit, -1)])
+
+
 def test_polynomial_layer_matches_scikit_learn(rng):
     data = SMALL.simulate(2000, rng)
     poly = PolynomialRadial("imag").fit(data["ze"], data["distance"])
@@ -190,3 +201,12 @@ def test_coarse_epochs_must_leave_epochs_for_the_refiner(radial_flow):
     model = RadialDecoder(hidden=[4], refine_hidden=[4], coarse_epochs=2)
     with pytest.raises(ValueError, match=r"model.coarse_epochs must be in .*\[1, 1\], got 2"):
         trainer.fit(model, ShardDataModule(str(radial_flow / "data")))
+
+
+def test_optimizer_is_checked():
+    from wtml.decoders.radial import RadialDecoder
+
+    with pytest.raises(ValueError, match=r"model.optimizer must be 'adamw' or 'lbfgs', got 'sgd'"):
+        RadialDecoder(optimizer="sgd")
+    with pytest.raises(ValueError, match=r"'lbfgs' trains a plain RadialNet only"):
+        RadialDecoder(refine_hidden=[4], optimizer="lbfgs")

@@ -84,13 +84,19 @@ class InversionRadial:
         prior = self.noise * (-np.log(c) - self.lnk_mid) / self.lnk_std
         return np.concatenate([r.real, r.imag, prior[:, None]], -1)
 
-    def start(self, ze: np.ndarray, chunk: int = 256) -> tuple[np.ndarray, np.ndarray]:
-        """The grid point of least relative misfit: ``(d in m, ln k)``, each ``(n,)``."""
+    def start(self, ze: np.ndarray, chunk: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+        """The grid point of least relative misfit: ``(d in m, ln k)``, each ``(n,)``.
+
+        With ``w = 1/table``, the misfit ``Σ_f |ze_f w_f - 1|²`` expands to
+        ``Σ_f |ze_f|² |w_f|² - 2 Re ze_f Re w_f + 2 Im ze_f Im w_f + 1``: one real matrix
+        product of the measurements' ``(|ze|², Re ze, Im ze)`` with the table's
+        ``(|w|², -2 Re w, 2 Im w)``."""
+        w = 1.0 / self.table
+        rows = np.concatenate([np.abs(w) ** 2, -2 * w.real, 2 * w.imag], -1).T  # (3 f, n_t)
         d, lnk = np.empty(len(ze)), np.empty(len(ze))
         for s in range(0, len(ze), chunk):
-            m = np.sum(np.abs((ze[s:s + chunk, None, :] - self.table[None]) / self.table[None])
-                       ** 2, -1)
-            best = np.argmin(m, -1)
+            z = ze[s:s + chunk]
+            best = np.argmin(np.concatenate([np.abs(z) ** 2, z.real, z.imag], -1) @ rows, -1)
             d[s:s + chunk], lnk[s:s + chunk] = self.table_d[best], self.table_lnk[best]
         return d, lnk
 

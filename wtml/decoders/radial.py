@@ -230,15 +230,26 @@ class RadialDecoder(DecoderModule):
             moving start), the worst 800 µm range of d ends at 3.3× the bound, against 1.3× in
             turn (128-wide stages).
         lr, weight_decay: optimiser.
+        optimizer: ``"adamw"`` (one-cycle schedule) or ``"lbfgs"``: full-batch L-BFGS with a
+            strong-Wolfe line search, up to 50 iterations per step (``lr`` its initial step,
+            1 as a rule; no weight decay), a second-order method like the Levenberg–Marquardt
+            the thesis trained its 2-10-1 net with; give it the whole training split as one
+            batch. A plain RadialNet only. Measured on the radial scene's 2-10-1: 3.5 µm in 5 s
+            against 15.3 µm after 7000 AdamW steps (27 s).
     """
 
     def __init__(self, hidden: list[int] | None = None, activation: str = "silu",
                  uncertainty: bool = True, used_frequencies: int | None = None,
                  refine_hidden: list[int] | None = None, table_step_um: float = 5.0,
                  refine_scale_um: float = 3.0, coarse_epochs: int = 20, lr: float = 3e-3,
-                 weight_decay: float = 0.0) -> None:
+                 weight_decay: float = 0.0, optimizer: str = "adamw") -> None:
         super().__init__(lr, weight_decay)
         self.save_hyperparameters()
+        if optimizer not in ("adamw", "lbfgs"):
+            raise ConfigError(f"model.optimizer must be 'adamw' or 'lbfgs', got {optimizer!r}")
+        if optimizer == "lbfgs" and refine_hidden is not None:
+            raise ConfigError("model.optimizer 'lbfgs' trains a plain RadialNet only; the "
+                              "refined decoder trains its stages in turn with 'adamw'")
         self.hidden = list(hidden or [64, 64])
         check_widths("model.hidden", self.hidden)
         if refine_hidden is not None:
@@ -304,6 +315,9 @@ class RadialDecoder(DecoderModule):
                         net.uncertainty)
 
     def configure_optimizers(self):
+        if self.hparams.optimizer == "lbfgs":
+            return torch.optim.LBFGS(self.parameters(), lr=self.hparams.lr, max_iter=50,
+                                     history_size=50, line_search_fn="strong_wolfe")
         if isinstance(self.net, RadialNet):
             return super().configure_optimizers()
         h = self.hparams

@@ -142,3 +142,17 @@ def test_sampled_signals_reproduce_ze_f_v_to_the_noise_level(rng):
                               (v_est, v_true, (t_mat[1, 0] * e_ph, t_mat[0, 0] * i_ph))):
         assert abs(est - true) < 5 * rel_se * (abs(a) + abs(b))
         assert abs(est - true) > 0  # the noise reached it
+
+
+def test_lead_in_starts_from_rest_and_its_rate_is_the_derivative():
+    from wtml.signals.excitation import lead_in
+
+    t = np.arange(-20000, 5000) / 20000.0  # 1 s lead-in at 20 kS/s
+    e, de = np.sin(2 * np.pi * 7 * t), 2 * np.pi * 7 * np.cos(2 * np.pi * 7 * t)
+    er, der = lead_in(t, e, de, 1.0)
+    assert er[0] == 0 and der[0] == 0
+    np.testing.assert_array_equal(er[t >= 0], e[t >= 0])
+    np.testing.assert_allclose(der[t >= 0], de[t >= 0], rtol=0, atol=1e-12)  # sin(π) = 1e-16
+    np.testing.assert_allclose(np.gradient(er, t)[1:-1], der[1:-1], atol=2e-3 * np.abs(de).max())
+    with pytest.raises(ValueError, match="lead_s"):
+        lead_in(t, e, de, 0.0)

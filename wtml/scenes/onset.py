@@ -32,6 +32,8 @@ from wtml.interface import OutputRange
 from wtml.physics.beam_presets import PRESETS, build
 from wtml.physics.modal import ModalTransducer, Wall
 from wtml.scenes.config import SceneError, bounded, one_of
+from wtml.signals.excitation import lead_in
+from wtml.signals.noise import quantize
 
 
 @dataclass(frozen=True)
@@ -134,9 +136,7 @@ class OnsetScene:
         e = -d.whisk_v * np.cos(wl * t) + d.probe_v * np.sin(wh * t)
         de = d.whisk_v * wl * np.sin(wl * t) + d.probe_v * wh * np.cos(wh * t)
         if n_lead:
-            x = np.clip((t + d.lead_s) / d.lead_s, 0.0, 1.0)
-            ramp, dramp = 0.5 - 0.5 * np.cos(np.pi * x), 0.5 * np.pi / d.lead_s * np.sin(np.pi * x)
-            e, de = e * ramp, de * ramp + e * dramp
+            e, de = lead_in(t, e, de, d.lead_s)
         return e, de
 
     def whisk_amplitude_m(self) -> float:
@@ -166,11 +166,6 @@ class OnsetScene:
         periods are one contact. Each ``(n, max_contacts)``, NaN-padded."""
         return intervals(touching, self.acquisition.sample_rate_hz,
                          self.merge_periods / self.drive.probe_hz, self.max_contacts)
-
-    def quantise(self, x: np.ndarray, full_scale: float) -> np.ndarray:
-        """Clip to ± full scale and round to the ADC's step."""
-        lsb = 2 * full_scale / 2**self.acquisition.adc_bits
-        return np.round(np.clip(x, -full_scale, full_scale - lsb) / lsb) * lsb
 
     def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64, gaps=None
                  ) -> dict[str, np.ndarray]:
@@ -202,10 +197,10 @@ class OnsetScene:
             cur[sl] = out["i"][:, n_lead:]
             touching[sl] = out["contact"][:, n_lead:]
         e = e[n_lead:]
-        e_rec = self.quantise(e[None] + a.e_noise_v * rng.standard_normal((n, len(e))),
-                              a.e_full_scale_v)
-        i_rec = self.quantise(cur + a.i_noise_a * rng.standard_normal(cur.shape),
-                              a.i_full_scale_a)
+        e_rec = quantize(e[None] + a.e_noise_v * rng.standard_normal((n, len(e))),
+                         a.adc_bits, a.e_full_scale_v)
+        i_rec = quantize(cur + a.i_noise_a * rng.standard_normal(cur.shape), a.adc_bits,
+                         a.i_full_scale_a)
         onset, detach = self.contacts(touching)
         return {"e": e_rec.astype(np.float32), "i": i_rec.astype(np.float32),
                 "gap": gap, "onset": onset, "detachment": detach, "stiffness": k,

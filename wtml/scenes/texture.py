@@ -35,6 +35,7 @@ from wtml.physics.friction import Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.scenes.config import SceneError, bounded, one_of
 from wtml.scenes.onset import Acquisition
+from wtml.signals.excitation import lead_in
 from wtml.signals.noise import quantize
 
 THESIS_GRADES = {"P1200": 15.3, "P800": 21.8, "P400": 35.0, "P320": 46.2, "P280": 52.2}
@@ -175,10 +176,7 @@ class TextureScene:
         a = np.asarray(volts, float)[:, None]
         e, de = a * np.sin(w * t), a * w * np.cos(w * t)
         if n_lead:
-            x = np.clip((t + self.drive.lead_s) / self.drive.lead_s, 0.0, 1.0)
-            ramp = 0.5 - 0.5 * np.cos(np.pi * x)
-            dramp = 0.5 * np.pi / self.drive.lead_s * np.sin(np.pi * x)
-            e, de = e * ramp, de * ramp + e * dramp
+            e, de = lead_in(t, e, de, self.drive.lead_s)
         return e, de, n_lead
 
     def decimate(self, x: np.ndarray) -> np.ndarray:

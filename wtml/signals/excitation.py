@@ -57,3 +57,13 @@ def sweep(t, f_start: float, f_stop: float, amplitude: float = 1.0,
     if t.size < 2:
         raise ValueError("sweep needs at least 2 samples")
     return amplitude * chirp(t - t[0], f_start, t[-1] - t[0], f_stop, method=method)
+
+
+def lead_in(t, e, de, lead_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """A drive started from rest: ``e`` (V) and its rate ``de`` (V/s) at instants ``t`` (s,
+    the lead-in from ``-lead_s`` to 0), times a raised-cosine ramp from 0 at ``-lead_s`` to 1
+    at 0 (the rate by the product rule). Shapes broadcast; returns ``(e, de)`` ramped."""
+    check_range("lead_s", lead_s, 0.0, np.inf, low_open=True, high_open=True)
+    x = np.clip((np.asarray(t, float) + lead_s) / lead_s, 0.0, 1.0)
+    ramp, dramp = 0.5 - 0.5 * np.cos(np.pi * x), 0.5 * np.pi / lead_s * np.sin(np.pi * x)
+    return e * ramp, de * ramp + e * dramp

@@ -210,3 +210,5 @@ def test_optimizer_is_checked():
         RadialDecoder(optimizer="sgd")
     with pytest.raises(ValueError, match=r"'lbfgs' trains a plain RadialNet only"):
         RadialDecoder(refine_hidden=[4], optimizer="lbfgs")
+    with pytest.raises(ValueError, match=r"model.weight_decay must be 0 with model.optimizer"):
+        RadialDecoder(optimizer="lbfgs", weight_decay=1e-4)

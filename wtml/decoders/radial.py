@@ -250,6 +250,9 @@ class RadialDecoder(DecoderModule):
         if optimizer == "lbfgs" and refine_hidden is not None:
             raise ConfigError("model.optimizer 'lbfgs' trains a plain RadialNet only; the "
                               "refined decoder trains its stages in turn with 'adamw'")
+        if optimizer == "lbfgs" and weight_decay:
+            raise ConfigError(f"model.weight_decay must be 0 with model.optimizer 'lbfgs' (it "
+                              f"has none), got {weight_decay!r}")
         self.hidden = list(hidden or [64, 64])
         check_widths("model.hidden", self.hidden)
         if refine_hidden is not None:

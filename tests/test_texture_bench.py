@@ -45,7 +45,6 @@ def test_amplitude_oracle_is_perfect_without_spread_and_loses_to_the_nuisance(sc
     assert amplitude_oracle(wide, 50000)["accuracy"] < own["accuracy"]
 
 
-
 def test_grain_count_oracle_gains_what_the_spacing_carries(scene):
     """Counting the grains swept adds to the amplitudes; the longer the sweep (more grains
     counted) or the more regular the spacing, the more it adds; with a nearly regular spacing
@@ -58,6 +57,7 @@ def test_grain_count_oracle_gains_what_the_spacing_carries(scene):
     regular = dataclasses.replace(scene, friction=dataclasses.replace(
         scene.friction, grain_spread=(0.01, 0.02)))
     assert amplitude_oracle(regular, 40000, sweep_m=sweep)["accuracy"] > 0.995
+
 
 def test_kinetic_signature_finds_a_planted_peak_and_names_the_nearest_v_over_d(scene):
     t = np.arange(12800) / RATE

@@ -35,7 +35,13 @@ from wtml.decoders.domain import Gated
 from wtml.decoders.texture import WhiskFeatures
 from wtml.runtime.predict import load_export
 from wtml.runtime.texture import pool, windows
-from wtml.scenes.texture import FEPA_GRADES, THESIS_GRADES, nominal_response
+from wtml.scenes.texture import (
+    FEPA_GRADES,
+    NOMINAL_HZ,
+    NOMINAL_V,
+    THESIS_GRADES,
+    nominal_response,
+)
 
 WINDOWS_S = (0.05, 0.1, 0.25, 0.5, 1.0)
 TIMING_BUDGET_S = 1.0
@@ -86,7 +92,8 @@ def amplitude_oracle(scene, n: int = 200_000, seed: int = 0, *,
         cols = [np.log(np.clip(mu, 1e-9, None) * press),
                 np.log(a * press * np.sqrt(d * (1 + cv**2)))]
         if sweep_m is not None:
-            swept = np.asarray(sweep_m)[grade] * rng.uniform(*scene.drive.whisk_v, m) / 10.0
+            swept = (np.asarray(sweep_m)[grade] * rng.uniform(*scene.drive.whisk_v, m)
+                     / NOMINAL_V)
             count = np.maximum(1, np.round(swept / (d * 1e-6)))
             shape = 1 / cv**2  # a sum of `count` gamma(shape, d/shape) spacings
             cols.append(np.log(d * rng.gamma(count * shape) / (count * shape)))
@@ -191,7 +198,7 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     _progress("the oracles")
     oracle = amplitude_oracle(scene, oracle_draws)
     nominal = nominal_response(scene)
-    sweep = 2 * np.abs(nominal["velocity"]) / (2 * np.pi * 36.0)  # peak to peak, m
+    sweep = 2 * np.abs(nominal["velocity"]) / (2 * np.pi * NOMINAL_HZ)  # peak to peak, m
     counting = amplitude_oracle(scene, oracle_draws, sweep_m=sweep) | {
         "sweep_mm": (1e3 * sweep).tolist()}
     _progress("accuracy against window length")

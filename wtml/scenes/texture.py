@@ -46,6 +46,9 @@ FEPA_GRADES = {"P2500": 8.4, "P2000": 10.3, "P1500": 12.6, "P1000": 18.3, "P600"
 TABLE_4_10_RMS_SPEED = {"P1200": 0.361, "P800": 0.335, "P400": 0.293, "P320": 0.242,
                         "P280": 0.213}
 """The thesis's RMS tip speed per grade at 10 V, 36 Hz (Table 4.10), m/s."""
+NOMINAL_V, NOMINAL_HZ, NOMINAL_N, NOMINAL_ANGLE_DEG = 10.0, 36.0, 3.3e-4, 10.0
+"""The thesis's set-up (§4.5): drive amplitude V, whisking frequency Hz, normal force N and
+contact angle, degrees."""
 
 
 @dataclass(frozen=True)
@@ -151,7 +154,8 @@ class TextureScene:
 
     def transducer(self) -> ModalTransducer:
         """The calibrated modal model, dielectric loss exact at the nominal 36 Hz."""
-        return ModalTransducer.from_beam(build(self.preset), self.n_modes, reference_hz=36.0)
+        return ModalTransducer.from_beam(build(self.preset), self.n_modes,
+                                         reference_hz=NOMINAL_HZ)
 
     @property
     def n_samples(self) -> int:
@@ -240,8 +244,9 @@ class TextureScene:
         angle = np.deg2rad(rng.uniform(*c.angle_deg, n))
         scale = 1 + self.calibration_error * rng.standard_normal(n)
         if nominal:
-            volts, hz, normal = np.full(n, 10.0), np.full(n, 36.0), np.full(n, 3.3e-4)
-            angle, scale = np.full(n, np.deg2rad(10.0)), np.ones(n)
+            volts, hz, normal = (np.full(n, NOMINAL_V), np.full(n, NOMINAL_HZ),
+                                 np.full(n, NOMINAL_N))
+            angle, scale = np.full(n, np.deg2rad(NOMINAL_ANGLE_DEG)), np.ones(n)
         mid = float(self.mu(np.median(list(THESIS_GRADES.values()))))
         mu = None if mean_friction else np.full(n, mid)
         model = self.transducer()
@@ -314,15 +319,16 @@ def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None
         rows.append(grains(np.random.default_rng(1000 + k), d * 1e-6, scene.reach_m,
                            spread=float(np.mean(scene.friction.grain_spread)),
                            asperity=float(scene.asperity(d)),
-                           pressing_n=3.3e-4 * np.cos(np.deg2rad(10.0))))
+                           pressing_n=NOMINAL_N * np.cos(np.deg2rad(NOMINAL_ANGLE_DEG))))
     pos, imp = pad_grains(rows)
-    load = Friction(scene.mu(sizes) if mu is None else mu, 3.3e-4, np.deg2rad(10.0),
-                    scene.friction.slip_speed, scene.friction.viscous, pos, imp)
-    e, de, n_lead = scene.drive_voltage(np.array([10.0]), np.array([36.0]))
+    load = Friction(scene.mu(sizes) if mu is None else mu, NOMINAL_N,
+                    np.deg2rad(NOMINAL_ANGLE_DEG), scene.friction.slip_speed,
+                    scene.friction.viscous, pos, imp)
+    e, de, n_lead = scene.drive_voltage(np.array([NOMINAL_V]), np.array([NOMINAL_HZ]))
     out = scene.transducer().simulate(e[0], 1 / rate, load, drive_rate=de[0],
                                       record=("v", "force", "i"), dtype=np.float64)
     keep = slice(n_lead, e.shape[1])
-    basis = np.exp(-2j * np.pi * 36.0 * np.arange(e.shape[1] - n_lead) / rate)
+    basis = np.exp(-2j * np.pi * NOMINAL_HZ * np.arange(e.shape[1] - n_lead) / rate)
     force = 2 * np.mean(out["force"][:, keep] * basis, axis=1)
     vel = 2 * np.mean(out["v"][:, keep] * basis, axis=1)
     return {"force": force, "velocity": vel, "zm": force / vel,

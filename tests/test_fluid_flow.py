@@ -17,7 +17,8 @@ from wtml.bench.bounds import fluid_crlb
 from wtml.bench.fluid import run_bench
 from wtml.cli import main
 from wtml.data import load_shards
-from wtml.decoders.checkpoint import read_checkpoint
+from wtml.decoders.checkpoint import load_decoder, read_checkpoint
+from wtml.decoders.domain import Gated
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
 from wtml.decoders.layers import ZmFromZe
 from wtml.physics import zm_from_ze
@@ -62,14 +63,23 @@ def test_exported_models_are_valid_and_carry_metadata(flow):
 
 def test_decoder_onnx_matches_torch(flow):
     """Same float32 graph, different kernels: agreement to 1e-5 relative (a few float32 ulps
-    through the network) at batch 1 and at a large batch."""
+    through the network) at batch 1 and at a large batch. The exported graph computes Zm once
+    for the net and its domain gate; the gate's score matches the gate run on its own."""
     tmp, ckpt = flow
+    module = load_decoder(ckpt)
+    graph = Gated(module.net, module.gate).eval()
+    assert graph.shared and module.gate.features is module.net.features
     net, _ = load_fluid_net(str(ckpt))
     ze = load_shards(tmp / "data", [3])["ze"]
     torch_pred = TorchFluid(net).predict(ze)
     onnx_pred = OnnxModel(tmp / "export/model.onnx").predict(ze)
     for k in ("eta", "rho"):
         np.testing.assert_allclose(onnx_pred[k], torch_pred[k], rtol=1e-5)
+    with torch.no_grad():
+        score = module.gate(torch.tensor(ze.real, dtype=torch.float32),
+                            torch.tensor(ze.imag, dtype=torch.float32)).numpy()
+    # a float32 quadratic form of standardised features: kernel differences reach 1.6e-4
+    np.testing.assert_allclose(onnx_pred["domain_score"], score, rtol=1e-3)
     one = OnnxModel(tmp / "export/model.onnx").predict(ze[:1])
     np.testing.assert_allclose(one["eta"], torch_pred["eta"][:1], rtol=1e-5)
 

@@ -42,15 +42,22 @@ class FluidNet(nn.Module):
         self.register_buffer("target_std", torch.ones(2))
         self.mlp = MLP(2 * n_freq, hidden, 2)
 
+    def head(self, x: torch.Tensor) -> torch.Tensor:
+        """Features ``(batch, 2 n_freq)`` -> standardised (log10 η, ρ) ``(batch, 2)``."""
+        return self.mlp((x - self.feature_mean) / self.feature_std)
+
     def forward_normalized(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
         """Standardised (log10 η, ρ), shape ``(batch, 2)``: what the loss sees."""
-        x = (self.features(ze_re, ze_im) - self.feature_mean) / self.feature_std
-        return self.mlp(x)
+        return self.head(self.features(ze_re, ze_im))
+
+    def from_features(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """η, ρ ``(batch,)`` from features already computed (shared with the domain gate)."""
+        y = self.head(x) * self.target_std + self.target_mean
+        return torch.pow(10.0, y[:, 0]), y[:, 1]
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
                 ) -> tuple[torch.Tensor, torch.Tensor]:
-        y = self.forward_normalized(ze_re, ze_im) * self.target_std + self.target_mean
-        return torch.pow(10.0, y[:, 0]), y[:, 1]
+        return self.from_features(self.features(ze_re, ze_im))
 
     @torch.no_grad()
     def fit_normalization(self, ze_re: torch.Tensor, ze_im: torch.Tensor,

@@ -45,10 +45,10 @@ def test_amplitude_oracle_is_perfect_without_spread_and_loses_to_the_nuisance(sc
     assert amplitude_oracle(wide, 50000)["accuracy"] < own["accuracy"]
 
 
-def test_grain_count_oracle_gains_what_the_spacing_carries(scene):
-    """Counting the grains swept adds to the amplitudes; the longer the sweep (more grains
-    counted) or the more regular the spacing, the more it adds; with a nearly regular spacing
-    the count alone names the grade."""
+def test_every_grain_oracle_gains_what_the_grains_carry(scene):
+    """Seeing the grains swept adds to the amplitudes; the longer the sweep (more grains seen)
+    or the more regular the grains, the more it adds; with nearly regular grains it names the
+    grade."""
     sweep = np.full(5, 3e-3)
     own = amplitude_oracle(scene, 40000)["accuracy"]
     counted = amplitude_oracle(scene, 40000, sweep_m=sweep)["accuracy"]

@@ -339,7 +339,7 @@ def _texture_lines(s: dict, stages: Stages) -> list[str]:
         f"  accuracy {100 * dec['accuracy']:.1f} % (95 % interval {_span(dec['interval'])} % over "
         f"{s['n_test_specimens']} specimens; target ≥ 99 %: "
         f"{_met(dec['accuracy'] >= 0.99)}; under the scene's prior the amplitude oracle "
-        f"{100 * s['oracle']['accuracy']:.1f} %, the grain-count oracle "
+        f"{100 * s['oracle']['accuracy']:.1f} %, the every-grain oracle "
         f"{100 * s['count_oracle']['accuracy']:.1f} %); MiniRocket {100 * peer['accuracy']:.1f} % "
         f"(target above it: {_met(dec['accuracy'] > peer['accuracy'])}, by "
         f"{100 * s['decoder_minus_peer']['difference']:.1f} points, 95 % interval "

@@ -69,11 +69,13 @@ def amplitude_oracle(scene, n: int = 200_000, seed: int = 0, *,
     specimen's μ, a and cv are drawn as the scene draws them; a gradient-boosted classifier
     on ``n`` draws approximates the Bayes rule on these two numbers (scored on ``n`` more).
 
-    With ``sweep_m`` (m, per grade: the path the tip sweeps at 10 V), the observer also counts
-    every grain it sweeps: it knows the mean of their spacings (gamma of mean d and spread cv,
-    over ``sweep · V/10 / d`` of them, V the drive drawn from the scene's range). The grains
-    swept are the same in every whisk, so a longer window counts no more of them. This is the
-    most the grains' spacing (the kinetic signature) can add.
+    With ``sweep_m`` (m, per grade: the path the tip sweeps at 10 V), the observer also sees
+    every grain it sweeps, ``sweep · V/10 / d`` of them (V the drive drawn from the scene's
+    range): the mean of their spacings (gamma of mean d and spread cv), the mean log of their
+    impulses (``log(a N cosθ) + `` the mean log of their own sizes, log-normal about d of
+    spread cv) and the specimen's cv itself. The grains swept are the same in every whisk, so
+    a longer window sees no more of them. This is the most the grains (the kinetic signature
+    and the impulse sizes) can add: a bound on any decoder of these records.
 
     Returns ``accuracy``, ``confusion`` ``(5, 5)`` (rows true) and ``n``."""
     from sklearn.ensemble import HistGradientBoostingClassifier
@@ -97,7 +99,9 @@ def amplitude_oracle(scene, n: int = 200_000, seed: int = 0, *,
                      / NOMINAL_V)
             count = np.maximum(1, np.round(swept / (d * 1e-6)))
             shape = 1 / cv**2  # a sum of `count` gamma(shape, d/shape) spacings
-            cols.append(np.log(d * rng.gamma(count * shape) / (count * shape)))
+            own = np.log(d) - cv**2 / 2 + cv * rng.standard_normal(m) / np.sqrt(count)
+            cols += [np.log(d * rng.gamma(count * shape) / (count * shape)),
+                     np.log(a * press) + own, cv]
         return np.stack(cols, 1), grade
 
     x, y = draw(n)
@@ -376,22 +380,23 @@ def _report(s: dict) -> str:
     o, c, gain = s["oracle"], s["count_oracle"], s["decoder_minus_peer"]
     lines += [f"| amplitude oracle (μN cosθ and the asperities' strength, exact; "
               f"{o['n']} draws of the prior) | {_pct(o['accuracy'])} | - | - | - | - |",
-              f"| grain-count oracle (also the mean spacing of every grain swept) "
+              f"| every-grain oracle (also the spacing and impulse of every grain swept) "
               f"| {_pct(c['accuracy'])} | - | - | - | - |", "",
               f"Decoder minus MiniRocket on the same windows: {100 * gain['difference']:+.1f} "
               f"points (95 % interval {_span(gain['interval'], signed=True)}, paired over the "
               "specimens).", "",
               "The oracles know exactly what the friction carries under the scene's prior; "
-              "the grain-count oracle also counts every grain the tip sweeps (peak to peak at "
-              "10 V: " + ", ".join(f"{x:.2f}" for x in c["sweep_mm"]) + " mm), the most the "
-              "grains' spacing can add. Each specimen's realised spacing over those grains "
-              "strays from its grade's d, so even it cannot name every specimen.", "",
+              "the every-grain oracle also sees each grain the tip sweeps (peak to peak at "
+              "10 V: " + ", ".join(f"{x:.2f}" for x in c["sweep_mm"]) + " mm), its spacing "
+              "and its impulse: the most the grains can add, a ceiling for any method on these "
+              "records. The realised spacings and sizes of those few dozen grains stray from "
+              "their grade's d, so even it cannot name every specimen.", "",
               "Confusion matrices (rows true, columns predicted; " + ", ".join(names) + "):", ""]
     fractions = [{"name": f"{label} (fractions)",
                   "confusion": np.round(np.array(x["confusion"])
                                         / np.sum(x["confusion"], 1, keepdims=True),
                                         3).tolist()}
-                 for label, x in (("amplitude oracle", o), ("grain-count oracle", c))]
+                 for label, x in (("amplitude oracle", o), ("every-grain oracle", c))]
     for r in s["methods"] + fractions:
         lines += [f"**{r['name']}**", "", "| true \\ predicted | " + " | ".join(names) + " |",
                   "|---" * (len(names) + 1) + "|"]
@@ -476,7 +481,7 @@ def _plots(s: dict, out: Path) -> None:
                 "o-", label=name)
     a1.axhline(100 * s["oracle"]["accuracy"], color="k", ls=":", label="amplitude oracle")
     a1.axhline(100 * s["count_oracle"]["accuracy"], color="k", ls="--",
-               label="grain-count oracle")
+               label="every-grain oracle")
     a1.set(xscale="log", xlabel="window (s)", ylabel="accuracy (%)", title="held-out specimens")
     a2.set(xscale="log", xlabel="p50 latency per window (ms)", ylabel="accuracy (%)",
            title="speed against accuracy")

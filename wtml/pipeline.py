@@ -317,12 +317,9 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
     return json.loads((bench / "summary.json").read_text())
 
 
-def _span(interval) -> str:
-    """An interval of fractions in per cent (or points)."""
-    return f"{100 * interval[0]:.1f}–{100 * interval[1]:.1f}"
-
-
 def _texture_lines(s: dict, stages: Stages) -> list[str]:
+    from wtml.bench.texture import span
+
     by = {m["name"]: m for m in s["methods"]}
     dec, cues = by["decoder (ONNX)"], by["thesis cues (ONNX)"]
     peer = by["MiniRocket (aeon)"]
@@ -336,14 +333,14 @@ def _texture_lines(s: dict, stages: Stages) -> list[str]:
     return [
         f"texture ({s['n_test_windows']} windows of {s['window_s']:g} s from "
         f"{s['n_test_records']} records of held-out specimens, decoder ONNX):",
-        f"  accuracy {100 * dec['accuracy']:.1f} % (95 % interval {_span(dec['interval'])} % over "
+        f"  accuracy {100 * dec['accuracy']:.1f} % (95 % interval {span(dec['interval'])} over "
         f"{s['n_test_specimens']} specimens; target ≥ 99 %: "
         f"{_met(dec['accuracy'] >= 0.99)}; under the scene's prior the amplitude oracle "
         f"{100 * s['oracle']['accuracy']:.1f} %, the every-grain oracle "
-        f"{100 * s['count_oracle']['accuracy']:.1f} %); MiniRocket {100 * peer['accuracy']:.1f} % "
+        f"{100 * s['grain_oracle']['accuracy']:.1f} %); MiniRocket {100 * peer['accuracy']:.1f} % "
         f"(target above it: {_met(dec['accuracy'] > peer['accuracy'])}, by "
         f"{100 * s['decoder_minus_peer']['difference']:.1f} points, 95 % interval "
-        f"{_span(s['decoder_minus_peer']['interval'])}); thesis cues "
+        f"{span(s['decoder_minus_peer']['interval'], signed=True)}); thesis cues "
         f"{100 * cues['accuracy']:.1f} %",
         f"  kinetic signature {100 * kin['accuracy']:.1f} % (chance 20 %; target near chance: "
         f"{_met(kin['accuracy'] <= 0.3)})",

@@ -209,7 +209,7 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     oracle = amplitude_oracle(scene, oracle_draws)
     nominal = nominal_response(scene)
     sweep = 2 * np.abs(nominal["velocity"]) / (2 * np.pi * NOMINAL_HZ)  # peak to peak, m
-    counting = amplitude_oracle(scene, oracle_draws, sweep_m=sweep) | {
+    grain_oracle = amplitude_oracle(scene, oracle_draws, sweep_m=sweep) | {
         "sweep_mm": (1e3 * sweep).tolist()}
     _progress("accuracy against window length")
     module = load_decoder(checkpoint)
@@ -227,7 +227,7 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
                "onnx_torch_max_diff": parity,
                "methods": results, "decoder_minus_peer": versus_peer,
                "oracle": oracle | {"confusion": oracle["confusion"].tolist()},
-               "count_oracle": counting | {"confusion": counting["confusion"].tolist()},
+               "grain_oracle": grain_oracle | {"confusion": grain_oracle["confusion"].tolist()},
                "by_window": by_window, "unseen": unseen, "ablation": ablation}
     report = _report(summary)
     (out / "report.md").write_text(report)
@@ -353,7 +353,7 @@ def _pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
 
-def _span(interval, signed: bool = False) -> str:
+def span(interval, signed: bool = False) -> str:
     """``(low, high)`` fractions as percentages (points where ``signed``)."""
     low, high = (100 * x for x in interval)
     return f"{low:+.1f} to {high:+.1f}" if signed else f"{low:.1f}–{high:.1f} %"
@@ -375,15 +375,15 @@ def _report(s: dict) -> str:
              "|---|---|---|---|---|---|"]
     for r in s["methods"]:
         flag = _pct(r["flagged"]) if "flagged" in r else "-"
-        lines.append(f"| {r['name']} | {_pct(r['accuracy'])} | {_span(r['interval'])} | "
+        lines.append(f"| {r['name']} | {_pct(r['accuracy'])} | {span(r['interval'])} | "
                      f"{flag} | {1e3 * r['latency_s']:.2f} ms | {r['throughput']:.3g} /s |")
-    o, c, gain = s["oracle"], s["count_oracle"], s["decoder_minus_peer"]
+    o, c, gain = s["oracle"], s["grain_oracle"], s["decoder_minus_peer"]
     lines += [f"| amplitude oracle (μN cosθ and the asperities' strength, exact; "
               f"{o['n']} draws of the prior) | {_pct(o['accuracy'])} | - | - | - | - |",
               f"| every-grain oracle (also the spacing and impulse of every grain swept) "
               f"| {_pct(c['accuracy'])} | - | - | - | - |", "",
               f"Decoder minus MiniRocket on the same windows: {100 * gain['difference']:+.1f} "
-              f"points (95 % interval {_span(gain['interval'], signed=True)}, paired over the "
+              f"points (95 % interval {span(gain['interval'], signed=True)}, paired over the "
               "specimens).", "",
               "The oracles know exactly what the friction carries under the scene's prior; "
               "the every-grain oracle also sees each grain the tip sweeps (peak to peak at "
@@ -480,7 +480,7 @@ def _plots(s: dict, out: Path) -> None:
         a2.plot([1e3 * r["latency_s"] for r in rows], [100 * r["accuracy"] for r in rows],
                 "o-", label=name)
     a1.axhline(100 * s["oracle"]["accuracy"], color="k", ls=":", label="amplitude oracle")
-    a1.axhline(100 * s["count_oracle"]["accuracy"], color="k", ls="--",
+    a1.axhline(100 * s["grain_oracle"]["accuracy"], color="k", ls="--",
                label="every-grain oracle")
     a1.set(xscale="log", xlabel="window (s)", ylabel="accuracy (%)", title="held-out specimens")
     a2.set(xscale="log", xlabel="p50 latency per window (ms)", ylabel="accuracy (%)",

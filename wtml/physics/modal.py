@@ -227,8 +227,9 @@ class ModalTransducer(Structure):
             drive: E in V at the sample instants ``k dt``, shape ``(n_steps,)`` (shared by the
                 batch) or ``(B, n_steps)``.
             dt: the step, s (> 0).
-            load: a :class:`TipLoad` with batch size B (its parameters' length), or a smooth
-                load (:class:`~wtml.physics.friction.Friction`) evaluated once per step.
+            load: a :class:`TipLoad` with batch size B (its parameters' length), a smooth
+                load (:class:`~wtml.physics.friction.Friction`) evaluated once per step, or a
+                contact law (:class:`~wtml.physics.contact.ContactWall`) solved implicitly.
             drive_rate: dE/dt in V/s at the samples, same shape as ``drive`` (default: central
                 differences); used for the outputs (the capacitive current), not the stepping.
             coupling_scale: each sample's device, ``(B,)`` or scalar (:meth:`with_coupling`).
@@ -239,7 +240,7 @@ class ModalTransducer(Structure):
 
         Returns:
             each recorded output, shape ``(B, n_steps)``, and ``contact`` (bool, same shape):
-            whether the load was engaged at each sample.
+            whether the load was engaged at each sample (a contact law: F > 0).
         """
         check_range("dt", dt, 0.0, np.inf, unit="s", low_open=True, high_open=True)
         if threads is not None:
@@ -263,6 +264,12 @@ class ModalTransducer(Structure):
             de_out = np.broadcast_to(np.asarray(drive_rate, dtype=float), e.shape)
         de_step = np.diff(e, axis=1, append=e[:, -1:]) / dt
         cols = np.array([OUTPUTS.index(r) for r in record])
+        if getattr(load, "implicit", False):  # a contact law: solved at every step
+            from wtml.physics.contact import simulate_contact
+
+            values, contact = simulate_contact(self, e, de_step, de_out, dt, load,
+                                               coupling_scale, cols, dtype, threads)
+            return {**dict(zip(record, values, strict=True)), "contact": contact}
         if getattr(load, "smooth", False):  # friction: evaluated once per step
             from wtml.physics.friction import simulate_friction
 

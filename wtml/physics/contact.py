@@ -1,0 +1,350 @@
+"""Contact laws for a wall at the tip, stepped implicitly (physics.md §12).
+
+A wall at ``g`` (m) along +u pushes back on the tip with a force ``F = f(δ, δ')`` of the
+penetration ``δ = u - g`` and its rate ``δ' = u' - g'``, zero where ``δ <= 0`` and never
+tensile. The family (:data:`LAWS`), each set by its tangent stiffness ``k_ref`` (N/m) at a
+reference penetration ``δ_ref`` (m), so that all share the thesis's ~5 N/m there:
+
+- ``linear``: ``F = k_ref δ + c δ'`` while that is compressive (the switched
+  :class:`~wtml.physics.modal.Wall`'s law);
+- ``power``: ``F = K δ^n``, n in [1, 1.5], ``K = k_ref δ_ref^(1-n) / n``;
+- ``hunt_crossley``: ``F = K δ^n (1 + α δ')`` clipped at 0 (no force jump at touch or
+  release), α in s/m;
+- ``mount_hertz``: a linear mount ``k_m`` in series with a Hertz contact,
+  ``δ = F/k_m + (F/K_h)^(2/3)``; ``K_h`` such that the combined tangent at ``δ_ref`` is
+  ``k_ref`` (:func:`hertz_constant`).
+
+Tangential friction along the wall is not modelled.
+
+Stepping (:func:`simulate_contact`): the linear part is stepped exactly in the free tip's
+eigenbasis, as in :mod:`wtml.physics.friction`, but the force is held first-order over the step
+(linear from ``F_k`` to ``F_{k+1}``: trapezoidal in F, second order) and ``F_{k+1}`` is solved
+implicitly: the state at k+1 is linear in ``F_{k+1}`` (the step's exact response to a unit
+force ramp), so with the static correction ``u = φb·q - a_r F + β_r E`` the penetration and
+its rate at k+1 are ``δ = A_u + B_u F`` and ``δ' = A_v + B_v F`` (``B_u, B_v < 0``; the
+residual's rate ``-a_r F'`` taken as the step's slope of F) and ``F = f(δ, δ')`` is one scalar
+equation per record, solved by Newton's method safeguarded by a bracket (``[0, f(A_u, A_v)]``:
+the residual ``F - f`` rises monotonically). Never explicit feedback (§9).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from numba import njit
+
+from wtml.physics.validation import check_range
+
+LAWS = ("linear", "power", "hunt_crossley", "mount_hertz")
+"""The contact laws, in the order of their codes (0 to 3)."""
+
+LINEAR, POWER, HUNT_CROSSLEY, MOUNT_HERTZ = range(4)
+
+
+def law_codes(law) -> np.ndarray:
+    """Law names (from :data:`LAWS`) or codes as int64 codes; ValueError naming the allowed."""
+    arr = np.atleast_1d(np.asarray(law))
+    if arr.dtype.kind in "US":
+        bad = sorted(set(arr.tolist()) - set(LAWS))
+        if bad:
+            raise ValueError(f"law: unknown {bad}; choose from {list(LAWS)}")
+        return np.array([LAWS.index(x) for x in arr.tolist()], np.int64)
+    check_range("law", arr, 0, len(LAWS) - 1)
+    if np.any(arr != np.round(arr)):
+        raise ValueError(f"law: codes are integers 0 to {len(LAWS) - 1} ({list(LAWS)})")
+    return arr.astype(np.int64)
+
+
+def hertz_constant(k_ref, delta_ref, k_mount) -> np.ndarray:
+    """K_h (N/m^1.5) of a Hertz contact in series with a mount of stiffness ``k_mount`` (N/m)
+    whose combined tangent at the penetration ``delta_ref`` (m) is ``k_ref`` (N/m).
+
+    With the Hertz part's penetration x at δ_ref, its tangent compliance is ``(2/3) x / F``
+    and ``F = k_m (δ_ref - x)``, so ``1/k_ref = 1/k_m + (2/3) x / (k_m (δ_ref - x))``:
+    ``x = 1.5 r δ_ref / (1 + 1.5 r)`` with ``r = k_m/k_ref - 1``, and ``K_h = F / x^1.5``.
+    """
+    k_ref, delta_ref, k_m = (np.asarray(a, float) for a in (k_ref, delta_ref, k_mount))
+    r = k_m / k_ref - 1
+    x = 1.5 * r * delta_ref / (1 + 1.5 * r)
+    return k_m * (delta_ref - x) / x**1.5
+
+
+class ContactWall:
+    """A wall at the tip with a smooth contact law, for a batch of B records (per-record
+    parameters of shape ``(B,)``; scalars broadcast).
+
+    Args:
+        gap: g, m, shape ``(B,)`` or ``(B, n_steps)`` (a wall that moves: g at each sample).
+        law: names from :data:`LAWS` or their codes.
+        k_ref: tangent stiffness at ``delta_ref``, N/m (> 0); the linear law's k.
+        delta_ref: reference penetration, m (> 0, <= 1 mm).
+        n: the power law's and Hunt–Crossley's exponent, in [1, 1.5].
+        alpha: Hunt–Crossley's damping, s/m, in [0, 100].
+        k_mount: the mount's stiffness, N/m (``mount_hertz`` records: > k_ref).
+        damping: the linear law's c, N·s/m (>= 0, finite).
+    """
+
+    implicit = True
+
+    def __init__(self, gap, law, k_ref, delta_ref=1e-6, n=1.0, alpha=0.0, k_mount=np.inf,
+                 damping=0.0) -> None:
+        g = np.asarray(gap, float)
+        g = g[:, None] if g.ndim == 1 else np.atleast_2d(g)
+        if g.ndim != 2 or not np.all(np.isfinite(g)):
+            raise ValueError(f"gap: finite, shape (B,) or (B, n_steps) in m; got shape "
+                             f"{np.shape(gap)}")
+        self.gap = np.ascontiguousarray(g)
+        size = len(g)
+
+        def batch(name, value, lo, hi, unit, **kw):
+            arr = np.broadcast_to(np.asarray(value, float), (size,)).copy()
+            return check_range(name, arr, lo, hi, unit=unit, **kw)
+
+        self.law = np.broadcast_to(law_codes(law), (size,)).copy()
+        self.k_ref = batch("k_ref", k_ref, 0.0, 1e9, "N/m", low_open=True)
+        self.delta_ref = batch("delta_ref", delta_ref, 0.0, 1e-3, "m", low_open=True)
+        self.n = batch("n", n, 1.0, 1.5, "")
+        self.alpha = batch("alpha", alpha, 0.0, 100.0, "s/m")
+        self.damping = batch("damping", damping, 0.0, np.inf, "N·s/m", high_open=True)
+        self.k_mount = np.broadcast_to(np.asarray(k_mount, float), (size,)).copy()
+        mount = self.law == MOUNT_HERTZ
+        if np.any(mount):
+            check_range("k_mount", self.k_mount[mount] / self.k_ref[mount], 1.0, np.inf,
+                        unit="× k_ref", low_open=True, high_open=True)
+
+    @property
+    def batch(self) -> int:
+        return len(self.gap)
+
+    @property
+    def coefficient(self) -> np.ndarray:
+        """Each record's K: k_ref (linear), ``k_ref δ_ref^(1-n)/n`` (power, Hunt–Crossley,
+        N/m^n) or K_h (mount_hertz, N/m^1.5), ``(B,)``."""
+        k = np.where(self.law == LINEAR, self.k_ref,
+                     self.k_ref * self.delta_ref ** (1 - self.n) / self.n)
+        mount = self.law == MOUNT_HERTZ
+        k[mount] = hertz_constant(self.k_ref[mount], self.delta_ref[mount],
+                                  self.k_mount[mount])
+        return k
+
+    def force(self, delta, rate=0.0) -> np.ndarray:
+        """F (N, >= 0) at penetration ``delta`` (m) and its rate ``rate`` (m/s), each
+        ``(B,)`` or ``(B, ...)``."""
+        d = np.asarray(delta, float)
+        ex = (slice(None),) + (None,) * max(0, d.ndim - 1)
+        r = np.broadcast_to(np.asarray(rate, float), d.shape)
+        k, n, a, c = (x[ex] for x in (self.coefficient, self.n, self.alpha, self.damping))
+        law = self.law[ex]
+        dp = np.maximum(d, 0.0)
+        power = k * dp**np.where(law == LINEAR, 1.0, n)
+        f = np.where(law == LINEAR, k * dp + c * r,
+                     np.where(law == HUNT_CROSSLEY, power * (1 + a * r), power)) * np.ones_like(d)
+        mount = self.law == MOUNT_HERTZ
+        f[mount] = _series(dp[mount], k[mount], self.k_mount[ex][mount])
+        return np.where(d > 0, np.maximum(f, 0.0), 0.0)
+
+
+def _series(delta, k_h, k_m) -> np.ndarray:
+    """F of the mount in series with Hertz at penetration δ >= 0: ``δ = F/k_m + (F/K_h)^(2/3)``
+    with ``F = K_h s³``: ``(K_h/k_m) s³ + s² = δ``, convex in s, Newton from ``s = √δ``."""
+    delta, k_h, k_m = np.broadcast_arrays(*(np.asarray(x, float) for x in (delta, k_h, k_m)))
+    s = np.sqrt(delta)
+    a = k_h / k_m
+    for _ in range(100):
+        step = np.where(s > 0, (a * s**3 + s**2 - delta) / np.where(s > 0, 3 * a * s**2
+                                                                    + 2 * s, 1.0), 0.0)
+        s = s - step
+        if np.all(np.abs(step) <= 1e-15 * np.abs(s)):
+            break
+    return k_h * s**3
+
+
+def simulate_contact(model, e, de_step, de_out, dt: float, load: ContactWall, coupling_scale,
+                     cols: np.ndarray, dtype, threads: int | None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Step ``model`` (a :class:`~wtml.physics.modal.ModalTransducer`) from rest with the
+    contact wall ``load``; the arguments as prepared by its ``simulate``. Returns the recorded
+    outputs ``(len(cols), B, n_steps)`` and ``contact`` (``F > 0``, bool ``(B, n_steps)``)."""
+    from wtml.physics.modal import ModalTransducer, _blocks, _eigenbasis, available_cores
+
+    bsz, n_steps = load.batch, e.shape[1]
+    if load.gap.shape[1] not in (1, n_steps):
+        raise ValueError(f"gap: shape (B,) or (B, {n_steps}) for the drive's {n_steps} "
+                         f"samples, got {load.gap.shape}")
+    zero = np.zeros(bsz)
+    lam, gain, out, feed, to_modal, _ = _eigenbasis(model.step_matrices(dt, zero, zero,
+                                                                        coupling_scale))
+    # the force enters q'' as -φb F, as E enters as φθ E: a model whose coupling is -φb gives,
+    # in its E and Ė columns, the step's exact response to F held and to F's slope
+    pushed = ModalTransducer(model.omega_n, model.zeta, model.tip, -model.tip)
+    ns = 2 * model.n_modes + 1
+    held, ramp = np.moveaxis(to_modal @ pushed.step_matrices(dt, zero, zero)[:, :ns, ns:ns + 2],
+                             2, 0)
+
+    def parts(a: np.ndarray) -> np.ndarray:  # (B, ...) complex -> (2, ..., B)
+        return np.ascontiguousarray(np.moveaxis(np.stack([a.real, a.imag]), 1, -1))
+
+    gains = np.concatenate([gain[..., :2], held[..., None], ramp[..., None]], 2)
+    lam, gains, out = parts(lam), parts(np.moveaxis(gains, 2, 1)), parts(out)
+    feed = np.ascontiguousarray(np.moveaxis(feed[..., [0, 3]], 0, -1))  # on [E, Ė_out]
+    a_r, b_r, _ = model.residual
+    b_r = b_r * np.broadcast_to(np.asarray(coupling_scale, float), (bsz,))
+    rate = (np.diff(load.gap, axis=1, prepend=load.gap[:, :1]) / dt if load.gap.shape[1] > 1
+            else np.zeros_like(load.gap))
+    params = (load.law, load.coefficient, load.n, load.alpha, load.damping, load.k_mount)
+    values = np.empty((len(cols), bsz, n_steps), dtype)
+    contact = np.empty((bsz, n_steps), bool)
+    blocks = _blocks(bsz, threads)
+
+    def step(b: slice) -> None:
+        own = b if len(e) > 1 else slice(0, 1)
+        _step_contact(lam[..., b].copy(), gains[..., b].copy(), out[..., b].copy(),
+                      feed[..., b].copy(), *(np.ascontiguousarray(x[own])
+                                             for x in (e, de_step, de_out)),
+                      load.gap[b], rate[b], *(p[b].copy() for p in params), a_r,
+                      b_r[b].copy(), dt, cols, values[:, b], contact[b])
+
+    with ThreadPoolExecutor(min(len(blocks), threads or available_cores())) as pool:
+        list(pool.map(step, blocks))
+    return values, contact
+
+
+@njit(cache=True)
+def _law(law, d, r, k, n, alpha, c):
+    """``f(δ, δ')`` of the laws given explicitly (not mount_hertz) and its partial
+    derivatives in δ and δ'."""
+    if d <= 0.0:
+        return 0.0, 0.0, 0.0
+    if law == LINEAR:
+        f = k * d + c * r
+        if f <= 0.0:
+            return 0.0, 0.0, 0.0
+        return f, k, c
+    p = k * d**n
+    if law == POWER:
+        return p, n * p / d, 0.0
+    h = 1.0 + alpha * r
+    if h <= 0.0:
+        return 0.0, 0.0, 0.0
+    return p * h, n * p * h / d, p * alpha
+
+
+@njit(cache=True)
+def _solve(law, au, bu, av, bv, k, n, alpha, c, k_m):
+    """The force F >= 0 with ``F = f(A_u + B_u F, A_v + B_v F)`` (``B_u, B_v <= 0``).
+
+    Explicit laws: ``R(F) = F - f`` rises (at least at slope 1), ``R(0) = -f(A_u, A_v)``; Newton
+    from 0, kept inside the bracket ``[0, f(A_u, A_v)]`` and bisecting when it leaves it (where
+    f jumps, at a damped linear law's touch, it ends at the jump: the tip held at δ = 0).
+    mount_hertz: with ``F = K_h s³``, ``K_h (1/k_m - B_u) s³ + s² = A_u`` is convex and rising
+    in s >= 0: Newton from ``s = √A_u`` descends onto the root.
+    """
+    if law == MOUNT_HERTZ:
+        if au <= 0.0:
+            return 0.0
+        a = k * (1.0 / k_m - bu)
+        s = np.sqrt(au)
+        for _ in range(100):
+            step = (a * s**3 + s * s - au) / (3.0 * a * s * s + 2.0 * s)
+            s -= step
+            if abs(step) <= 1e-15 * s:
+                break
+        return k * s**3
+    top = _law(law, au, av, k, n, alpha, c)[0]
+    if top <= 0.0:
+        return 0.0
+    lo, hi, x = 0.0, top, 0.0
+    for _ in range(200):
+        f, fd, fr = _law(law, au + bu * x, av + bv * x, k, n, alpha, c)
+        res = x - f
+        if res > 0.0:
+            hi = x
+        elif res < 0.0:
+            lo = x
+        else:
+            return x
+        nxt = x - res / (1.0 - fd * bu - fr * bv)
+        if not lo <= nxt <= hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - x) <= 1e-15 * top or hi - lo <= 1e-15 * top:
+            return nxt
+        x = nxt
+    return x
+
+
+@njit(cache=True, nogil=True)
+def _step_contact(lam, gain, out, feed, e, de_step, de_out, gap, gap_rate, law, coef, expo,
+                  alpha, damping, k_mount, a_r, b_r, dt, cols, values, contact):
+    """The contact stepper for a block of B records side by side, in the free tip's
+    eigenbasis: ``lam`` (2, m, B), ``gain`` (2, 4, m, B) on ``[E, Ė, F held, F's slope]``,
+    ``out`` (2, 4, m, B) and ``feed`` (4, 2, B) on ``[E, Ė_out]`` for ``(u_m, u_m', ·, i)``
+    without the force's residual terms.
+
+    The state ``w`` is kept as its prediction without the current step's force; each sample's
+    F solves :func:`_solve` with ``δ = u - g`` and ``δ' = u' - g'`` linear in it (at k = 0,
+    from rest, F enters only through the residual), then ``w`` takes F's share and the
+    outputs are recorded: ``u = u_m - a_r F``, ``u' = u_m' - a_r Ḟ``, ``i = i_m - β_r Ḟ``
+    with Ḟ the step's slope ``(F_k - F_{k-1})/dt``.
+
+    Args:
+        gap, gap_rate: g (m) and g' (m/s), ``(B, 1)`` or ``(B, n_steps)``.
+        law, coef, expo, alpha, damping, k_mount: per record, ``(B,)`` (:class:`ContactWall`).
+        values: written, ``(len(cols), B, n_steps)``; contact: written, bool ``(B, n_steps)``.
+    """
+    m, bsz = lam.shape[1], lam.shape[2]
+    w = np.zeros((2, m, bsz))
+    last = np.zeros(bsz)
+    bu_step, bv_step = np.empty(bsz), np.empty(bsz)
+    for b in range(bsz):  # u_m and u_m' at the step's end per unit F there (ramped from 0)
+        su, sv = 0.0, 0.0
+        for j in range(m):
+            su += (out[0, 0, j, b] * gain[0, 3, j, b] - out[1, 0, j, b] * gain[1, 3, j, b])
+            sv += (out[0, 1, j, b] * gain[0, 3, j, b] - out[1, 1, j, b] * gain[1, 3, j, b])
+        bu_step[b], bv_step[b] = su / dt, sv / dt
+    y = np.zeros(4)
+    n_gap = gap.shape[1]
+    for k in range(e.shape[1]):
+        kg = min(k, n_gap - 1)
+        share = 1.0 if k > 0 else 0.0
+        for b in range(bsz):
+            src = b if e.shape[0] > 1 else 0
+            ek, ok = e[src, k], de_out[src, k]
+            for r in (0, 1, 3):
+                acc = feed[r, 0, b] * ek + feed[r, 1, b] * ok
+                for j in range(m):
+                    acc += out[0, r, j, b] * w[0, j, b] - out[1, r, j, b] * w[1, j, b]
+                y[r] = acc
+            bu = share * bu_step[b] - a_r
+            bv = share * bv_step[b] - a_r / dt
+            au = y[0] - gap[b, kg]
+            av = y[1] + a_r * last[b] / dt - gap_rate[b, kg]
+            f = _solve(law[b], au, bu, av, bv, coef[b], expo[b], alpha[b], damping[b],
+                       k_mount[b])
+            if k > 0:
+                for j in range(m):
+                    w[0, j, b] += gain[0, 3, j, b] / dt * f
+                    w[1, j, b] += gain[1, 3, j, b] / dt * f
+            slope = (f - last[b]) / dt
+            y[0] = au + bu * f + gap[b, kg]
+            y[1] = av + bv * f + gap_rate[b, kg]
+            y[2] = f
+            cur = feed[3, 0, b] * ek + feed[3, 1, b] * ok - b_r[b] * slope
+            for j in range(m):
+                cur += out[0, 3, j, b] * w[0, j, b] - out[1, 3, j, b] * w[1, j, b]
+            y[3] = cur
+            for c in range(len(cols)):
+                values[c, b, k] = y[cols[c]]
+            contact[b, k] = f > 0.0
+            last[b] = f
+        for j in range(m):
+            for b in range(bsz):
+                src = b if e.shape[0] > 1 else 0
+                ek, dk, fk = e[src, k], de_step[src, k], last[b]
+                re, im = w[0, j, b], w[1, j, b]
+                w[0, j, b] = (lam[0, j, b] * re - lam[1, j, b] * im + gain[0, 0, j, b] * ek
+                              + gain[0, 1, j, b] * dk + (gain[0, 2, j, b] - gain[0, 3, j, b]
+                                                         / dt) * fk)
+                w[1, j, b] = (lam[0, j, b] * im + lam[1, j, b] * re + gain[1, 0, j, b] * ek
+                              + gain[1, 1, j, b] * dk + (gain[1, 2, j, b] - gain[1, 3, j, b]
+                                                         / dt) * fk)

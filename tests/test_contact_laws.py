@@ -180,7 +180,7 @@ def reference_steps(model, e, de, dt, wall):
                 v = model.tip @ s[n_m:] + b_r * de[k] - a_r * (f - f_prev) / dt
                 return s, u, v
 
-            def residual(f, outputs=outputs):
+            def residual(f, outputs=outputs, one=one, g=g):
                 _, u, v = outputs(f)
                 return f - one.force(np.array([u - g]), np.array([v]))[0]
 

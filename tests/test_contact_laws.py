@@ -261,3 +261,31 @@ def test_contact_wall_refuses_bad_parameters():
         ContactWall([0.0], "hunt_crossley", 5.0, alpha=-0.1)
     with pytest.raises(ValueError, match="gap: finite"):
         ContactWall([np.nan], "linear", 5.0)
+
+
+def test_the_scene_draws_laws_from_its_mixture_and_refuses_unknown_ones(tmp_path):
+    from wtml.scenes import SceneError, load_scene
+
+    path = tmp_path / "onset.yaml"
+    path.write_text("task: onset\nwall:\n  law: {linear: 1.0, hertz: 1.0}\n")
+    with pytest.raises(SceneError, match=r"wall.law: .*\['linear', 'power', 'hunt_crossley'"):
+        load_scene(path)
+    path.write_text("task: onset\nwall:\n  law: {power: 3, mount_hertz: 1, hunt_crossley: 0}\n")
+    scene = load_scene(path)
+    rng = np.random.default_rng(3)
+    drawn = scene.draw_laws(4000, rng)
+    share = np.bincount(drawn["law"], minlength=4) / 4000
+    np.testing.assert_allclose(share, [0.0, 0.75, 0.0, 0.25], atol=0.03)
+    power, mount = drawn["law"] == 1, drawn["law"] == 3
+    w = scene.wall
+    assert np.all((drawn["law_n"][power] >= w.power_n[0]) & (drawn["law_n"][power] <= 1.5))
+    assert np.all(drawn["law_n"][mount] == 1.0) and np.all(drawn["law_alpha"] == 0.0)
+    assert np.all((drawn["law_mount_fraction"][mount] >= w.mount_fraction[0])
+                  & (drawn["law_mount_fraction"][mount] <= w.mount_fraction[1]))
+    assert np.all(np.isfinite(drawn["law_delta_ref"]))
+    # the default mixture (the linear wall alone) draws nothing: its records are unchanged
+    default = load_scene("configs/scenes/onset.yaml")
+    before = rng.bit_generator.state
+    drawn = default.draw_laws(5, rng)
+    assert rng.bit_generator.state == before and np.all(drawn["law"] == 0)
+    assert np.all(np.isnan(drawn["law_delta_ref"]))

@@ -4,7 +4,8 @@ The micro WT whisks at 1 Hz (9.5 V) with a 420 Hz probe (20 mV) on top, two whis
 wall stands at g from the tip's rest position along the whisking direction, somewhere across
 the reachable range. The transducer is the modal model of the preset
 (``wtml.physics.modal``), the wall a unilateral spring-damper, stepped exactly at the sampling
-rate. Both channels go through a 24-bit ADC with noise (e in V; i through an I-V converter, so
+rate, or a contact law of the family drawn per record (``wall.law``, ``wtml.physics.contact``),
+stepped implicitly. Both channels go through a 24-bit ADC with noise (e in V; i through an I-V converter, so
 its full scale is in A).
 
 The drive is ``e = -AL cos(ωL t) + AH sin(ωH t)``: the whisk starts at its far end, so every
@@ -30,6 +31,14 @@ import numpy as np
 
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import PRESETS, build
+from wtml.physics.contact import (
+    HUNT_CROSSLEY,
+    LAWS,
+    LINEAR,
+    MOUNT_HERTZ,
+    POWER,
+    ContactWall,
+)
 from wtml.physics.modal import ModalTransducer, Wall
 from wtml.scenes.config import SceneError, bounded, one_of
 from wtml.signals.excitation import lead_in
@@ -66,12 +75,46 @@ class WallSpec:
     """Where the wall stands, as a fraction of the tip's whisking amplitude HUE(0)·whisk_v
     (uniform), and its contact stiffness (N/m, log-uniform) and damping (N·s/m, uniform):
     nuisance around the thesis's |Zm| ≈ 2e-3 N·s/m at 420 Hz (k_c ≈ 5 N/m).
-    ``free_fraction`` of the records have no wall (free whisking)."""
+    ``free_fraction`` of the records have no wall (free whisking).
+
+    The contact law (:mod:`wtml.physics.contact`, physics.md §12) is drawn per record from the
+    mixture ``law`` (weights, normalised, over :data:`~wtml.physics.contact.LAWS`; default
+    the linear wall alone). ``stiffness`` is every law's tangent k_ref at the reference
+    penetration ``delta_ref`` (m, uniform; default 0.5–2 µm, the penetrations the whisk reaches
+    at k ≈ 5 N/m across the gap range); ``power_n`` the power law's and Hunt–Crossley's
+    exponent (uniform, 1 to Hertz's 1.5); ``alpha`` Hunt–Crossley's damping (s/m, uniform,
+    0.1–1); ``mount_fraction`` the share k_ref/k_m of the mount in the mount+Hertz law's
+    compliance at δ_ref (uniform, 0.5–0.9: the mount dominates, as §12 argues). ``damping``
+    is the linear law's; the others have their own (Hunt–Crossley) or none."""
 
     gap_fraction: tuple[float, float] = bounded(-0.5, 1.5, default=(0.1, 0.9))
     stiffness: tuple[float, float] = bounded(1e-3, 1e6, default=(3.0, 8.0))
     damping: tuple[float, float] = bounded(0.0, 1.0, default=(5e-5, 3e-4))
     free_fraction: float = bounded(0.0, 1.0, default=0.0)
+    law: dict[str, float] = field(default_factory=lambda: {"linear": 1.0})
+    delta_ref: tuple[float, float] = bounded(1e-9, 1e-4, default=(0.5e-6, 2e-6))
+    power_n: tuple[float, float] = bounded(1.0, 1.5, default=(1.0, 1.5))
+    alpha: tuple[float, float] = bounded(0.0, 100.0, default=(0.1, 1.0))
+    mount_fraction: tuple[float, float] = bounded(0.01, 0.99, default=(0.5, 0.9))
+
+    def mixture(self, path: str = "wall") -> tuple[np.ndarray, np.ndarray]:
+        """The law codes of the mixture and their normalised weights (SceneError naming
+        ``path.law`` and the allowed laws where it is not a mixture of them)."""
+        laws = self.law if isinstance(self.law, dict) else {}
+        bad = sorted(set(map(str, laws)) - set(LAWS))
+        if not laws or bad:
+            raise SceneError(f"{path}.law: a mapping of laws from {list(LAWS)} to weights, "
+                             f"got {self.law!r}")
+        weights = np.array([laws[x] for x in laws], dtype=object)
+        if not all(isinstance(x, int | float) and not isinstance(x, bool) and 0 <= x < np.inf
+                   for x in weights) or sum(weights) <= 0:
+            raise SceneError(f"{path}.law: weights must be numbers >= 0 with a positive sum, "
+                             f"got {self.law!r}")
+        return (np.array([LAWS.index(x) for x in laws]),
+                np.asarray(weights, float) / float(sum(weights)))
+
+    def check(self, path: str) -> None:
+        self.mixture(path)
 
 
 @dataclass(frozen=True)
@@ -171,8 +214,11 @@ class OnsetScene:
                  ) -> dict[str, np.ndarray]:
         """``n`` records: ``e`` (V) and ``i`` (A) float32 ``(n, n_samples)``; labels ``gap``
         (m, NaN without a wall), ``onset``, ``detachment`` (s, ``(n, max_contacts)``);
-        nuisance ``stiffness``, ``damping``, ``coupling``. ``gaps`` (m, ``(n,)``) fixes the
-        walls instead of drawing them (NaN: no wall)."""
+        nuisance ``stiffness`` (every law's k_ref), ``damping``, ``coupling`` and the contact
+        law: ``law`` (its code in :data:`~wtml.physics.contact.LAWS`), ``law_n`` (1 for the
+        linear law), ``law_alpha`` (0 but for Hunt–Crossley), ``law_delta_ref`` (m, NaN for the
+        linear law) and ``law_mount_fraction`` (1 but for mount+Hertz). ``gaps`` (m,
+        ``(n,)``) fixes the walls instead of drawing them (NaN: no wall)."""
         w, a = self.wall, self.acquisition
         lo, hi = self.gap_range_m()
         gap = rng.uniform(lo, hi, n)
@@ -182,6 +228,7 @@ class OnsetScene:
         k = np.exp(rng.uniform(*np.log(w.stiffness), n))
         c = rng.uniform(*w.damping, n)
         scale = 1 + self.calibration_error * rng.standard_normal(n)
+        law = self.draw_laws(n, rng)
         e, de = self.drive_voltage(lead=True)
         n_lead = len(e) - self.n_samples
         model = self.transducer()
@@ -192,10 +239,22 @@ class OnsetScene:
             sl = slice(start, min(n, start + batch))
             # no wall: one far beyond the reach (never touched: exactly the free answer)
             g = np.where(np.isnan(gap[sl]), 1.0, gap[sl])
-            out = model.simulate(e, dt, Wall(g, k[sl], c[sl]), drive_rate=de,
-                                 coupling_scale=scale[sl], record=("i",), dtype=np.float64)
-            cur[sl] = out["i"][:, n_lead:]
-            touching[sl] = out["contact"][:, n_lead:]
+            linear = law["law"][sl] == LINEAR  # today's exact switched wall
+            for part in (np.flatnonzero(linear), np.flatnonzero(~linear)):
+                if not len(part):
+                    continue
+                rows = np.arange(sl.start, sl.stop)[part]
+                if linear[part[0]]:
+                    wall = Wall(g[part], k[rows], c[rows])
+                else:
+                    mount = law["law_mount_fraction"][rows]
+                    wall = ContactWall(g[part], law["law"][rows], k[rows],
+                                       law["law_delta_ref"][rows], law["law_n"][rows],
+                                       law["law_alpha"][rows], k[rows] / mount, c[rows])
+                out = model.simulate(e, dt, wall, drive_rate=de, coupling_scale=scale[rows],
+                                     record=("i",), dtype=np.float64)
+                cur[rows] = out["i"][:, n_lead:]
+                touching[rows] = out["contact"][:, n_lead:]
         e = e[n_lead:]
         e_rec = quantize(e[None] + a.e_noise_v * rng.standard_normal((n, len(e))),
                          a.adc_bits, a.e_full_scale_v)
@@ -204,7 +263,27 @@ class OnsetScene:
         onset, detach = self.contacts(touching)
         return {"e": e_rec.astype(np.float32), "i": i_rec.astype(np.float32),
                 "gap": gap, "onset": onset, "detachment": detach, "stiffness": k,
-                "damping": c, "coupling": scale}
+                "damping": c, "coupling": scale, **law}
+
+    def draw_laws(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """Each record's contact law from the mixture ``wall.law`` and its parameters
+        (labels as :meth:`simulate` names them). A mixture of the linear law alone draws
+        nothing, so its records are those of a scene without the option."""
+        w = self.wall
+        codes, weights = w.mixture()
+        law = np.full(n, LINEAR, np.int8)
+        n_exp, alpha = np.ones(n), np.zeros(n)
+        delta_ref, mount = np.full(n, np.nan), np.ones(n)
+        if np.any(codes != LINEAR):
+            law = rng.choice(codes, n, p=weights).astype(np.int8)
+            smooth = law != LINEAR
+            delta_ref[smooth] = rng.uniform(*w.delta_ref, n)[smooth]
+            power = (law == POWER) | (law == HUNT_CROSSLEY)
+            n_exp[power] = rng.uniform(*w.power_n, n)[power]
+            alpha[law == HUNT_CROSSLEY] = rng.uniform(*w.alpha, n)[law == HUNT_CROSSLEY]
+            mount[law == MOUNT_HERTZ] = rng.uniform(*w.mount_fraction, n)[law == MOUNT_HERTZ]
+        return {"law": law, "law_n": n_exp, "law_alpha": alpha, "law_delta_ref": delta_ref,
+                "law_mount_fraction": mount}
 
 
 def intervals(active: np.ndarray, rate: float, merge_s: float, max_count: int

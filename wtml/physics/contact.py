@@ -139,7 +139,8 @@ class ContactWall:
         dp = np.maximum(d, 0.0)
         power = k * dp**np.where(law == LINEAR, 1.0, n)
         f = np.where(law == LINEAR, k * dp + c * r,
-                     np.where(law == HUNT_CROSSLEY, power * (1 + a * r), power)) * np.ones_like(d)
+                     np.where(law == HUNT_CROSSLEY, power * (1 + a * r), power))
+        f = np.broadcast_to(f, d.shape).copy()
         mount = self.law == MOUNT_HERTZ
         f[mount] = _series(dp[mount], k[mount], self.k_mount[ex][mount])
         return np.where(d > 0, np.maximum(f, 0.0), 0.0)

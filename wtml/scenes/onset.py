@@ -5,8 +5,8 @@ wall stands at g from the tip's rest position along the whisking direction, some
 the reachable range. The transducer is the modal model of the preset
 (``wtml.physics.modal``), the wall a unilateral spring-damper, stepped exactly at the sampling
 rate, or a contact law of the family drawn per record (``wall.law``, ``wtml.physics.contact``),
-stepped implicitly. Both channels go through a 24-bit ADC with noise (e in V; i through an I-V converter, so
-its full scale is in A).
+stepped implicitly. Both channels go through a 24-bit ADC with noise (e in V; i through an
+I-V converter, so its full scale is in A).
 
 The drive is ``e = -AL cos(ωL t) + AH sin(ωH t)``: the whisk starts at its far end, so every
 contact lies inside the record. A lead-in of ``lead_s`` before t = 0, the drive raised from 0

@@ -266,7 +266,7 @@ def _solve(law, au, bu, av, bv, k, n, alpha, c, k_m):
         else:
             return x
         nxt = x - res / (1.0 - fd * bu - fr * bv)
-        if not lo <= nxt <= hi:
+        if not lo < nxt < hi:  # Newton left the bracket (or sits on its end): bisect
             nxt = 0.5 * (lo + hi)
         if abs(nxt - x) <= 1e-15 * top or hi - lo <= 1e-15 * top:
             return nxt

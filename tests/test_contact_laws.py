@@ -195,7 +195,7 @@ def reference_steps(model, e, de, dt, wall):
 
 def test_numba_stepper_matches_the_slow_per_record_reference(micro):
     """Every law, damped and undamped, a wall the tip rests past, through many touches."""
-    e, de = whisk(FS, seconds=0.025, whisk_hz=20.0)
+    e, de = whisk(FS, seconds=0.021, whisk_hz=20.0)
     wall = ContactWall([3e-6, 4e-6, 2e-6, 5e-6, -0.2e-6], list(LAWS) + ["power"],
                        [5.0, 3.0, 8.0, 5.0, 5.0], [1e-6, 2e-6, 0.5e-6, 1e-6, 1e-6],
                        n=[1.0, 1.5, 1.2, 1.0, 1.3], alpha=[0.0, 0.0, 0.7, 0.0, 0.0],

@@ -1,0 +1,476 @@
+"""A second, independent simulator of the onset scene: the held-out "device" of the tests.
+
+Written from physics.md (§3, §9, §10, §12) alone; it shares with the production stepper
+(:mod:`wtml.physics.modal`) only the beam's matrices (``build(preset).matrices()``: K complex
+with the loss, M, Θ, and the clamped capacitance with its tanδ) and the scene's definition
+(drive, lead-in, sampling, labelling, acquisition). Everything else is its own:
+
+- **Modal reduction.** Its own eigen-solve ``Re K φ = ω² M φ`` (mass-normalised), the n
+  lowest kept; the truncated modes' static correction by the mode-acceleration method,
+  ``G_res = (Re K)⁻¹ − Φ Ω⁻² Φᵀ`` giving ``a_r, β_r, δ_r``; modal viscous damping
+  ``ζ_i = η_i/2`` with ``η_i = φ_iᵀ Im K φ_i / ω_i²``. Equations (F: the force the tip
+  applies to the wall, compressive > 0)::
+
+      q'' + 2ζΩ q' + Ω² q = φθ E − φb F,   u = φb·q − a_r F + β_r E,
+      Q = φθ·q − β_r F + (Cp + δ_r) E,     I = Q' + I_loss.
+
+- **Dielectric loss** at constant tanδ: the loss current ``Σ_k ω_k Cp tanδ E_k(t)`` over the
+  drive's tones (whisk and probe, each with the lead-in's ramp), not one conductance.
+- **Time integration** with :func:`scipy.integrate.solve_ivp`, from rest at the lead-in's
+  start, event-driven: a free tip touches when ``u`` crosses ``g`` upward with the wall's
+  would-be force compressive, an engaged one leaves when the force turns tensile; each event
+  restarts the integrator with that record in the other regime (the drive is the exact
+  continuous E(t), not sampled or held). Records are independent blocks of one system
+  (:func:`_simulate_batch`: the vectorised right-hand side is what makes Python integration
+  affordable). DOP853, and Radau with the exact block Jacobian wherever a force is a stiff
+  state (the damped linear wall, below). Tolerances: ``rtol`` (default 1e-9) and
+  ``atol = rtol ×`` (0.1 µm of tip motion per mode, its rate, 1 µN of force), scipy's RMS
+  norm over the batch; ``max_step`` one sample interval. The lead-in is simulated and
+  dropped.
+
+Contact laws (δ = u − g the penetration, k_ref the record's ``stiffness``, physics.md §12):
+
+- ``linear``: ``F = k δ + c δ'`` while compressive (k = stiffness, c = damping). With the
+  residual compliance ``a_r`` the tip's u contains F, so for c > 0 the force is a state:
+  ``c a_r F' = k (u_m − g) + c u_m' − (1 + k a_r) F`` with ``u_m = φb·q + β_r E``
+  (time constant ~1 µs: stiff, hence Radau), restarted at 0 at each touch; for c = 0 it is
+  algebraic, ``F = k (u_m − g)/(1 + k a_r)``.
+- ``power``: ``F = K δ^n``, ``K = k_ref δ_ref^(1−n)/n`` (tangent k_ref at δ_ref);
+  parameters ``exponent`` n, ``reference_m`` δ_ref.
+- ``hunt_crossley``: ``F = K δ^n (1 + α δ')`` clipped at 0, K as the power law; parameters
+  ``exponent``, ``reference_m``, ``alpha_s_per_m`` α. Its series relaxation with a_r has the
+  time constant ``α a_r F`` (≲ 1e-8 s here, and 0 at touch, where the exact form is 0/0), so
+  δ' is taken on the elastic branch, ``δ' = u_m'/(1 + a_r K n δ^(n−1))``; the current leaves
+  out the rate of the damping part (``β_r d(K δ^n α δ')/dt``, ~α δ' ≈ 1e-3 of the contact
+  term).
+- ``mount_hertz``: a linear mount in series with a Hertz contact,
+  ``δ = F/k_m + (F/K_h)^(2/3)``, set by the tangent ``dF/dδ = k_ref`` at ``δ = δ_ref`` and
+  the share ``m`` (``mount_fraction``, in (0, 1)) of that tangent compliance in the mount:
+  ``k_m = k_ref/m``; then ``F_ref = k_ref δ_ref/(1.5 − 0.5 m)``, the Hertz penetration at
+  F_ref ``s = 1.5 (1 − m) δ_ref/(1.5 − 0.5 m)`` and ``K_h = F_ref / s^1.5``. m → 1 is the
+  linear wall k_ref; m → 0 the power law with n = 1.5.
+
+For every law the touch event is the gap crossing ``u = g`` (with the would-be force
+compressive); release is the force turning tensile (δ back to 0 for the elastic laws).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.linalg import eigh
+from scipy.sparse import block_diag
+
+from wtml.physics.beam import BeamTransducer
+from wtml.physics.beam_presets import build
+from wtml.physics.validation import check_range
+from wtml.signals.excitation import lead_in
+from wtml.signals.noise import quantize
+
+LAWS = ("linear", "power", "hunt_crossley", "mount_hertz")
+LAW_DEFAULTS: dict[str, dict[str, float]] = {
+    "linear": {},
+    "power": {"exponent": 1.5, "reference_m": 1e-6},
+    "hunt_crossley": {"exponent": 1.5, "reference_m": 1e-6, "alpha_s_per_m": 0.3},
+    "mount_hertz": {"reference_m": 1e-6, "mount_fraction": 0.5},
+}
+"""Each law's parameters and their defaults (δ_ref 1 µm: a typical penetration of the
+shipped scene's walls; n 1.5: Hertz; α 0.3 s/m; half the compliance in the mount)."""
+LAW_RANGES: dict[str, tuple[float, float, str]] = {
+    "exponent": (1.0, 1.5, ""), "reference_m": (1e-9, 1e-4, "m"),
+    "alpha_s_per_m": (0.0, 10.0, "s/m"), "mount_fraction": (1e-3, 0.999, ""),
+}
+
+_UNUSED = {"exponent": 1.0, "reference_m": 1e-6, "alpha_s_per_m": 0.0, "mount_fraction": 0.5}
+"""Placeholders of the parameters a law does not take."""
+
+
+@dataclass(frozen=True)
+class ModalModel:
+    """The beam reduced to its n lowest modes with static correction (module docstring).
+
+    Attributes:
+        omega: Ω, rad/s, ``(n,)``.   zeta: ζ = η/2, ``(n,)``.
+        tip: φb, m/√kg, ``(n,)``.    coupling: φθ, N/(V·√kg), ``(n,)``.
+        a_r (m/N), beta_r (m/V), delta_r (F): the truncated modes' static residuals.
+        capacitance: Cp (real), F.   tan_delta: dielectric loss tangent.
+    """
+
+    omega: np.ndarray
+    zeta: np.ndarray
+    tip: np.ndarray
+    coupling: np.ndarray
+    a_r: float
+    beta_r: float
+    delta_r: float
+    capacitance: float
+    tan_delta: float
+
+    @classmethod
+    def from_beam(cls, beam: BeamTransducer, n_modes: int) -> ModalModel:
+        """The ``n_modes`` lowest modes of ``beam`` (tip free, electrodes shorted)."""
+        k, m, theta = beam.matrices()
+        check_range("n_modes", n_modes, 1, len(theta))
+        w2, phi = eigh(k.real, m, subset_by_index=[0, n_modes - 1])  # Φᵀ M Φ = 1
+        eta = np.einsum("ij,jk,ki->i", phi.T, k.imag, phi) / w2
+        b = np.zeros(len(theta))
+        b[-2] = 1.0
+        tip, coupling = phi.T @ b, phi.T @ theta
+        flex = np.linalg.solve(k.real, np.column_stack([b, theta]))  # (Re K)⁻¹ [b, Θ]
+        cp = complex(beam.capacitance)
+        return cls(omega=np.sqrt(w2), zeta=eta / 2, tip=tip, coupling=coupling,
+                   a_r=float(flex[-2, 0] - np.sum(tip**2 / w2)),
+                   beta_r=float(flex[-2, 1] - np.sum(tip * coupling / w2)),
+                   delta_r=float(theta @ flex[:, 1] - np.sum(coupling**2 / w2)),
+                   capacitance=cp.real, tan_delta=-cp.imag / cp.real)
+
+    def with_coupling(self, scale: float) -> ModalModel:
+        """The device with its piezo coupling Θ scaled by ``scale`` (φθ, β_r by it, δ_r by
+        its square; Cp unchanged)."""
+        return dataclasses.replace(self, coupling=self.coupling * scale,
+                                   beta_r=self.beta_r * scale, delta_r=self.delta_r * scale**2)
+
+    def static_tip_displacement_per_volt(self) -> float:
+        """HUE(0) = ``Σ φb φθ/Ω² + β_r``, m/V."""
+        return float(np.sum(self.tip * self.coupling / self.omega**2) + self.beta_r)
+
+    def transduction_matrix(self, omega) -> np.ndarray:
+        """T(ω) with a free tip (physics.md §3 from the modal forms ``a, β, δ``; the dielectric
+        ``Cp (1 − j tanδ)``), shape ``omega.shape + (2, 2)``, det T = 1."""
+        w = np.asarray(omega, dtype=float)[..., None]
+        h = 1 / (self.omega**2 - w**2 + 2j * self.zeta * self.omega * w)
+        a = np.sum(self.tip**2 * h, -1) + self.a_r
+        beta = np.sum(self.tip * self.coupling * h, -1) + self.beta_r
+        delta = (self.capacitance * (1 - 1j * self.tan_delta)
+                 + np.sum(self.coupling**2 * h, -1) + self.delta_r)
+        jw = 1j * w[..., 0]
+        return np.stack([np.stack([a / beta, 1 / (jw * beta)], -1),
+                         np.stack([jw * (a * delta - beta**2) / beta, delta / beta], -1)], -2)
+
+
+@dataclass(frozen=True)
+class ContactLaw:
+    """The wall law of a batch of B records (module docstring): ``stiffness`` k or k_ref
+    (N/m), ``damping`` c (N·s/m, linear law only) and the law's parameters
+    (:data:`LAW_DEFAULTS`), each ``(B,)``."""
+
+    law: str
+    stiffness: np.ndarray
+    damping: np.ndarray
+    exponent: np.ndarray
+    reference_m: np.ndarray
+    alpha_s_per_m: np.ndarray
+    mount_fraction: np.ndarray
+
+    @property
+    def gain(self) -> np.ndarray:
+        """K of the power and Hunt–Crossley laws, N/m^n, ``(B,)``."""
+        n = self.exponent
+        return self.stiffness * self.reference_m ** (1 - n) / n
+
+    def hertz(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(k_m N/m, K_h N/m^1.5)`` of the mount–Hertz law, each ``(B,)``."""
+        m, k, d = self.mount_fraction, self.stiffness, self.reference_m
+        f_ref = k * d / (1.5 - 0.5 * m)
+        s = 1.5 * (1 - m) * d / (1.5 - 0.5 * m)
+        return k / m, f_ref / s**1.5
+
+    @property
+    def stiff_state(self) -> bool:
+        """Whether the force is a state (the linear wall with damping)."""
+        return self.law == "linear" and bool(np.any(self.damping > 0))
+
+    def force(self, over, over_rate, a_r: float) -> tuple[np.ndarray, np.ndarray]:
+        """The force (N) and its rate (N/s) of the algebraic laws from the modal tip's
+        overshoot ``over = u_m − g`` (m, > 0 in contact) and its rate (m/s), each ``(B,)``
+        or ``(B, n_t)``; ``a_r`` the residual compliance in series."""
+        over = np.maximum(over, 0.0)
+        col = (slice(None),) + (None,) * (np.ndim(over) - 1)
+        if self.law == "linear":
+            s = (self.stiffness / (1 + self.stiffness * a_r))[col]
+            return s * over, s * over_rate
+        if self.law == "mount_hertz":
+            k_m, k_h = (x[col] for x in self.hertz())
+            comp = (a_r + 1 / k_m) * k_h
+            x = np.minimum(np.sqrt(over), np.cbrt(over / comp))  # above the root
+            for _ in range(60):  # convex, increasing: Newton from above converges
+                step = (comp * x**3 + x**2 - over) / (3 * comp * x**2 + 2 * x + 1e-300)
+                x = x - step
+                if np.all(np.abs(step) <= 1e-14 * x):
+                    break
+            return k_h * x**3, 3 * k_h * x / (3 * comp * x + 2) * over_rate
+        n, k = self.exponent[col], self.gain[col]
+        delta = _power_root(over, a_r * k, n)
+        stiff = n * k * delta ** (n - 1)
+        rate = over_rate / (1 + a_r * stiff)  # δ' on the elastic branch
+        if self.law == "power":
+            return k * delta**n, stiff * rate
+        k = k * np.maximum(1 + self.alpha_s_per_m[col] * rate, 0.0)
+        delta = _power_root(over, a_r * k, n)
+        stiff = n * k * delta ** (n - 1)
+        return k * delta**n, stiff * over_rate / (1 + a_r * stiff)
+
+
+def _power_root(over, c, n):
+    """δ ≥ 0 with ``δ + c δ^n = over`` (c ≥ 0, n ≥ 1): convex and increasing, so Newton
+    from δ = over (above the root) converges monotonically."""
+    d = np.array(over, dtype=float)
+    for _ in range(60):
+        step = (d + c * d**n - over) / (1 + c * n * d ** (n - 1))
+        d = d - step
+        if np.all(np.abs(step) <= 1e-14 * d):
+            break
+    return d
+
+
+class _Drive:
+    """The scene's drive ``E = −AL cos ωL t + AH sin ωH t`` (V) with the lead-in's raised
+    cosine from ``−lead_s`` to 0, at any instant t (s): ``tones(t)`` gives the whisk and
+    probe parts and their rates (the same as :func:`~wtml.signals.excitation.lead_in` at the
+    samples)."""
+
+    def __init__(self, scene):
+        d = scene.drive
+        self.al, self.ah, self.lead = d.whisk_v, d.probe_v, d.lead_s
+        self.wl, self.wh = 2 * math.pi * d.whisk_hz, 2 * math.pi * d.probe_hz
+
+    def __call__(self, t: float) -> tuple[float, float]:
+        """E (V) and dE/dt (V/s) at the scalar t."""
+        e = -self.al * math.cos(self.wl * t) + self.ah * math.sin(self.wh * t)
+        de = self.al * self.wl * math.sin(self.wl * t) + self.ah * self.wh * math.cos(self.wh * t)
+        if t >= 0:
+            return e, de
+        x = (t + self.lead) / self.lead
+        if x <= 0:
+            return 0.0, 0.0
+        r, dr = 0.5 - 0.5 * math.cos(math.pi * x), 0.5 * math.pi / self.lead * math.sin(math.pi * x)
+        return e * r, de * r + e * dr
+
+    def tones(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Whisk part, its rate, probe part, its rate at the instants t, each ``t.shape``."""
+        el, dl = lead_in(t, -self.al * np.cos(self.wl * t), self.al * self.wl * np.sin(self.wl * t),
+                         self.lead)
+        eh, dh = lead_in(t, self.ah * np.sin(self.wh * t), self.ah * self.wh * np.cos(self.wh * t),
+                         self.lead)
+        return el, dl, eh, dh
+
+
+def _simulate_batch(model: ModalModel, scale: np.ndarray, law: ContactLaw, gap: np.ndarray,
+                    drive: _Drive, times: np.ndarray, rtol: float, method: str
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """B records from rest, side by side in one system of independent blocks (the vectorised
+    right-hand side is what makes Python integration affordable): the states ``[q, q', F]``
+    at ``times`` ``(B, 2n+1, n_t)``, the regimes there (engaged, ``(B, n_t)``) and each
+    record's number of events ``(B,)``.
+
+    One event function serves the batch: each record's own (touch while free, the force or
+    the penetration falling through 0 while engaged, negated) is < 0 between its events, so
+    their maximum crosses 0 upward at the first event of any record; that record switches and
+    the integration restarts. DOP853 while no record's force is a stiff state, else Radau
+    with the block-diagonal Jacobian."""
+    n, bsz = len(model.omega), len(gap)
+    tip, a_r = model.tip, model.a_r
+    cpl, br = model.coupling * scale[:, None], model.beta_r * scale  # (B, n), (B,)
+    k, c = law.stiffness, law.damping
+    dim = 2 * n + 1
+    free = np.zeros((dim, dim))
+    free[:n, n:2 * n] = np.eye(n)
+    free[n:2 * n, :n] = -np.diag(model.omega**2)
+    free[n:2 * n, n:2 * n] = -np.diag(2 * model.zeta * model.omega)
+    stiff = law.stiff_state
+    tau = c * a_r if stiff else np.ones(bsz)
+    if stiff:  # c a_r F' = k (u_m − g) + c u_m' − (1 + k a_r) F, and −φb F in q''
+        eng = np.repeat(free[None], bsz, 0)
+        eng[:, n:2 * n, -1] = -tip
+        eng[:, -1, :n] = (k / tau)[:, None] * tip
+        eng[:, -1, n:2 * n] = (c / tau)[:, None] * tip
+        eng[:, -1, -1] = -(1 + k * a_r) / tau
+    engaged = np.zeros(bsz, bool)
+
+    def overshoot(y, e, de):
+        return y[:, :n] @ tip + br * e - gap, y[:, n:2 * n] @ tip + br * de
+
+    def rhs(t, flat):
+        y = flat.reshape(bsz, dim)
+        e, de = drive(t)
+        out = y @ free.T
+        out[:, n:2 * n] += cpl * e
+        over, rate = overshoot(y, e, de)
+        if stiff:
+            force = np.where(engaged, y[:, -1], 0.0)
+            out[:, -1] = np.where(engaged, (k * over + c * rate - (1 + k * a_r) * force) / tau,
+                                  0.0)
+        else:
+            force = np.where(engaged, law.force(over, rate, a_r)[0], 0.0)
+        out[:, n:2 * n] -= force[:, None] * tip
+        return out.ravel()
+
+    def signs(t, flat):
+        """Each record's event function, < 0 between its events, ``(B,)``."""
+        y = flat.reshape(bsz, dim)
+        e, de = drive(t)
+        over, rate = overshoot(y, e, de)
+        touch = np.minimum(over, k * over + c * rate) if law.law == "linear" else over
+        release = y[:, -1] if stiff else over
+        return np.where(engaged, -release, touch)
+
+    def event(t, flat):
+        return float(np.max(signs(t, flat)))
+
+    event.terminal, event.direction = True, 1
+    scale_tol = np.concatenate([0.1e-6 / np.abs(tip), 0.1e-6 * model.omega / np.abs(tip), [1e-6]])
+    atol = np.tile(rtol * scale_tol, bsz)
+    out = np.zeros((bsz * dim, len(times)))
+    regime = np.zeros((bsz, len(times)), bool)
+    events = np.zeros(bsz, int)
+    y, t, idx = np.zeros(bsz * dim), times[0], 1
+    while idx < len(times):
+        blocks = np.where((engaged & stiff)[:, None, None], eng, free[None]) if stiff else \
+            np.repeat(free[None], bsz, 0)
+        jac = block_diag(list(blocks), format="csc")
+        implicit = method == "Radau" or bool(np.any(engaged & stiff))
+        kw = {"method": "Radau", "jac": lambda t, y, jac=jac: jac} if implicit else \
+            {"method": "DOP853"}
+        sol = solve_ivp(rhs, (t, times[-1]), y, t_eval=times[idx:], events=event, rtol=rtol,
+                        atol=atol, max_step=times[1] - times[0], **kw)
+        if sol.status < 0:
+            raise RuntimeError(f"solve_ivp failed at t = {t:.6g} s: {sol.message}")
+        m = len(sol.t)
+        out[:, idx:idx + m], regime[:, idx:idx + m] = sol.y, engaged[:, None]
+        idx += m
+        if sol.status != 1:
+            break
+        t, y = float(sol.t_events[0][0]), sol.y_events[0][0].copy()
+        r = int(np.argmax(signs(t, y)))
+        engaged[r] = not engaged[r]
+        events[r] += 1
+        if events[r] > len(times):
+            raise RuntimeError(f"record {r}: the contact chatters (more events than samples)")
+        y[r * dim + dim - 1] = 0.0  # the force state restarts at 0 at touch, is 0 at release
+    return out.reshape(bsz, dim, len(times)), regime, events
+
+
+def _current(model: ModalModel, scale: np.ndarray, law: ContactLaw, gap: np.ndarray,
+             drive: _Drive, times: np.ndarray, state: np.ndarray, engaged: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The current I (A), tip displacement u (m) and force F (N) at ``times`` from the states
+    ``(B, 2n+1, n_t)``, each ``(B, n_t)``."""
+    n = len(model.omega)
+    el, dl, eh, dh = drive.tones(times)
+    e, de = el + eh, dl + dh
+    br, col = model.beta_r * scale[:, None], (slice(None), None)
+    over = np.einsum("i,bit->bt", model.tip, state[:, :n]) + br * e - gap[col]
+    rate = np.einsum("i,bit->bt", model.tip, state[:, n:2 * n]) + br * de
+    if law.stiff_state:
+        force = state[:, -1]
+        k, c = law.stiffness[col], law.damping[col]
+        force_rate = (k * over + c * rate - (1 + k * model.a_r) * force) / (c * model.a_r)
+    else:
+        force, force_rate = law.force(over, rate, model.a_r)
+    force, force_rate = np.where(engaged, force, 0.0), np.where(engaged, force_rate, 0.0)
+    loss = model.capacitance * model.tan_delta * (drive.wl * el + drive.wh * eh)
+    motional = np.einsum("i,bit->bt", model.coupling, state[:, n:2 * n]) * scale[col]
+    cap = model.capacitance + model.delta_r * scale[col] ** 2
+    i = motional - br * force_rate + cap * de + loss
+    return i, over + gap[col] - model.a_r * force, force
+
+
+def contact_law(law: str, stiffness, damping, law_params: dict | None, n: int) -> ContactLaw:
+    """The :class:`ContactLaw` of ``n`` records from per-record (or scalar) parameters."""
+    if law not in LAWS:
+        raise ValueError(f"law must be one of {LAWS}, got {law!r}")
+    params = dict(LAW_DEFAULTS[law])
+    extra = set(law_params or {}) - set(params)
+    if extra:
+        raise ValueError(f"law_params: {sorted(extra)} not parameters of the {law!r} law "
+                         f"(it takes {sorted(params) or 'none'})")
+    params |= law_params or {}
+    cols = {"stiffness": check_range("stiffness", np.broadcast_to(stiffness, (n,)), 0.0, np.inf,
+                                     unit="N/m", low_open=True, high_open=True),
+            "damping": check_range("damping", np.broadcast_to(damping, (n,)), 0.0, 1.0,
+                                   unit="N·s/m")}
+    if law == "linear" and np.any(cols["damping"] > 0) and np.any(cols["damping"] == 0):
+        raise ValueError("damping: a batch of the linear law is all damped or all undamped")
+    for name in LAW_RANGES:
+        value = params.get(name, _UNUSED[name])
+        lo, hi, unit = LAW_RANGES[name]
+        cols[name] = check_range(f"law_params.{name}", np.broadcast_to(value, (n,)), lo, hi,
+                                 unit=unit)
+    return ContactLaw(law, **{f: np.array(v) for f, v in cols.items()})
+
+
+def simulate_onset(scene, gaps, stiffness, damping, coupling, *, law: str = "linear",
+                   law_params: dict | None = None, rng: np.random.Generator | None = None,
+                   rtol: float = 1e-9, n_modes: int | None = None, batch: int = 32,
+                   method: str = "DOP853",
+                   detail: bool = False
+                   ) -> dict[str, np.ndarray]:
+    """Records of ``scene`` (an :class:`~wtml.scenes.onset.OnsetScene`) from this simulator,
+    in the format of ``OnsetScene.simulate``.
+
+    Args:
+        gaps: the wall's g per record, m, ``(n,)`` (NaN: no wall, free whisking).
+        stiffness: k (linear) or k_ref (the other laws), N/m, ``(n,)`` or scalar.
+        damping: c of the linear law, N·s/m, ``(n,)`` or scalar (the other laws ignore it).
+        coupling: each record's device, its piezo coupling scale, ``(n,)`` or scalar.
+        law: one of :data:`LAWS`; law_params: its parameters (:data:`LAW_DEFAULTS`), each a
+            scalar or ``(n,)``.
+        rng: draws the acquisition's noise; None: no noise (the ADC still applies).
+        rtol: solve_ivp's relative tolerance (module docstring for atol).
+        n_modes: modes kept (default the scene's).
+        batch: records integrated side by side (:func:`_simulate_batch`).
+        method: ``"DOP853"`` (default; Radau wherever a force is a stiff state) or
+            ``"Radau"`` throughout.
+        detail: also return ``current`` (A, before noise and ADC), ``u`` (m) and ``force`` (N),
+            float64 ``(n, n_samples)``, and ``events`` ``(n,)``.
+
+    Returns:
+        ``e``, ``i`` float32 ``(n, n_samples)`` (V, A); ``gap``, ``onset``, ``detachment``
+        (s, ``(n, max_contacts)``), ``stiffness``, ``damping``, ``coupling``.
+    """
+    gaps = np.atleast_1d(np.asarray(gaps, dtype=float))
+    n = len(gaps)
+    law_ = contact_law(law, stiffness, damping, law_params, n)
+    scale = check_range("coupling", np.broadcast_to(np.asarray(coupling, float), (n,)), 0.0,
+                        np.inf, low_open=True, high_open=True)
+    check_range("rtol", rtol, 1e-13, 1e-3)
+    check_range("batch", batch, 1, 10**4)
+    if method not in ("DOP853", "Radau"):
+        raise ValueError(f"method must be 'DOP853' or 'Radau', got {method!r}")
+    model = ModalModel.from_beam(build(scene.preset), n_modes or scene.n_modes)
+    drive = _Drive(scene)
+    a, rate = scene.acquisition, scene.acquisition.sample_rate_hz
+    n_lead = int(round(scene.drive.lead_s * rate))
+    times = np.arange(-n_lead, scene.n_samples) / rate
+    cur = np.empty((n, len(times)))
+    u, force = np.empty_like(cur), np.empty_like(cur)
+    touching = np.empty((n, len(times)), bool)
+    events = np.zeros(n, int)
+    g = np.where(np.isnan(gaps), 1.0, gaps)  # no wall: one beyond any reach
+    for start in range(0, n, batch):
+        sl = slice(start, min(n, start + batch))
+        part = ContactLaw(law, *(getattr(law_, f.name)[sl]
+                                 for f in dataclasses.fields(ContactLaw)[1:]))
+        state, touching[sl], events[sl] = _simulate_batch(model, scale[sl], part, g[sl], drive,
+                                                          times, rtol, method)
+        cur[sl], u[sl], force[sl] = _current(model, scale[sl], part, g[sl], drive, times, state,
+                                             touching[sl])
+    cur, u, force, touching = (x[:, n_lead:] for x in (cur, u, force, touching))
+    e = scene.drive_voltage()[0]
+    if rng is None:
+        e_rec, i_rec = np.broadcast_to(e, cur.shape), cur
+    else:
+        e_rec = e[None] + a.e_noise_v * rng.standard_normal(cur.shape)
+        i_rec = cur + a.i_noise_a * rng.standard_normal(cur.shape)
+    onset, detach = scene.contacts(touching)
+    out = {"e": quantize(e_rec, a.adc_bits, a.e_full_scale_v).astype(np.float32),
+           "i": quantize(i_rec, a.adc_bits, a.i_full_scale_a).astype(np.float32),
+           "gap": gaps, "onset": onset, "detachment": detach,
+           "stiffness": law_.stiffness, "damping": law_.damping, "coupling": np.array(scale)}
+    if detail:
+        out |= {"current": cur, "u": u, "force": force, "events": events}
+    return out

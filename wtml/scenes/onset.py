@@ -28,6 +28,7 @@ from typing import ClassVar
 
 import numpy as np
 
+import wtml.signals.acquisition as acq  # as a module: it imports wtml.scenes.config
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import PRESETS, build
 from wtml.physics.modal import ModalTransducer, Wall
@@ -51,7 +52,9 @@ class OnsetDrive:
 @dataclass(frozen=True)
 class Acquisition:
     """Sampling rate (Hz; also the simulation step), ADC bits, full scales of the voltage (V)
-    and current (A) channels, and white noise on each (V rms, A rms)."""
+    and current (A) channels, white noise on each (V rms, A rms), and what a real acquisition
+    adds (``effects``: :class:`wtml.signals.acquisition.AcquisitionEffects`, all off unless
+    the scene's YAML switches them on)."""
 
     sample_rate_hz: float = bounded(1e3, 1e7, default=26880.0)
     adc_bits: int = bounded(8, 32, default=24)
@@ -59,6 +62,27 @@ class Acquisition:
     i_full_scale_a: float = bounded(1e-12, 1.0, default=1e-6)
     e_noise_v: float = bounded(0.0, 1.0, default=1e-6)
     i_noise_a: float = bounded(0.0, 1e-3, default=1e-12)
+    effects: acq.AcquisitionEffects = field(default_factory=lambda: acq.AcquisitionEffects())
+
+    def check(self, path: str) -> None:
+        if self.effects.base.on:
+            raise SceneError(f"{path + '.' if path else ''}effects.base.on: the scene does not "
+                             "move its object with the base yet; draw x_b(t) with "
+                             "wtml.signals.acquisition.base_motion")
+
+    def record(self, e, i, capacitance: float, rng: np.random.Generator
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """The two channels as recorded, float32 ``(n, n_samples)``: ``e`` (V, broadcast to
+        ``i``'s shape) and ``i`` (A, ``(n, n_samples)``) with the white noise, the effects'
+        noise (the transducer's capacitance ``capacitance``, F) and the ADC's quantisation."""
+        fx, shape = self.effects, np.shape(i)
+        e_noise = self.e_noise_v * rng.standard_normal(shape)
+        i_noise = self.i_noise_a * rng.standard_normal(shape)
+        e_noise += fx.voltage_noise(shape, self.sample_rate_hz, self.e_full_scale_v, rng)
+        i_noise += fx.current_noise(shape, self.sample_rate_hz, capacitance,
+                                    self.i_full_scale_a, rng)
+        return (quantize(e + e_noise, self.adc_bits, self.e_full_scale_v).astype(np.float32),
+                quantize(i + i_noise, self.adc_bits, self.i_full_scale_a).astype(np.float32))
 
 
 @dataclass(frozen=True)
@@ -112,9 +136,8 @@ class OnsetScene:
 
     # --- the model -------------------------------------------------------------------------
     def transducer(self) -> ModalTransducer:
-        """The calibrated modal model (the dielectric loss exact at the probe frequency)."""
-        return ModalTransducer.from_beam(build(self.preset), self.n_modes,
-                                         reference_hz=self.drive.probe_hz)
+        """The calibrated modal model."""
+        return ModalTransducer.from_beam(build(self.preset), self.n_modes)
 
     @property
     def n_samples(self) -> int:
@@ -126,18 +149,24 @@ class OnsetScene:
         """Sample instants, s, shape ``(n_samples,)``."""
         return np.arange(self.n_samples) / self.acquisition.sample_rate_hz
 
-    def drive_voltage(self, lead: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """E (V) and dE/dt (V/s) at the samples, each ``(n_samples,)`` (with ``lead``: the
-        lead-in's samples first)."""
+    def drive_tones(self, lead: bool = False) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """The drive's two tones, whisk then probe: each ``(ω rad/s, E V, dE/dt V/s)`` at the
+        samples, ``(n_samples,)`` (with ``lead``: the lead-in's samples first, ramped)."""
         d, rate = self.drive, self.acquisition.sample_rate_hz
         n_lead = int(round(d.lead_s * rate)) if lead else 0
         t = np.arange(-n_lead, self.n_samples) / rate
         wl, wh = 2 * np.pi * d.whisk_hz, 2 * np.pi * d.probe_hz
-        e = -d.whisk_v * np.cos(wl * t) + d.probe_v * np.sin(wh * t)
-        de = d.whisk_v * wl * np.sin(wl * t) + d.probe_v * wh * np.cos(wh * t)
+        tones = [(wl, -d.whisk_v * np.cos(wl * t), d.whisk_v * wl * np.sin(wl * t)),
+                 (wh, d.probe_v * np.sin(wh * t), d.probe_v * wh * np.cos(wh * t))]
         if n_lead:
-            e, de = lead_in(t, e, de, d.lead_s)
-        return e, de
+            tones = [(w, *lead_in(t, e, de, d.lead_s)) for w, e, de in tones]
+        return tones
+
+    def drive_voltage(self, lead: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """E (V) and dE/dt (V/s) at the samples, each ``(n_samples,)`` (with ``lead``: the
+        lead-in's samples first): the sum of :meth:`drive_tones`."""
+        (_, el, del_), (_, eh, deh) = self.drive_tones(lead)
+        return el + eh, del_ + deh
 
     def whisk_amplitude_m(self) -> float:
         """The tip's whisking amplitude HUE(0)·whisk_v of the calibrated model, m."""
@@ -182,6 +211,9 @@ class OnsetScene:
         k = np.exp(rng.uniform(*np.log(w.stiffness), n))
         c = rng.uniform(*w.damping, n)
         scale = 1 + self.calibration_error * rng.standard_normal(n)
+        scale = scale * a.effects.coupling_scale(n, rng)  # temperature drift
+        dac = a.effects.drive_scale(n, rng)  # the drive DAC's amplitude error
+        tones = self.drive_tones(lead=True)
         e, de = self.drive_voltage(lead=True)
         n_lead = len(e) - self.n_samples
         model = self.transducer()
@@ -192,19 +224,16 @@ class OnsetScene:
             sl = slice(start, min(n, start + batch))
             # no wall: one far beyond the reach (never touched: exactly the free answer)
             g = np.where(np.isnan(gap[sl]), 1.0, gap[sl])
-            out = model.simulate(e, dt, Wall(g, k[sl], c[sl]), drive_rate=de,
-                                 coupling_scale=scale[sl], record=("i",), dtype=np.float64)
+            amp = dac[sl, None] if a.effects.dac.on else np.ones((1, 1))  # (1, n): shared
+            out = model.simulate(amp * e, dt, Wall(g, k[sl], c[sl]), drive_rate=amp * de,
+                                 coupling_scale=scale[sl], record=("i",), dtype=np.float64,
+                                 tones=[(w, amp * x) for w, x, _ in tones])
             cur[sl] = out["i"][:, n_lead:]
             touching[sl] = out["contact"][:, n_lead:]
-        e = e[n_lead:]
-        e_rec = quantize(e[None] + a.e_noise_v * rng.standard_normal((n, len(e))),
-                         a.adc_bits, a.e_full_scale_v)
-        i_rec = quantize(cur + a.i_noise_a * rng.standard_normal(cur.shape), a.adc_bits,
-                         a.i_full_scale_a)
+        e_rec, i_rec = a.record(dac[:, None] * e[None, n_lead:], cur, model.capacitance, rng)
         onset, detach = self.contacts(touching)
-        return {"e": e_rec.astype(np.float32), "i": i_rec.astype(np.float32),
-                "gap": gap, "onset": onset, "detachment": detach, "stiffness": k,
-                "damping": c, "coupling": scale}
+        return {"e": e_rec, "i": i_rec, "gap": gap, "onset": onset, "detachment": detach,
+                "stiffness": k, "damping": c, "coupling": scale}
 
 
 def intervals(active: np.ndarray, rate: float, merge_s: float, max_count: int

@@ -1,5 +1,7 @@
 """The time-domain transducer: tied to the two-port path, to the beam, and to closed forms."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -220,3 +222,79 @@ def test_loads_refuse_bad_parameters():
     with pytest.raises(ValueError, match="drive: shape"):
         ModalTransducer.from_beam(build("micro"), 2).simulate(np.zeros((3, 4)), 1e-5,
                                                               Wall([1, 2], 1, 0))
+
+
+def test_dielectric_loss_current_is_omega_cp_tan_delta_e_at_every_drive_tone():
+    """Constant tanδ (physics.md §9): the loss current, the lossy model's current less the
+    lossless one's, is ``ω_k Cp tanδ E_k`` in phase with each tone (5 %), for the onset drive
+    (1 Hz whisk, 420 Hz probe, lead-in ramp) and the texture drive (35-37 Hz per record); not
+    one conductance ``ω_ref Cp tanδ`` for all (420× too much at the 1 Hz whisk)."""
+    from wtml.scenes.onset import OnsetScene
+    from wtml.scenes.texture import TextureScene
+    from wtml.signals import phasor_lsq
+
+    onset = OnsetScene()
+    model = onset.transducer()
+    lossless = dataclasses.replace(model, loss_tangent=0.0)
+    tones = onset.drive_tones(lead=True)
+    e, de = onset.drive_voltage(lead=True)
+    rate = onset.acquisition.sample_rate_hz
+    wall = Wall([1.0], 5.0, 1e-4)
+    loss = np.subtract(*(m.simulate(e, 1 / rate, wall, drive_rate=de, record=("i",),
+                                    dtype=np.float64, tones=[(w, x) for w, x, _ in tones])["i"]
+                         for m in (model, lossless)))[0]
+    n_lead = len(e) - onset.n_samples
+    t = onset.times()
+    cp_tan = model.capacitance * model.loss_tangent
+    for w, x, _ in tones:
+        got = phasor_lsq(loss[n_lead:], t, w / (2 * np.pi))
+        want = w * cp_tan * phasor_lsq(x[n_lead:], t, w / (2 * np.pi))
+        assert abs(got / want - 1) < 0.05, (w, got, want)
+    (w_whisk, e_whisk, _), (w_probe, e_probe, _) = tones
+    whisk = np.max(np.abs(loss[n_lead:] - w_probe * cp_tan * e_probe[n_lead:]))  # 1 Hz part
+    assert 0.8e-9 < whisk < 0.9e-9, whisk  # physics.md §9: 0.86 nA, not 360 nA
+
+    texture = TextureScene()
+    macro = texture.transducer()
+    hz, volts = np.array([35.0, 36.3, 37.0]), np.array([8.0, 10.0, 12.0])
+    e, de, n_lead = texture.drive_voltage(volts, hz)
+    rate = texture.acquisition.sample_rate_hz * texture.oversample
+    free = LinearTipLoad(np.zeros(3), np.zeros(3))
+    loss = np.subtract(*(m.simulate(e, 1 / rate, free, drive_rate=de, record=("i",),
+                                    dtype=np.float64, tones=[(2 * np.pi * hz, e)])["i"]
+                         for m in (macro, dataclasses.replace(macro, loss_tangent=0.0))))
+    t = np.arange(e.shape[1] - n_lead) / rate
+    for r in range(3):
+        got = phasor_lsq(loss[r, n_lead:], t, hz[r])
+        want = 2 * np.pi * hz[r] * macro.capacitance * macro.loss_tangent * phasor_lsq(
+            e[r, n_lead:], t, hz[r])
+        assert abs(got / want - 1) < 0.05, (hz[r], got, want)
+
+
+def test_the_loss_current_needs_tones_that_add_up_to_the_drive(micro):
+    fs = 26880
+    t = np.arange(200) / fs
+    e = 9.5 * np.sin(2 * np.pi * t) + 0.02 * np.cos(W_H * t)
+    with pytest.raises(ValueError, match="tones: the drive's tones"):
+        micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 0.0))
+    with pytest.raises(ValueError, match="tones: their sum differs"):
+        micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 0.0), tones=[(W_H, e - 1e-6)])
+    with pytest.raises(ValueError, match=r"tones\[0\] omega must be in"):
+        micro.loss_current(e, [(-1.0, e)])
+    micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 0.0), record=("u",))  # no current: no tones
+
+
+@pytest.mark.parametrize(("preset", "n_modes"), [("micro", 3), ("macro", 14)])
+def test_modal_ze_is_the_beams_up_to_the_damping_model_at_every_frequency(preset, n_modes):
+    """The dielectric part of the modal T is the beam's, Cp (1 - j tanδ), at every ω: what
+    is left of the free-tip Ze's difference from 1 Hz to 5 kHz is the damping model (§9: 1.3 %
+    at the micro preset's 420 Hz), not a conductance right at one frequency only."""
+    beam = build(preset)
+    model = ModalTransducer.from_beam(beam, n_modes)
+    w = 2 * np.pi * np.geomspace(1.0, 5000.0, 40)
+    tb, tm = beam.transduction_matrix(w), model.transduction_matrix(w)
+    err = np.abs(tm[:, 0, 1] / tm[:, 1, 1] / (tb[:, 0, 1] / tb[:, 1, 1]) - 1)
+    assert np.max(err) < 0.015, np.max(err)
+    assert err[0] < 3e-3  # at 1 Hz, where one conductance right at 420 Hz was 99 % off
+    np.testing.assert_allclose(model.capacitance * (1 - 1j * model.loss_tangent),
+                               complex(beam.capacitance), rtol=1e-12)

@@ -65,9 +65,9 @@ class Acquisition:
     effects: acq.AcquisitionEffects = field(default_factory=lambda: acq.AcquisitionEffects())
 
     def check(self, path: str) -> None:
-        if self.effects.base.on:
-            raise SceneError(f"{path + '.' if path else ''}effects.base.on: the scene does not "
-                             "move its object with the base yet; draw x_b(t) with "
+        if self.effects.base.enabled:
+            raise SceneError(f"{path + '.' if path else ''}effects.base.enabled: the scene "
+                             "does not move its object with the base yet; draw x_b(t) with "
                              "wtml.signals.acquisition.base_motion")
 
     def record(self, e, i, capacitance: float, rng: np.random.Generator
@@ -224,7 +224,7 @@ class OnsetScene:
             sl = slice(start, min(n, start + batch))
             # no wall: one far beyond the reach (never touched: exactly the free answer)
             g = np.where(np.isnan(gap[sl]), 1.0, gap[sl])
-            amp = dac[sl, None] if a.effects.dac.on else np.ones((1, 1))  # (1, n): shared
+            amp = dac[sl, None] if a.effects.dac.enabled else np.ones((1, 1))  # (1, n): shared
             out = model.simulate(amp * e, dt, Wall(g, k[sl], c[sl]), drive_rate=amp * de,
                                  coupling_scale=scale[sl], record=("i",), dtype=np.float64,
                                  tones=[(w, amp * x) for w, x, _ in tones])

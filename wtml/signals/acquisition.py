@@ -1,6 +1,6 @@
 """What a real acquisition adds to a time-domain scene's records (physics.md §12).
 
-Each effect has a physical parameter, not a bare noise level, and is switched by its ``on``:
+Each effect has a physical parameter, not a bare noise level, and is switched by its ``enabled``:
 
 - the current channel's I–V converter (:class:`IVConverter`): the feedback resistor's Johnson
   current noise ``4kT/R_f``, the op-amp's input current noise with a 1/f corner, and its input
@@ -41,7 +41,7 @@ class IVConverter:
     ``temperature_k`` (K), the op-amp's input current noise density i_n (A/√Hz, white above
     ``corner_hz``, ``i_n² (1 + f_c/f)`` below) and input voltage noise density e_n (V/√Hz)."""
 
-    on: bool = False
+    enabled: bool = False
     feedback_ohm: float = bounded(1e2, 1e12, default=1e7)
     temperature_k: float = bounded(1.0, 500.0, default=296.0)
     current_noise: float = bounded(0.0, 1e-9, default=0.8e-15)
@@ -69,7 +69,7 @@ class IVConverter:
 class ADCNoise:
     """The ADC's noise floor: ``dynamic_range_db`` below a full-scale sine (rms)."""
 
-    on: bool = False
+    enabled: bool = False
     dynamic_range_db: float = bounded(40.0, 200.0, default=118.0)
 
     def rms(self, full_scale: float) -> float:
@@ -83,7 +83,7 @@ class MainsHum:
     channel's full scale, and ``harmonics``: the 2nd, 3rd, ... harmonics' amplitudes relative
     to the fundamental."""
 
-    on: bool = False
+    enabled: bool = False
     mains_hz: float = bounded(50.0, 60.0, default=50.0)
     level: float = bounded(0.0, 0.1, default=3e-4)
     harmonics: tuple[float, ...] = bounded(0.0, 10.0, default=(0.04, 0.15, 0.04, 0.3))
@@ -102,7 +102,7 @@ class MainsHum:
 class DACError:
     """The drive DAC's amplitude error: a factor ``1 + N(0, amplitude_error)`` per record."""
 
-    on: bool = False
+    enabled: bool = False
     amplitude_error: float = bounded(0.0, 0.1, default=1e-3)
 
 
@@ -112,7 +112,7 @@ class CouplingDrift:
     std of each record's temperature offset from the calibration's (K): a factor
     ``1 + per_kelvin · N(0, temperature_k)`` on the coupling per record."""
 
-    on: bool = False
+    enabled: bool = False
     per_kelvin: float = bounded(0.0, 0.05, default=2e-3)
     temperature_k: float = bounded(0.0, 50.0, default=1.0)
 
@@ -122,7 +122,7 @@ class BaseMotion:
     """The object vibrating against the transducer's base: rms displacement (m) within the
     band ``band_hz`` (flat displacement density there, none outside)."""
 
-    on: bool = False
+    enabled: bool = False
     rms_m: float = bounded(0.0, 1e-2, default=0.8e-6)
     band_hz: tuple[float, float] = bounded(0.01, 1e5, default=(5.0, 20.0))
 
@@ -130,7 +130,7 @@ class BaseMotion:
 @dataclass(frozen=True)
 class AcquisitionEffects:
     """What a real acquisition adds (see the module docstring); each effect switched by its
-    ``on`` (all off by default: the ideal acquisition)."""
+    ``enabled`` (all off by default: the ideal acquisition)."""
 
     iv: IVConverter = field(default_factory=IVConverter)
     adc: ADCNoise = field(default_factory=ADCNoise)
@@ -147,19 +147,19 @@ class AcquisitionEffects:
         if unknown:
             raise ValueError(f"effects: unknown {sorted(unknown)}; choose from {self.NAMES}")
         return dataclasses.replace(self, **{n: dataclasses.replace(getattr(self, n),
-                                                                   on=n in names)
+                                                                   enabled=n in names)
                                             for n in self.NAMES})
 
     def drive_scale(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """Each record's drive amplitude over the commanded one (the DAC's error), ``(n,)``."""
-        if not self.dac.on:
+        if not self.dac.enabled:
             return np.ones(n)
         return 1 + self.dac.amplitude_error * rng.standard_normal(n)
 
     def coupling_scale(self, n: int, rng: np.random.Generator) -> np.ndarray:
         """Each record's piezo coupling over the calibrated one from temperature drift,
         ``(n,)``."""
-        if not self.drift.on:
+        if not self.drift.enabled:
             return np.ones(n)
         d = self.drift
         return 1 + d.per_kelvin * d.temperature_k * rng.standard_normal(n)
@@ -170,7 +170,7 @@ class AcquisitionEffects:
         the I–V converter's (transducer capacitance ``capacitance``, F), the ADC floor and
         hum for a full scale ``full_scale`` (A)."""
         out = np.zeros(shape)
-        if self.iv.on:
+        if self.iv.enabled:
             out += coloured_noise(lambda f: self.iv.density(f, capacitance), shape, rate, rng)
         return out + self._channel(shape, rate, full_scale, rng)
 
@@ -182,9 +182,9 @@ class AcquisitionEffects:
 
     def _channel(self, shape, rate, full_scale, rng) -> np.ndarray:
         out = np.zeros(shape)
-        if self.adc.on:
+        if self.adc.enabled:
             out += self.adc.rms(full_scale) * rng.standard_normal(shape)
-        if self.hum.on:
+        if self.hum.enabled:
             out += mains_hum(self.hum.mains_hz, full_scale * self.hum.amplitudes(), shape,
                              rate, rng)
         return out
@@ -192,7 +192,7 @@ class AcquisitionEffects:
     def base_motion(self, n: int, n_samples: int, rate: float, rng: np.random.Generator
                     ) -> np.ndarray:
         """x_b(t) of each record, m, ``(n, n_samples)`` (zeros when off)."""
-        if not self.base.on:
+        if not self.base.enabled:
             return np.zeros((n, n_samples))
         return base_motion(self.base.rms_m, self.base.band_hz, (n, n_samples), rate, rng)
 
@@ -222,11 +222,12 @@ def mains_hum(mains_hz: float, amplitudes, shape: tuple[int, int], rate: float,
     a = check_range("amplitudes", amplitudes, 0.0, np.inf, high_open=True)
     check_range("mains_hz", mains_hz, 0.0, rate / (2 * len(a)), unit="Hz", low_open=True,
                 high_open=True)
-    h = np.arange(1, len(a) + 1)
     t = np.arange(shape[1]) / rate
     phase = rng.uniform(0, 2 * np.pi, (shape[0], len(a)))
-    return np.einsum("h,nht->nt", a, np.sin(
-        2 * np.pi * mains_hz * h[None, :, None] * t + phase[:, :, None]))
+    out = np.zeros(shape)
+    for h, amp in enumerate(a):
+        out += amp * np.sin(2 * np.pi * mains_hz * (h + 1) * t + phase[:, h, None])
+    return out
 
 
 def base_motion(rms_m: float, band_hz: tuple[float, float], shape: tuple[int, int],

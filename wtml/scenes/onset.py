@@ -5,7 +5,11 @@ wall stands at g from the tip's rest position along the whisking direction, some
 the reachable range. The transducer is the modal model of the preset
 (``wtml.physics.modal``), the wall a unilateral spring-damper, stepped exactly at the sampling
 rate. Both channels go through a 24-bit ADC with noise (e in V; i through an I-V converter, so
-its full scale is in A).
+its full scale is in A), and what a real acquisition adds (``acquisition.effects``,
+:mod:`wtml.signals.acquisition`: the converter's noise, the ADC floor, mains hum, the drive
+DAC's amplitude error per record and the coupling's temperature drift, which multiplies the
+calibration error's factor in ``coupling``). The dielectric loss current is ``ω Cp tanδ E`` at
+each of the drive's two tones (:meth:`OnsetScene.drive_tones`).
 
 The drive is ``e = -AL cos(ωL t) + AH sin(ωH t)``: the whisk starts at its far end, so every
 contact lies inside the record. A lead-in of ``lead_s`` before t = 0, the drive raised from 0

@@ -11,8 +11,9 @@ Each specimen (``specimens_per_grade`` per grade per shard, so a shard's specime
 and a split by shard holds out specimens) draws its own Coulomb coefficient
 (``μ(d) + N(0, mu_spread)``), asperity factor (log-normal ``asperity_spread``), grain-size
 spread and grain positions. Each record draws the nuisance: whisking amplitude and frequency,
-N, θ, and the device's coupling (calibration error). Both channels go through a 24-bit ADC with
-noise; the current through an I-V converter.
+N, θ, and the device's coupling (calibration error, times the temperature drift of
+``acquisition.effects``). Both channels go through a 24-bit ADC with noise and the effects of
+:mod:`wtml.signals.acquisition`; the current through an I-V converter.
 
 ``grades: thesis`` holds the five sandpapers of the thesis as classes; ``grades: fepa`` the ten
 other FEPA P-grades (the regression test of unseen grain sizes; their class label is -1).

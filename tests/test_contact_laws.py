@@ -2,6 +2,8 @@
 impact, step halving, the numba stepper against a slow per-record reference, and the linear
 law against the exact switched wall."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -17,7 +19,9 @@ FS = 26880.0
 
 @pytest.fixture(scope="module")
 def micro():
-    return ModalTransducer.from_beam(build("micro"), 3, reference_hz=420.0)
+    """The micro preset's modal model without dielectric loss: the loss current is linear in E,
+    added after stepping (tested in test_modal), and has nothing to do with the wall."""
+    return dataclasses.replace(ModalTransducer.from_beam(build("micro"), 3), loss_tangent=0.0)
 
 
 def whisk(fs, seconds=0.05, whisk_hz=10.0):
@@ -188,7 +192,7 @@ def reference_steps(model, e, de, dt, wall):
             f = 0.0 if top <= 0 else brentq(residual, 0.0, top, xtol=1e-22, rtol=1e-15)
             x, u, v = outputs(f)
             cur = (model.coupling @ x[n_m:] + (model.capacitance + d_r) * de[k]
-                   + model.conductance * e[k] - b_r * (f - f_prev) / dt)
+                   - b_r * (f - f_prev) / dt)
             out[:, b, k], f_prev = (u, v, f, cur), f
     return out
 

@@ -13,7 +13,7 @@ F0, RATE = 36.0, 51200.0
 
 @pytest.fixture(scope="module")
 def macro() -> ModalTransducer:
-    return ModalTransducer.from_beam(build("macro"), 14, reference_hz=F0)
+    return ModalTransducer.from_beam(build("macro"), 14)
 
 
 def tone(rate: float, seconds: float = 1.0, volts: float = 10.0):
@@ -38,7 +38,8 @@ def test_coulomb_fundamental_is_the_describing_function(macro):
     t, e, de = tone(RATE)
     mu = np.array([0.3, 0.65, 0.8])
     load = Friction(mu, 3.3e-4, angle=0.0, slip_speed=2e-3)
-    out = macro.simulate(e, 1 / RATE, load, drive_rate=de, dtype=np.float64)
+    out = macro.simulate(e, 1 / RATE, load, drive_rate=de, dtype=np.float64,
+                         tones=[(2 * np.pi * F0, e)])
     v, f = phasor(out["v"], t), phasor(out["force"], t)
     zm = f / v
     expected = describing_function(load.coulomb, np.abs(v))
@@ -51,7 +52,8 @@ def test_energy_per_cycle_is_the_friction_work_and_the_power_through_t(macro):
     (Coulomb) and the mechanical power that T gives from the electrical phasors alone."""
     t, e, de = tone(RATE)
     load = Friction([0.5, 0.8], 3.3e-4, angle=np.deg2rad(10), slip_speed=1e-3, viscous=2e-4)
-    out = macro.simulate(e, 1 / RATE, load, drive_rate=de, dtype=np.float64)
+    out = macro.simulate(e, 1 / RATE, load, drive_rate=de, dtype=np.float64,
+                         tones=[(2 * np.pi * F0, e)])
     period = int(round(RATE / F0 * 9))  # 9 whole cycles (36 Hz · 0.25 s)
     sl = slice(len(t) - period, len(t))
     work = np.sum(out["force"][:, sl] * out["v"][:, sl], axis=1) / RATE
@@ -79,7 +81,8 @@ def test_halving_the_step_moves_the_phasors_less_than_the_noise(macro):
     for rate in (step_rate, 2 * step_rate):
         t, e, de = tone(rate)
         load = Friction([0.65, 0.7, 0.8], 3.3e-4, np.deg2rad(10), 0.01, 0.0, pos, imp)
-        out = macro.simulate(e, 1 / rate, load, drive_rate=de, dtype=np.float64)
+        out = macro.simulate(e, 1 / rate, load, drive_rate=de, dtype=np.float64,
+                         tones=[(2 * np.pi * F0, e)])
         answers.append(phasor(out["i"], t))
     window = int(0.25 * scene.acquisition.sample_rate_hz)
     noise = scene.acquisition.i_noise_a * np.sqrt(2 / window)  # std of a phasor, A
@@ -90,8 +93,9 @@ def test_halving_the_step_moves_the_phasors_less_than_the_noise(macro):
 
 def test_no_friction_and_no_grains_is_the_free_transducer(macro):
     t, e, de = tone(RATE, 0.2)
-    none = macro.simulate(e, 1 / RATE, Friction([0.0], 3.3e-4), drive_rate=de)
-    free = macro.simulate(e, 1 / RATE, LinearTipLoad([0.0], [0.0]), drive_rate=de)
+    tones = [(2 * np.pi * F0, e)]
+    none = macro.simulate(e, 1 / RATE, Friction([0.0], 3.3e-4), drive_rate=de, tones=tones)
+    free = macro.simulate(e, 1 / RATE, LinearTipLoad([0.0], [0.0]), drive_rate=de, tones=tones)
     for key in ("u", "v", "i"):
         np.testing.assert_array_equal(none[key], free[key])
 

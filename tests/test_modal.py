@@ -1,5 +1,7 @@
 """The time-domain transducer: tied to the two-port path, to the beam, and to closed forms."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -12,7 +14,7 @@ W_H = 2 * np.pi * 420.0
 
 @pytest.fixture(scope="module")
 def micro():
-    return ModalTransducer.from_beam(build("micro"), 3, reference_hz=420.0)
+    return ModalTransducer.from_beam(build("micro"), 3)
 
 
 def tone_phasors(model, load, fs, periods=21, settle=0.8):
@@ -21,7 +23,7 @@ def tone_phasors(model, load, fs, periods=21, settle=0.8):
     dt = 1 / fs
     t = np.arange(int(round((settle + periods / 420) * fs))) * dt
     e, de = 0.02 * np.cos(W_H * t), -0.02 * W_H * np.sin(W_H * t)
-    out = model.simulate(e, dt, load, drive_rate=de, dtype=np.float64)
+    out = model.simulate(e, dt, load, drive_rate=de, dtype=np.float64, tones=[(W_H, e)])
     n = int(round(periods / 420 * fs))
     keep = np.arange(len(t))[-n:]
     ref = np.exp(-1j * W_H * t[keep])
@@ -105,9 +107,11 @@ def test_static_residuals_match_50_digit_modes_and_are_never_negative(preset):
 def test_a_wall_never_reached_gives_exactly_the_linear_answer(micro):
     fs = 26880
     t = np.arange(4000) / fs
-    e = 9.5 * np.cos(2 * np.pi * t) + 0.02 * np.cos(W_H * t)
-    free = micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 1e-4), dtype=np.float64)
-    linear = micro.simulate(e, 1 / fs, LinearTipLoad([0.0], [0.0]), dtype=np.float64)
+    tones = [(2 * np.pi, 9.5 * np.cos(2 * np.pi * t)), (W_H, 0.02 * np.cos(W_H * t))]
+    e = tones[0][1] + tones[1][1]
+    free = micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 1e-4), dtype=np.float64, tones=tones)
+    linear = micro.simulate(e, 1 / fs, LinearTipLoad([0.0], [0.0]), dtype=np.float64,
+                            tones=tones)
     assert not free["contact"].any()
     for key in ("u", "i", "v"):
         np.testing.assert_array_equal(free[key], linear[key])
@@ -148,14 +152,16 @@ def test_eigenbasis_stepper_equals_dense_stepping_through_contacts(n_modes):
     """The stepper (each regime diagonal, a change of basis at every switch) against the dense
     exact maps stepped one by one: the same contacts at the same samples, the same outputs to
     rounding, for stiff and soft, damped and undamped walls, touched on many probe peaks."""
-    model = ModalTransducer.from_beam(build("micro"), n_modes, reference_hz=420.0)
+    model = ModalTransducer.from_beam(build("micro"), n_modes)
     fs = 26880
     t = np.arange(int(0.12 * fs)) / fs
-    e = 9.5 * np.sin(2 * np.pi * t) + 0.02 * np.cos(W_H * t)
+    tones = [(2 * np.pi, 9.5 * np.sin(2 * np.pi * t)), (W_H, 0.02 * np.cos(W_H * t))]
+    e = tones[0][1] + tones[1][1]
     de = 9.5 * 2 * np.pi * np.cos(2 * np.pi * t) - 0.02 * W_H * np.sin(W_H * t)
     wall = Wall([2e-6, 4.5e-6, -0.1e-6, 1.0], [5.0, 3.0, 8.0, 5.0], [1e-4, 0.0, 3e-4, 1e-4])
     ref, ref_contact = dense_steps(model, e, de, 1 / fs, wall)
-    got = model.simulate(e, 1 / fs, wall, drive_rate=de, dtype=np.float64)
+    ref[3] += model.loss_current(e, tones)  # added after stepping, whatever the stepper
+    got = model.simulate(e, 1 / fs, wall, drive_rate=de, dtype=np.float64, tones=tones)
     switches = np.abs(np.diff(ref_contact.astype(int))).sum(1)
     assert switches[0] > 4 and switches[1] > 2 and switches[3] == 0, switches
     np.testing.assert_array_equal(got["contact"], ref_contact)
@@ -168,9 +174,11 @@ def test_the_answer_does_not_depend_on_the_threads():
     model = ModalTransducer.from_beam(build("micro"), 3)
     fs = 26880
     t = np.arange(2000) / fs
-    e = 9.5 * np.sin(2 * np.pi * t) + 0.02 * np.cos(W_H * t)
+    tones = [(2 * np.pi, 9.5 * np.sin(2 * np.pi * t)), (W_H, 0.02 * np.cos(W_H * t))]
+    e = tones[0][1] + tones[1][1]
     gaps = np.linspace(0.2e-6, 3e-6, 70)
-    one, two = (model.simulate(e, 1 / fs, Wall(gaps, 5.0, 1e-4), threads=n) for n in (1, 2))
+    one, two = (model.simulate(e, 1 / fs, Wall(gaps, 5.0, 1e-4), threads=n, tones=tones)
+                for n in (1, 2))
     assert one["contact"].any()
     for key in one:
         np.testing.assert_array_equal(one[key], two[key])
@@ -214,3 +222,79 @@ def test_loads_refuse_bad_parameters():
     with pytest.raises(ValueError, match="drive: shape"):
         ModalTransducer.from_beam(build("micro"), 2).simulate(np.zeros((3, 4)), 1e-5,
                                                               Wall([1, 2], 1, 0))
+
+
+def test_dielectric_loss_current_is_omega_cp_tan_delta_e_at_every_drive_tone():
+    """Constant tanδ (physics.md §9): the loss current, the lossy model's current less the
+    lossless one's, is ``ω_k Cp tanδ E_k`` in phase with each tone (5 %), for the onset drive
+    (1 Hz whisk, 420 Hz probe, lead-in ramp) and the texture drive (35-37 Hz per record); not
+    one conductance ``ω_ref Cp tanδ`` for all (420× too much at the 1 Hz whisk)."""
+    from wtml.scenes.onset import OnsetScene
+    from wtml.scenes.texture import TextureScene
+    from wtml.signals import phasor_lsq
+
+    onset = OnsetScene()
+    model = onset.transducer()
+    lossless = dataclasses.replace(model, loss_tangent=0.0)
+    tones = onset.drive_tones(lead=True)
+    e, de = onset.drive_voltage(lead=True)
+    rate = onset.acquisition.sample_rate_hz
+    wall = Wall([1.0], 5.0, 1e-4)
+    loss = np.subtract(*(m.simulate(e, 1 / rate, wall, drive_rate=de, record=("i",),
+                                    dtype=np.float64, tones=[(w, x) for w, x, _ in tones])["i"]
+                         for m in (model, lossless)))[0]
+    n_lead = len(e) - onset.n_samples
+    t = onset.times()
+    cp_tan = model.capacitance * model.loss_tangent
+    for w, x, _ in tones:
+        got = phasor_lsq(loss[n_lead:], t, w / (2 * np.pi))
+        want = w * cp_tan * phasor_lsq(x[n_lead:], t, w / (2 * np.pi))
+        assert abs(got / want - 1) < 0.05, (w, got, want)
+    (w_whisk, e_whisk, _), (w_probe, e_probe, _) = tones
+    whisk = np.max(np.abs(loss[n_lead:] - w_probe * cp_tan * e_probe[n_lead:]))  # 1 Hz part
+    assert 0.8e-9 < whisk < 0.9e-9, whisk  # physics.md §9: 0.86 nA, not 360 nA
+
+    texture = TextureScene()
+    macro = texture.transducer()
+    hz, volts = np.array([35.0, 36.3, 37.0]), np.array([8.0, 10.0, 12.0])
+    e, de, n_lead = texture.drive_voltage(volts, hz)
+    rate = texture.acquisition.sample_rate_hz * texture.oversample
+    free = LinearTipLoad(np.zeros(3), np.zeros(3))
+    loss = np.subtract(*(m.simulate(e, 1 / rate, free, drive_rate=de, record=("i",),
+                                    dtype=np.float64, tones=[(2 * np.pi * hz, e)])["i"]
+                         for m in (macro, dataclasses.replace(macro, loss_tangent=0.0))))
+    t = np.arange(e.shape[1] - n_lead) / rate
+    for r in range(3):
+        got = phasor_lsq(loss[r, n_lead:], t, hz[r])
+        want = 2 * np.pi * hz[r] * macro.capacitance * macro.loss_tangent * phasor_lsq(
+            e[r, n_lead:], t, hz[r])
+        assert abs(got / want - 1) < 0.05, (hz[r], got, want)
+
+
+def test_the_loss_current_needs_tones_that_add_up_to_the_drive(micro):
+    fs = 26880
+    t = np.arange(200) / fs
+    e = 9.5 * np.sin(2 * np.pi * t) + 0.02 * np.cos(W_H * t)
+    with pytest.raises(ValueError, match="tones: the drive's tones"):
+        micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 0.0))
+    with pytest.raises(ValueError, match="tones: their sum differs"):
+        micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 0.0), tones=[(W_H, e - 1e-6)])
+    with pytest.raises(ValueError, match=r"tones\[0\] omega must be in"):
+        micro.loss_current(e, [(-1.0, e)])
+    micro.simulate(e, 1 / fs, Wall([1.0], 5.0, 0.0), record=("u",))  # no current: no tones
+
+
+@pytest.mark.parametrize(("preset", "n_modes"), [("micro", 3), ("macro", 14)])
+def test_modal_ze_is_the_beams_up_to_the_damping_model_at_every_frequency(preset, n_modes):
+    """The dielectric part of the modal T is the beam's, Cp (1 - j tanδ), at every ω: what
+    is left of the free-tip Ze's difference from 1 Hz to 5 kHz is the damping model (§9: 1.3 %
+    at the micro preset's 420 Hz), not a conductance right at one frequency only."""
+    beam = build(preset)
+    model = ModalTransducer.from_beam(beam, n_modes)
+    w = 2 * np.pi * np.geomspace(1.0, 5000.0, 40)
+    tb, tm = beam.transduction_matrix(w), model.transduction_matrix(w)
+    err = np.abs(tm[:, 0, 1] / tm[:, 1, 1] / (tb[:, 0, 1] / tb[:, 1, 1]) - 1)
+    assert np.max(err) < 0.015, np.max(err)
+    assert err[0] < 3e-3  # at 1 Hz, where one conductance right at 420 Hz was 99 % off
+    np.testing.assert_allclose(model.capacitance * (1 - 1j * model.loss_tangent),
+                               complex(beam.capacitance), rtol=1e-12)

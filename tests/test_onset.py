@@ -242,8 +242,10 @@ def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_pa
              sample_rate_hz=2 * rate)
     x = read_record(double, rate, scene.n_samples)
     assert x.shape == (2, 1, scene.n_samples)
+    # 3e-3 of the peak current, 0.2 nA: the peak is 67 nA since the dielectric loss is right
+    # at the 1 Hz whisk (it was 380 nA, and 2e-3 of it 0.76 nA)
     np.testing.assert_allclose(x[1, 0, 2000:-2000], rec["i"][0, 2000:-2000],
-                               atol=2e-3 * np.abs(rec["i"]).max())
+                               atol=3e-3 * np.abs(rec["i"]).max())
     odd = tmp_path / "odd.npz"
     np.savez(odd, e=rec["e"][0], i=rec["i"][0], sample_rate_hz=rate * np.pi / 3)
     with pytest.raises(InputError, match="not a ratio of whole numbers"):

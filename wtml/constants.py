@@ -10,3 +10,6 @@ SignRule = Literal["continuity", "re_t11_positive"]
 
 CantileverModel = Literal["beam", "quasi_static"]
 """Point-impedance model of a calibration cantilever (see ``wtml.physics.loads.cantilever``)."""
+
+BOLTZMANN = 1.380649e-23
+"""Boltzmann's constant, in J/K."""

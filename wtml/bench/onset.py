@@ -162,7 +162,8 @@ def cramer_rao_bound(scene, labels: dict, *, upsample: int = 4, step_m: float = 
     p = shifted.reshape(-1, 4)
     cur = scene.transducer().simulate(
         e, 1 / fine.acquisition.sample_rate_hz, Wall(p[:, 0], p[:, 1], p[:, 2]),
-        drive_rate=de, coupling_scale=p[:, 3], record=("i",), dtype=np.float64)["i"]
+        drive_rate=de, coupling_scale=p[:, 3], record=("i",), dtype=np.float64,
+        tones=[(w, x) for w, x, _ in fine.drive_tones(lead=True)])["i"]
     cur = cur[:, n_lead::upsample].reshape(len(theta), 2, 4, -1)
     grad = (cur[:, 0] - cur[:, 1]) / (2 * h[:, :, None])
     fisher = np.einsum("njt,nkt->njk", grad, grad) / var
@@ -246,6 +247,7 @@ def simulator_speed(scene, records: int = 64, modes=(None, 6), repeats: int = 3)
     one run, the median of ``repeats``. ``per_core`` is the real-time factor over the threads."""
     rate = scene.acquisition.sample_rate_hz
     e, de = scene.drive_voltage(lead=True)
+    tones = [(w, x) for w, x, _ in scene.drive_tones(lead=True)]
     lo, hi = scene.gap_range_m()
     wall = Wall(np.random.default_rng(0).uniform(lo, hi, records), 5.0, 1e-4)
     cores = available_cores()
@@ -255,7 +257,7 @@ def simulator_speed(scene, records: int = 64, modes=(None, 6), repeats: int = 3)
         for threads in sorted({1, cores}):
             def run(model=model, threads=threads):
                 model.simulate(e, 1 / rate, wall, drive_rate=de, record=("i",),
-                               threads=threads)
+                               threads=threads, tones=tones)
             wall_s = _timed(run, repeats=repeats)
             factor = records * len(e) / rate / wall_s
             rows.append({"modes": model.n_modes, "threads": threads, "records": records,

@@ -73,7 +73,7 @@ class ModalT(nn.Module):
         a_r, b_r, d_r = model.residual
         self.a_r, self.b_r = float(a_r), float(b_r)
         self.d_r = float(d_r) + float(model.capacitance)
-        self.g = float(model.conductance)
+        self.loss = float(model.capacitance * model.loss_tangent)  # -Im of Cp (1 - j tanδ)
         # forms scaled to O(1) in float32: a in m/N, beta in m/V, delta in F
         self.sa, self.sb, self.sd = 1e-3, 1e-6, 1e-8
 
@@ -90,7 +90,7 @@ class ModalT(nn.Module):
         b_re = (h_re * tc).sum(-1) / self.sb + self.b_r / self.sb
         b_im = (h_im * tc).sum(-1) / self.sb
         d_re = (h_re * self.coupling**2).sum(-1) / self.sd + self.d_r / self.sd
-        d_im = (h_im * self.coupling**2).sum(-1) / self.sd - self.g / (w * self.sd)
+        d_im = (h_im * self.coupling**2).sum(-1) / self.sd - self.loss / self.sd
         bb = b_re**2 + b_im**2
 
         def div(x_re, x_im):  # x / beta

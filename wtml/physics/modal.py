@@ -4,15 +4,19 @@ Mass-normalised modes of the short-circuited beam with a free tip, the n lowest 
 static correction of the truncated ones (mode-acceleration method)::
 
     q'' + 2ζΩ q' + Ω² q = φθ E - φb F
-    u = φb·q - a_r F + β_r E,      Q = φθ·q - β_r F + (Cp + δ_r) E,      I = Q' + G E
+    u = φb·q - a_r F + β_r E,      Q = φθ·q - β_r F + (Cp + δ_r) E,      I = Q' + I_loss
 
 with ``φb = bᵀΦ`` (the modes at the tip), ``φθ = ΘᵀΦ`` (their coupling) and the residuals
 ``a_r, β_r, δ_r`` of ``K⁻¹ - ΦΩ⁻²Φᵀ`` (summed over the truncated modes), so that HUE(0) does
 not depend on n (it is the beam's to the eigensolver's ~1e-8). Damping: modal
 viscous ``ζ_i = η_i/2`` from each mode's loss factor (the beam's complex modulus has no causal
-time-domain form); dielectric loss: a conductance ``G = ω_ref Cp tanδ``, exact at ``ω_ref``.
-The two damping models differ off resonance (1.3 % in the micro preset's free-tip Ze at
-420 Hz), so a time-domain scene's true T is :meth:`ModalTransducer.transduction_matrix`.
+time-domain form). Dielectric loss: a constant tanδ, ``Cp (1 - j tanδ)`` at every ω in T,
+and in the time domain a loss current ``ω Cp tanδ E`` in phase with each tone of the drive
+(:meth:`ModalTransducer.loss_current`): a conductance that grows with frequency, not one
+conductance exact at one frequency only (physics.md §9). It is linear in E and depends on no
+state, so it is added to the current after stepping, whatever the stepper. The two damping
+models differ off resonance (1.3 % in the micro preset's free-tip Ze at 420 Hz), so a
+time-domain scene's true T is :meth:`ModalTransducer.transduction_matrix`.
 
 Loads at the tip (:class:`TipLoad`) are piecewise linear: each is a linear force law
 ``F = k (u - g) + c u'`` while engaged and 0 while not, with a rule for switching. Between
@@ -57,7 +61,7 @@ class ModalTransducer(Structure):
         coupling: φθ, their electromechanical coupling, N/(V·√kg), shape ``(n,)``.
         residual: ``(a_r m/N, β_r m/V, δ_r F)`` of the truncated modes.
         capacitance: clamped capacitance Cp (real), F.
-        conductance: dielectric-loss conductance G, S.
+        loss_tangent: the dielectric's tanδ (constant in ω): ``Cp (1 - j tanδ)``.
     """
 
     omega_n: np.ndarray
@@ -66,7 +70,7 @@ class ModalTransducer(Structure):
     coupling: np.ndarray
     residual: tuple[float, float, float] = (0.0, 0.0, 0.0)
     capacitance: float = 0.0
-    conductance: float = 0.0
+    loss_tangent: float = 0.0
 
     def __post_init__(self) -> None:
         n = np.shape(self.omega_n)
@@ -79,21 +83,20 @@ class ModalTransducer(Structure):
         check_range("zeta", self.zeta, 0.0, 1.0)
         check_range("residual a_r", self.residual[0], 0.0, np.inf, unit="m/N", high_open=True)
         check_range("capacitance", self.capacitance, 0.0, np.inf, unit="F", high_open=True)
+        check_range("loss_tangent", self.loss_tangent, 0.0, 1.0)
 
     @property
     def n_modes(self) -> int:
         return len(self.omega_n)
 
     @classmethod
-    def from_beam(cls, beam: BeamTransducer, n_modes: int = 3,
-                  reference_hz: float | None = None) -> ModalTransducer:
-        """The ``n_modes`` lowest modes of ``beam`` with static correction.
+    def from_beam(cls, beam: BeamTransducer, n_modes: int = 3) -> ModalTransducer:
+        """The ``n_modes`` lowest modes of ``beam`` with static correction, and the beam's
+        clamped capacitance ``Cp (1 - j tanδ)``.
 
         Args:
             beam: the full model.
             n_modes: modes kept, 1 to the beam's number of DOFs.
-            reference_hz: where the dielectric conductance equals the beam's loss
-                ``ω Cp tanδ`` (default: the first natural frequency).
         """
         k, m, theta = beam.matrices()
         n_dof = len(theta)
@@ -109,9 +112,8 @@ class ModalTransducer(Structure):
         omega = np.sqrt(w2)
         eta = np.einsum("ji,jk,ki->i", phi, k.imag, phi) / w2
         cp = complex(beam.capacitance)
-        w_ref = 2 * np.pi * reference_hz if reference_hz else omega[0]
         return cls(omega, eta / 2, at_tip[kept], coupled[kept], residual, cp.real,
-                   -w_ref * cp.imag)
+                   -cp.imag / cp.real)
 
     def with_coupling(self, scale: float) -> ModalTransducer:
         """The same structure with its piezo coupling scaled by ``scale`` (a device whose
@@ -119,7 +121,7 @@ class ModalTransducer(Structure):
         a_r, b_r, d_r = self.residual
         return ModalTransducer(self.omega_n, self.zeta, self.tip, self.coupling * scale,
                                (a_r, b_r * scale, d_r * scale**2), self.capacitance,
-                               self.conductance)
+                               self.loss_tangent)
 
     def _forms(self, omega: np.ndarray):
         w = omega[..., None]
@@ -127,8 +129,7 @@ class ModalTransducer(Structure):
         a_r, b_r, d_r = self.residual
         a = h @ self.tip**2 + a_r
         beta = h @ (self.tip * self.coupling) + b_r
-        delta = (h @ self.coupling**2 + d_r + self.capacitance
-                 + self.conductance / (1j * omega))
+        delta = h @ self.coupling**2 + d_r + self.capacitance * (1 - 1j * self.loss_tangent)
         return a, beta, delta
 
     def transduction_matrix(self, omega) -> np.ndarray:
@@ -148,7 +149,8 @@ class ModalTransducer(Structure):
         The state is ``x = [q (n), q' (n), F]``; the augmented vector is
         ``z = [x, E_k, Ė_k, g, Ė_out]`` (``Ė_k`` the drive's slope over the step, ``Ė_out`` its
         rate at the sample, for the outputs). Returns ``M`` of shape ``(B, 2n+1+4, 2n+5)``:
-        its first ``2n+1`` rows give ``x_{k+1}``, the last four give ``(u, u', F, i)`` at k.
+        its first ``2n+1`` rows give ``x_{k+1}``, the last four give ``(u, u', F, i)`` at k
+        (``i`` without the dielectric loss current, which :meth:`simulate` adds).
 
         Args:
             dt: the step, s.
@@ -212,15 +214,41 @@ class ModalTransducer(Structure):
         cur = np.zeros((bsz, nz))
         cur[:, iv] = self.coupling * s
         cur[:, i_de] = self.capacitance + d_r * s[:, 0] ** 2
-        cur[:, i_e] = self.conductance
         out[:, 3] = cur - b_r[:, None] * dforce
         # at the sample the outputs use the drive's rate there, not the step's slope
         out[..., i_do], out[..., i_de] = out[..., i_de], 0.0
         return np.concatenate([step, out], axis=1)
 
+    def loss_current(self, drive, tones) -> np.ndarray:
+        """The dielectric loss current (A) of constant tanδ, the part of ``jω Cp (1 - j tanδ) E``
+        in phase with E: ``Σ_k ω_k Cp tanδ E_k(t)`` for a drive that is a sum of tones E_k.
+
+        Args:
+            drive: E in V at the sample instants, shape ``(..., n_steps)``.
+            tones: the drive as a sum of tones, each ``(omega, samples)``: ω in rad/s (scalar,
+                or per record ``(B,)``) and that tone's E in V (ramps and amplitude errors
+                included), broadcastable to ``drive``; their sum must be the drive.
+
+        Returns:
+            shape of ``drive`` (tones broadcast against it), A.
+        """
+        e = np.asarray(drive, dtype=float)
+        total, loss = np.zeros(e.shape), np.zeros(e.shape)
+        for k, (omega, samples) in enumerate(tones):
+            w = np.asarray(omega, dtype=float)
+            check_range(f"tones[{k}] omega", w, 0.0, np.inf, unit="rad/s", high_open=True)
+            w = w[..., None] if w.ndim else w  # per record: (B, 1)
+            x = np.asarray(samples, dtype=float)
+            total, loss = total + x, loss + w * x
+        off = float(np.max(np.abs(total - e), initial=0.0))
+        if not off <= 1e-9 * float(np.max(np.abs(e), initial=0.0)):
+            raise ValueError(f"tones: their sum differs from the drive by up to {off:.3g} V; "
+                             "they must add up to it")
+        return self.capacitance * self.loss_tangent * loss
+
     def simulate(self, drive, dt: float, load: TipLoad, *, drive_rate=None, coupling_scale=1.0,
                  record: tuple[str, ...] = OUTPUTS, dtype=np.float32,
-                 threads: int | None = None) -> dict[str, np.ndarray]:
+                 threads: int | None = None, tones=None) -> dict[str, np.ndarray]:
         """Step the transducer from rest under the voltage ``drive`` with ``load`` at the tip.
 
         Args:
@@ -237,6 +265,9 @@ class ModalTransducer(Structure):
             dtype: of the returned arrays.
             threads: records are stepped in blocks on this many threads (default: every core
                 this process may use); the answer does not depend on it.
+            tones: the drive as a sum of known tones ``[(omega, samples), ...]`` (see
+                :meth:`loss_current`), for the dielectric loss current; required to record
+                ``i`` from a lossy model (``loss_tangent > 0``), which has no one conductance.
 
         Returns:
             each recorded output, shape ``(B, n_steps)``, and ``contact`` (bool, same shape):
@@ -264,19 +295,28 @@ class ModalTransducer(Structure):
             de_out = np.broadcast_to(np.asarray(drive_rate, dtype=float), e.shape)
         de_step = np.diff(e, axis=1, append=e[:, -1:]) / dt
         cols = np.array([OUTPUTS.index(r) for r in record])
+        loss = None
+        if "i" in record and self.loss_tangent > 0:  # checked before stepping
+            if tones is None:
+                raise ValueError("tones: the drive's tones [(omega, samples), ...] are needed "
+                                 "for the dielectric loss current (ω Cp tanδ E at each tone) "
+                                 "when recording i of a lossy model")
+            loss = self.loss_current(e, tones)
         if getattr(load, "implicit", False):  # a contact law: solved at every step
             from wtml.physics.contact import simulate_contact
 
             values, contact = simulate_contact(self, e, de_step, de_out, dt, load,
                                                coupling_scale, cols, dtype, threads)
-            return {**dict(zip(record, values, strict=True)), "contact": contact}
+            return _with_loss({**dict(zip(record, values, strict=True)), "contact": contact},
+                              loss)
         if getattr(load, "smooth", False):  # friction: evaluated once per step
             from wtml.physics.friction import simulate_friction
 
             values = simulate_friction(self, e, de_step, de_out, dt, load, coupling_scale, cols,
                                        dtype, threads)
-            return {**dict(zip(record, values, strict=True)),
-                    "contact": np.ones((bsz, n_steps), bool)}
+            out = {**dict(zip(record, values, strict=True)),
+                   "contact": np.ones((bsz, n_steps), bool)}
+            return _with_loss(out, loss)
         free = _eigenbasis(self.step_matrices(dt, np.zeros(bsz), np.zeros(bsz), coupling_scale))
         engaged = _eigenbasis(self.step_matrices(dt, load.stiffness, load.damping,
                                                  coupling_scale))
@@ -297,7 +337,15 @@ class ModalTransducer(Structure):
             list(pool.map(step, blocks))
         out = dict(zip(record, values, strict=True))
         out["contact"] = contact
-        return out
+        return _with_loss(out, loss)
+
+
+def _with_loss(out: dict[str, np.ndarray], loss: np.ndarray | None) -> dict[str, np.ndarray]:
+    """``out`` of a stepper with the dielectric loss current ``loss`` (A, broadcast to the
+    records) added to its current (:meth:`ModalTransducer.loss_current`)."""
+    if loss is not None:
+        out["i"] = (out["i"] + loss).astype(out["i"].dtype)
+    return out
 
 
 class TipLoad(ABC):

@@ -90,6 +90,10 @@ def _convert(path: str, hint: Any, value: Any, meta: Mapping) -> Any:
             allowed = f"one of {list(choices)}" if choices else "a string"
             raise SceneError(f"{path}: must be {allowed}, got {value!r}")
         return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise SceneError(f"{path}: must be true or false, got {value!r}")
+        return value
     if hint in (int, float):
         low, high = meta.get("range", (-float("inf"), float("inf")))
         return _check_number(path, value, low, high, hint)

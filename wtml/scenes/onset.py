@@ -4,9 +4,13 @@ The micro WT whisks at 1 Hz (9.5 V) with a 420 Hz probe (20 mV) on top, two whis
 wall stands at g from the tip's rest position along the whisking direction, somewhere across
 the reachable range. The transducer is the modal model of the preset
 (``wtml.physics.modal``), the wall a unilateral spring-damper, stepped exactly at the sampling
-rate, or a contact law of the family drawn per record (``wall.law``, ``wtml.physics.contact``),
-stepped implicitly. Both channels go through a 24-bit ADC with noise (e in V; i through an
-I-V converter, so its full scale is in A).
+rate, or a contact law of the family drawn per record (``wall.law``,
+``wtml.physics.contact``), stepped implicitly. Both channels go through a 24-bit ADC with noise
+(e in V; i through an I-V converter, so its full scale is in A), and what a real acquisition
+adds (``acquisition.effects``, :mod:`wtml.signals.acquisition`: the converter's noise, the ADC
+floor, mains hum, the drive DAC's amplitude error per record and the coupling's temperature
+drift, which multiplies the calibration error's factor in ``coupling``). The dielectric loss
+current is ``ω Cp tanδ E`` at each of the drive's two tones (:meth:`OnsetScene.drive_tones`).
 
 The drive is ``e = -AL cos(ωL t) + AH sin(ωH t)``: the whisk starts at its far end, so every
 contact lies inside the record. A lead-in of ``lead_s`` before t = 0, the drive raised from 0
@@ -29,6 +33,7 @@ from typing import ClassVar
 
 import numpy as np
 
+import wtml.signals.acquisition as acq  # as a module: it imports wtml.scenes.config
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import PRESETS, build
 from wtml.physics.contact import (
@@ -60,7 +65,9 @@ class OnsetDrive:
 @dataclass(frozen=True)
 class Acquisition:
     """Sampling rate (Hz; also the simulation step), ADC bits, full scales of the voltage (V)
-    and current (A) channels, and white noise on each (V rms, A rms)."""
+    and current (A) channels, white noise on each (V rms, A rms), and what a real acquisition
+    adds (``effects``: :class:`wtml.signals.acquisition.AcquisitionEffects`, all off unless
+    the scene's YAML switches them on)."""
 
     sample_rate_hz: float = bounded(1e3, 1e7, default=26880.0)
     adc_bits: int = bounded(8, 32, default=24)
@@ -68,6 +75,27 @@ class Acquisition:
     i_full_scale_a: float = bounded(1e-12, 1.0, default=1e-6)
     e_noise_v: float = bounded(0.0, 1.0, default=1e-6)
     i_noise_a: float = bounded(0.0, 1e-3, default=1e-12)
+    effects: acq.AcquisitionEffects = field(default_factory=lambda: acq.AcquisitionEffects())
+
+    def check(self, path: str) -> None:
+        if self.effects.base.enabled:
+            raise SceneError(f"{path + '.' if path else ''}effects.base.enabled: the scene "
+                             "does not move its object with the base yet; draw x_b(t) with "
+                             "wtml.signals.acquisition.base_motion")
+
+    def record(self, e, i, capacitance: float, rng: np.random.Generator
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """The two channels as recorded, float32 ``(n, n_samples)``: ``e`` (V, broadcast to
+        ``i``'s shape) and ``i`` (A, ``(n, n_samples)``) with the white noise, the effects'
+        noise (the transducer's capacitance ``capacitance``, F) and the ADC's quantisation."""
+        fx, shape = self.effects, np.shape(i)
+        e_noise = self.e_noise_v * rng.standard_normal(shape)
+        i_noise = self.i_noise_a * rng.standard_normal(shape)
+        e_noise += fx.voltage_noise(shape, self.sample_rate_hz, self.e_full_scale_v, rng)
+        i_noise += fx.current_noise(shape, self.sample_rate_hz, capacitance,
+                                    self.i_full_scale_a, rng)
+        return (quantize(e + e_noise, self.adc_bits, self.e_full_scale_v).astype(np.float32),
+                quantize(i + i_noise, self.adc_bits, self.i_full_scale_a).astype(np.float32))
 
 
 @dataclass(frozen=True)
@@ -155,9 +183,8 @@ class OnsetScene:
 
     # --- the model -------------------------------------------------------------------------
     def transducer(self) -> ModalTransducer:
-        """The calibrated modal model (the dielectric loss exact at the probe frequency)."""
-        return ModalTransducer.from_beam(build(self.preset), self.n_modes,
-                                         reference_hz=self.drive.probe_hz)
+        """The calibrated modal model."""
+        return ModalTransducer.from_beam(build(self.preset), self.n_modes)
 
     @property
     def n_samples(self) -> int:
@@ -169,18 +196,24 @@ class OnsetScene:
         """Sample instants, s, shape ``(n_samples,)``."""
         return np.arange(self.n_samples) / self.acquisition.sample_rate_hz
 
-    def drive_voltage(self, lead: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """E (V) and dE/dt (V/s) at the samples, each ``(n_samples,)`` (with ``lead``: the
-        lead-in's samples first)."""
+    def drive_tones(self, lead: bool = False) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """The drive's two tones, whisk then probe: each ``(ω rad/s, E V, dE/dt V/s)`` at the
+        samples, ``(n_samples,)`` (with ``lead``: the lead-in's samples first, ramped)."""
         d, rate = self.drive, self.acquisition.sample_rate_hz
         n_lead = int(round(d.lead_s * rate)) if lead else 0
         t = np.arange(-n_lead, self.n_samples) / rate
         wl, wh = 2 * np.pi * d.whisk_hz, 2 * np.pi * d.probe_hz
-        e = -d.whisk_v * np.cos(wl * t) + d.probe_v * np.sin(wh * t)
-        de = d.whisk_v * wl * np.sin(wl * t) + d.probe_v * wh * np.cos(wh * t)
+        tones = [(wl, -d.whisk_v * np.cos(wl * t), d.whisk_v * wl * np.sin(wl * t)),
+                 (wh, d.probe_v * np.sin(wh * t), d.probe_v * wh * np.cos(wh * t))]
         if n_lead:
-            e, de = lead_in(t, e, de, d.lead_s)
-        return e, de
+            tones = [(w, *lead_in(t, e, de, d.lead_s)) for w, e, de in tones]
+        return tones
+
+    def drive_voltage(self, lead: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """E (V) and dE/dt (V/s) at the samples, each ``(n_samples,)`` (with ``lead``: the
+        lead-in's samples first): the sum of :meth:`drive_tones`."""
+        (_, el, del_), (_, eh, deh) = self.drive_tones(lead)
+        return el + eh, del_ + deh
 
     def whisk_amplitude_m(self) -> float:
         """The tip's whisking amplitude HUE(0)·whisk_v of the calibrated model, m."""
@@ -228,6 +261,9 @@ class OnsetScene:
         k = np.exp(rng.uniform(*np.log(w.stiffness), n))
         c = rng.uniform(*w.damping, n)
         scale = 1 + self.calibration_error * rng.standard_normal(n)
+        scale = scale * a.effects.coupling_scale(n, rng)  # temperature drift
+        dac = a.effects.drive_scale(n, rng)  # the drive DAC's amplitude error
+        tones = self.drive_tones(lead=True)
         law = self.draw_laws(n, rng)
         e, de = self.drive_voltage(lead=True)
         n_lead = len(e) - self.n_samples
@@ -251,19 +287,16 @@ class OnsetScene:
                     wall = ContactWall(g[part], law["law"][rows], k[rows],
                                        law["law_delta_ref"][rows], law["law_n"][rows],
                                        law["law_alpha"][rows], k[rows] / mount, c[rows])
-                out = model.simulate(e, dt, wall, drive_rate=de, coupling_scale=scale[rows],
-                                     record=("i",), dtype=np.float64)
+                amp = dac[rows, None] if a.effects.dac.enabled else np.ones((1, 1))
+                out = model.simulate(amp * e, dt, wall, drive_rate=amp * de,
+                                     coupling_scale=scale[rows], record=("i",),
+                                     dtype=np.float64, tones=[(w, amp * x) for w, x, _ in tones])
                 cur[rows] = out["i"][:, n_lead:]
                 touching[rows] = out["contact"][:, n_lead:]
-        e = e[n_lead:]
-        e_rec = quantize(e[None] + a.e_noise_v * rng.standard_normal((n, len(e))),
-                         a.adc_bits, a.e_full_scale_v)
-        i_rec = quantize(cur + a.i_noise_a * rng.standard_normal(cur.shape), a.adc_bits,
-                         a.i_full_scale_a)
+        e_rec, i_rec = a.record(dac[:, None] * e[None, n_lead:], cur, model.capacitance, rng)
         onset, detach = self.contacts(touching)
-        return {"e": e_rec.astype(np.float32), "i": i_rec.astype(np.float32),
-                "gap": gap, "onset": onset, "detachment": detach, "stiffness": k,
-                "damping": c, "coupling": scale, **law}
+        return {"e": e_rec, "i": i_rec, "gap": gap, "onset": onset, "detachment": detach,
+                "stiffness": k, "damping": c, "coupling": scale, **law}
 
     def draw_laws(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """Each record's contact law from the mixture ``wall.law`` and its parameters

@@ -11,8 +11,9 @@ Each specimen (``specimens_per_grade`` per grade per shard, so a shard's specime
 and a split by shard holds out specimens) draws its own Coulomb coefficient
 (``μ(d) + N(0, mu_spread)``), asperity factor (log-normal ``asperity_spread``), grain-size
 spread and grain positions. Each record draws the nuisance: whisking amplitude and frequency,
-N, θ, and the device's coupling (calibration error). Both channels go through a 24-bit ADC with
-noise; the current through an I-V converter.
+N, θ, and the device's coupling (calibration error, times the temperature drift of
+``acquisition.effects``). Both channels go through a 24-bit ADC with noise and the effects of
+:mod:`wtml.signals.acquisition`; the current through an I-V converter.
 
 ``grades: thesis`` holds the five sandpapers of the thesis as classes; ``grades: fepa`` the ten
 other FEPA P-grades (the regression test of unseen grain sizes; their class label is -1).
@@ -36,7 +37,6 @@ from wtml.physics.modal import ModalTransducer
 from wtml.scenes.config import SceneError, bounded, one_of
 from wtml.scenes.onset import Acquisition
 from wtml.signals.excitation import lead_in
-from wtml.signals.noise import quantize
 
 THESIS_GRADES = {"P1200": 15.3, "P800": 21.8, "P400": 35.0, "P320": 46.2, "P280": 52.2}
 """The five specimens of the thesis (Table 4.9): mean grain size, µm."""
@@ -153,9 +153,8 @@ class TextureScene:
         return tuple(THESIS_GRADES)
 
     def transducer(self) -> ModalTransducer:
-        """The calibrated modal model, dielectric loss exact at the nominal 36 Hz."""
-        return ModalTransducer.from_beam(build(self.preset), self.n_modes,
-                                         reference_hz=NOMINAL_HZ)
+        """The calibrated modal model."""
+        return ModalTransducer.from_beam(build(self.preset), self.n_modes)
 
     @property
     def n_samples(self) -> int:
@@ -243,6 +242,8 @@ class TextureScene:
         normal = rng.uniform(*c.normal_force, n)
         angle = np.deg2rad(rng.uniform(*c.angle_deg, n))
         scale = 1 + self.calibration_error * rng.standard_normal(n)
+        scale = scale * a.effects.coupling_scale(n, rng)  # temperature drift
+        volts = volts * a.effects.drive_scale(n, rng)  # the drive DAC's amplitude error
         if nominal:
             volts, hz, normal = (np.full(n, NOMINAL_V), np.full(n, NOMINAL_HZ),
                                  np.full(n, NOMINAL_N))
@@ -261,15 +262,13 @@ class TextureScene:
                                       asperities=asperities,
                                       mu=None if mu is None else mu[sl])
             out = model.simulate(e, dt, load, drive_rate=de, coupling_scale=scale[sl],
-                                 record=("v", "i"), dtype=np.float64)
+                                 record=("v", "i"), dtype=np.float64,
+                                 tones=[(2 * np.pi * hz[sl], e)])
             for dst, x in ((cur, out["i"]), (vel, out["v"]), (volt, e)):
                 dst[sl] = self.decimate(x[:, n_lead - 64 * self.oversample:])[:, 64:]
-        e_rec = quantize(volt + a.e_noise_v * rng.standard_normal(volt.shape), a.adc_bits,
-                         a.e_full_scale_v)
-        i_rec = quantize(cur + a.i_noise_a * rng.standard_normal(cur.shape), a.adc_bits,
-                         a.i_full_scale_a)
+        e_rec, i_rec = a.record(volt, cur, model.capacitance, rng)
         grade = spec["grade"][which] if self.grades == "thesis" else np.full(n, -1)
-        return {"e": e_rec.astype(np.float32), "i": i_rec.astype(np.float32),
+        return {"e": e_rec, "i": i_rec,
                 "grade": grade, "grain_m": spec["grain_um"][which] * 1e-6,
                 "specimen": rng.integers(0, 2**62) + which, "mu": spec["mu"][which],
                 "asperity": spec["asperity"][which], "whisk_v": volts, "whisk_hz": hz,
@@ -326,7 +325,8 @@ def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None
                     scene.friction.viscous, pos, imp)
     e, de, n_lead = scene.drive_voltage(np.array([NOMINAL_V]), np.array([NOMINAL_HZ]))
     out = scene.transducer().simulate(e[0], 1 / rate, load, drive_rate=de[0],
-                                      record=("v", "force", "i"), dtype=np.float64)
+                                      record=("v", "force", "i"), dtype=np.float64,
+                                      tones=[(2 * np.pi * NOMINAL_HZ, e[0])])
     keep = slice(n_lead, e.shape[1])
     basis = np.exp(-2j * np.pi * NOMINAL_HZ * np.arange(e.shape[1] - n_lead) / rate)
     force = 2 * np.mean(out["force"][:, keep] * basis, axis=1)

@@ -13,6 +13,7 @@ from wtml.constants import BOLTZMANN
 from wtml.scenes import load_scene
 from wtml.scenes.config import SceneError, build
 from wtml.scenes.onset import OnsetScene
+from wtml.scenes.texture import TextureScene
 from wtml.signals.acquisition import (
     AcquisitionEffects,
     IVConverter,
@@ -155,7 +156,6 @@ def test_base_motion_has_its_rms_in_its_band_only():
     ({"iv": {"feedback_ohm": 0.0}}, r"acquisition.effects.iv.feedback_ohm: must be in"),
     ({"iv": {"enabled": "yes"}}, r"acquisition.effects.iv.enabled: must be true or false"),
     ({"dac": {"amplitude_error": 0.5}}, r"acquisition.effects.dac.amplitude_error: must be in"),
-    ({"base": {"enabled": True}}, r"acquisition.effects.base.enabled: the scene does not"),
     ({"adc": {"dynamic_range": 118}}, r"acquisition.effects.adc.dynamic_range: unknown key"),
 ])
 def test_out_of_range_effects_are_clear_scene_errors(data, message):
@@ -163,6 +163,25 @@ def test_out_of_range_effects_are_clear_scene_errors(data, message):
         build(OnsetScene, {"acquisition": {"effects": data}})
     with pytest.raises(ValueError, match="unknown"):
         AcquisitionEffects().only("hum", "wind")
+
+
+def test_base_motion_moves_the_onset_wall_and_texture_refuses_it():
+    """The onset scene's wall follows x_b(t): at a vanishing rms its records are those of the
+    fixed wall (the implicit stepper against the switched one: onsets within a sample), at
+    2 µm its onsets move; the texture scene, which cannot follow it, refuses it."""
+    base = {"drive": {"cycles": 0.5}, "samples": 4, "shards": 1}
+    rate = 26880.0
+    onsets = {}
+    for rms in (None, 1e-15, 2e-6):
+        fx = {"effects": {"base": {"enabled": True, "rms_m": rms}}} if rms else {}
+        scene = build(OnsetScene, {**base, "acquisition": fx})
+        rec = scene.simulate(4, np.random.default_rng(2), gaps=np.full(4, 6e-6))
+        onsets[rms] = rec["onset"][:, 0]
+    assert np.all(np.isfinite(onsets[None]))
+    np.testing.assert_allclose(onsets[1e-15], onsets[None], atol=1.01 / rate)
+    assert np.max(np.abs(onsets[2e-6] - onsets[None])) > 10 / rate
+    with pytest.raises(SceneError, match="acquisition.effects.base.enabled: the texture"):
+        build(TextureScene, {"acquisition": {"effects": {"base": {"enabled": True}}}})
 
 
 def test_shipped_scenes_are_bench_top_and_the_probe_band_noise_is_the_budget():

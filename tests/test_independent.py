@@ -15,10 +15,10 @@ from wtml.scenes import load_scene
 
 @pytest.fixture(scope="module")
 def nominal():
-    """The shipped onset scene without noise."""
+    """The shipped onset scene without noise and without the acquisition's effects."""
     base = load_scene(ROOT / "configs/scenes/onset.yaml")
     return dataclasses.replace(base, acquisition=dataclasses.replace(
-        base.acquisition, e_noise_v=0.0, i_noise_a=0.0))
+        base.acquisition, e_noise_v=0.0, i_noise_a=0.0, effects=base.acquisition.effects.only()))
 
 
 @pytest.fixture(scope="module")

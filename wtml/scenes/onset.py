@@ -77,12 +77,6 @@ class Acquisition:
     i_noise_a: float = bounded(0.0, 1e-3, default=1e-12)
     effects: acq.AcquisitionEffects = field(default_factory=lambda: acq.AcquisitionEffects())
 
-    def check(self, path: str) -> None:
-        if self.effects.base.enabled:
-            raise SceneError(f"{path + '.' if path else ''}effects.base.enabled: the scene "
-                             "does not move its object with the base yet; draw x_b(t) with "
-                             "wtml.signals.acquisition.base_motion")
-
     def record(self, e, i, capacitance: float, rng: np.random.Generator
                ) -> tuple[np.ndarray, np.ndarray]:
         """The two channels as recorded, float32 ``(n, n_samples)``: ``e`` (V, broadcast to
@@ -267,6 +261,10 @@ class OnsetScene:
         law = self.draw_laws(n, rng)
         e, de = self.drive_voltage(lead=True)
         n_lead = len(e) - self.n_samples
+        # the object moving with the floor against the transducer's base: the wall's gap
+        # follows it, and every law is then stepped implicitly (the switched wall's g is fixed)
+        base = a.effects.base_motion(n, len(e), a.sample_rate_hz, rng)
+        moving = a.effects.base.enabled
         model = self.transducer()
         dt = 1 / a.sample_rate_hz
         cur = np.empty((n, self.n_samples), np.float32)
@@ -275,7 +273,7 @@ class OnsetScene:
             sl = slice(start, min(n, start + batch))
             # no wall: one far beyond the reach (never touched: exactly the free answer)
             g = np.where(np.isnan(gap[sl]), 1.0, gap[sl])
-            linear = law["law"][sl] == LINEAR  # today's exact switched wall
+            linear = (law["law"][sl] == LINEAR) & ~moving  # today's exact switched wall
             for part in (np.flatnonzero(linear), np.flatnonzero(~linear)):
                 if not len(part):
                     continue
@@ -284,9 +282,11 @@ class OnsetScene:
                     wall = Wall(g[part], k[rows], c[rows])
                 else:
                     mount = law["law_mount_fraction"][rows]
-                    wall = ContactWall(g[part], law["law"][rows], k[rows],
-                                       law["law_delta_ref"][rows], law["law_n"][rows],
-                                       law["law_alpha"][rows], k[rows] / mount, c[rows])
+                    at = g[part, None] + base[rows] if moving else g[part]
+                    wall = ContactWall(at, law["law"][rows], k[rows],
+                                       np.nan_to_num(law["law_delta_ref"][rows], nan=1e-6),
+                                       law["law_n"][rows], law["law_alpha"][rows],
+                                       k[rows] / mount, c[rows])
                 amp = dac[rows, None] if a.effects.dac.enabled else np.ones((1, 1))
                 out = model.simulate(amp * e, dt, wall, drive_rate=amp * de,
                                      coupling_scale=scale[rows], record=("i",),

@@ -131,6 +131,10 @@ class TextureScene:
         if self.drive.whisk_hz[1] >= self.acquisition.sample_rate_hz / 8:
             raise SceneError(f"{pre}drive.whisk_hz: must stay below an eighth of the sample "
                              f"rate ({self.acquisition.sample_rate_hz / 8:g} Hz)")
+        if self.acquisition.effects.base.enabled:
+            raise SceneError(f"{pre}acquisition.effects.base.enabled: the texture scene does "
+                             "not move its specimen with the base (its normal force would "
+                             "follow it); only the onset scene models base motion")
 
     # --- the model -----------------------------------------------------------------------
     @property

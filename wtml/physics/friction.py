@@ -1,26 +1,46 @@
 """Friction at the tip of the time-domain transducer: a whisker sweeping sandpaper
-(physics.md §11, thesis §4.5).
+(physics.md §11, §12, thesis §4.5).
 
 The tip slides along the surface in its whisking direction u, pressed against it with a normal
 force N at a contact angle θ (between the whisker and the surface's normal plane; the surface
-carries ``N cos θ``). The force the transducer applies to the surface, along u::
+carries ``N cos θ``). The force the transducer applies to the surface, along u, is one of three
+laws (:data:`LAWS`, chosen per record), plus the asperities::
 
-    F = μ N cos θ tanh(v / v_s) + c v + F_asp(t)
+    coulomb   F = μ_c N cos θ tanh(v / v_r) + c v
+    stribeck  F = μ(v) N cos θ tanh(v / v_r) + c v,   μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²)
+    lugre     F = σ0 z + σ1 ż + c v,   ż = v − σ0 |v| z / g(v),   g(v) = μ(v) N cos θ
 
-- Coulomb friction regularised over ``v_s`` (its fundamental is in phase with V: the
-  describing function ``4 μ N cos θ / (π |V|)`` adds to Re Zm);
-- a viscous part ``c v``;
+- Coulomb friction regularised over ``v_r`` (``slip_speed``; its fundamental is in phase with
+  V: the describing function ``4 μ N cos θ / (π |V|)`` adds to Re Zm); Stribeck's coefficient
+  falls from μ_s at rest to μ_c over ``v_s`` (``stribeck_speed``); LuGre's bristle z sticks
+  (``F = σ0 z``, the pre-sliding stiffness σ0, over the pre-sliding distance ``g(0)/σ0``) and
+  slides at its steady state ``z = g(v) sign(v)/σ0`` (``F = g(v) sign(v) + c v``);
+- a viscous part ``c v`` (LuGre's σ2);
 - asperities: grains at random positions ``x_j`` along the path (spacing drawn around the mean
   grain size d), each an impulse ``J_j`` (N·s) along the motion when the tip crosses it, so that
   they arrive at the rate |v|/d. :func:`grains` draws them with ``J = a N cos θ d / v_a``
   (``v_a`` = 1 m/s): their mean force is ``a N cos θ |v| / v_a``, a drag that grows with d
-  through ``a(d)``.
+  through ``a(d)``. They are the same for every law.
 
-The force is a smooth function of the state, evaluated once per step from the tip's velocity
-and position at the sample and held over the step at its mid-step extrapolation (the linear
-part is stepped exactly, in the free tip's eigenbasis). That is stable where
-``(μ N / v_s + c) dt Σφb²`` stays well below 1; the
-tests show halving the step moves the fundamental phasors by less than a scene's noise.
+The force is evaluated once per step from the tip's velocity and position at the sample and held
+over the step (the linear part is stepped exactly, in the free tip's eigenbasis):
+
+- Coulomb and Stribeck: a smooth function of v, held at its mid-step extrapolation from the last
+  two samples (second order). Stable where the force's slope ``dF/dv · dt Σφb²`` stays below 1
+  (the extrapolation's real stability interval): at the texture scene's step (9.8 µs, Σφb² ≈
+  1.0e6 /kg for the macro WT) the slope at rest, ``μ_s N cos θ / v_r + c`` ≈ 0.03 N·s/m, gives
+  ≈ 0.3; Stribeck's falling branch is a negative slope (a growth the scheme follows).
+- LuGre: the bristle state is stepped exactly for the velocity held over the step (its
+  mid-step extrapolation v_h): z relaxes to ``g(v_h) sign(v_h)/σ0`` at the rate
+  ``σ0 |v_h| / g(v_h)``, whatever that rate's product with dt (the ODE is stiff: 1e7 /s in
+  sliding), so |z| never overshoots its steady state; the force held is the step's mean
+  ``σ0 z̄ + σ1 (z_{k+1} − z_k)/dt + c v_h``. Sticking, the bristle is a spring σ0 on the tip fed
+  back one step late: stable where ``σ0 dt² Σφb²`` stays below about 1 (the stiffest default,
+  0.02 µm pre-sliding at the scene's N, σ0 ≈ 1.5e4 N/m: ≈ 1.5) and it lasts a few steps at each
+  reversal before the bristle saturates; σ1 acts as a viscous term there (``σ1 dt Σφb²`` < 1).
+
+The tests show halving the step moves the fundamental phasors by less than a scene's noise for
+each law.
 """
 
 from __future__ import annotations
@@ -29,6 +49,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
+from scipy.special import dawsn
 
 from wtml.physics.validation import check_range
 
@@ -36,24 +57,34 @@ REFERENCE_SPEED = 1.0
 """v_a, m/s: the speed at which an asperity's impulse J equals ``a N cos θ d / v_a``."""
 
 
+LAWS = ("coulomb", "stribeck", "lugre")
+"""The friction laws; a record's law code is its index here."""
+
+
 class Friction:
     """Sliding friction at the tip for a batch of B records (arrays of shape ``(B,)``).
 
     Args:
-        mu: Coulomb coefficient μ (>= 0).
+        mu: Coulomb (kinetic) coefficient μ_c (>= 0).
         normal_force: N, N (>= 0).
         angle: contact angle θ, rad, in [0, π/2).
-        slip_speed: v_s, m/s (> 0), the regularisation of sign(v).
-        viscous: c, N·s/m (>= 0).
+        slip_speed: v_r, m/s (> 0), the regularisation of sign(v) (Coulomb and Stribeck).
+        viscous: c, N·s/m (>= 0) (LuGre's σ2).
         positions: grain positions along the path from the tip's rest position, m, sorted,
             shape ``(B, G)`` (pad with +inf); None: no asperities.
         impulses: each grain's impulse, N·s (>= 0), shape ``(B, G)``.
+        law: each record's law, a code (index into :data:`LAWS`), default Coulomb.
+        static_ratio: μ_s / μ_c in [1, 3] (Stribeck and LuGre).
+        stribeck_speed: v_s, m/s (> 0) (Stribeck and LuGre).
+        bristle_stiffness: σ0, N/m (> 0) (LuGre): the pre-sliding distance is ``g(0) / σ0``.
+        bristle_damping: σ1, N·s/m (>= 0) (LuGre).
     """
 
     smooth = True
 
     def __init__(self, mu, normal_force, angle=0.0, slip_speed=0.01, viscous=0.0,
-                 positions=None, impulses=None) -> None:
+                 positions=None, impulses=None, *, law=0, static_ratio=1.0,
+                 stribeck_speed=5e-3, bristle_stiffness=1e3, bristle_damping=0.0) -> None:
         self.mu = check_range("mu", np.atleast_1d(np.asarray(mu, float)), 0.0, 10.0).copy()
         size = len(self.mu)
 
@@ -65,6 +96,18 @@ class Friction:
         self.angle = batch("angle", angle, 0.0, np.pi / 2, "rad", high_open=True)
         self.slip_speed = batch("slip_speed", slip_speed, 0.0, 10.0, "m/s", low_open=True)
         self.viscous = batch("viscous", viscous, 0.0, 10.0, "N·s/m")
+        codes = np.broadcast_to(np.asarray(law), (size,))
+        if not np.issubdtype(codes.dtype, np.integer) or np.any((codes < 0)
+                                                                 | (codes >= len(LAWS))):
+            raise ValueError(f"law: codes 0..{len(LAWS) - 1} for {list(LAWS)}, got "
+                             f"{np.unique(codes).tolist()}")
+        self.law = codes.astype(np.int64)
+        self.static_ratio = batch("static_ratio", static_ratio, 1.0, 3.0, "1")
+        self.stribeck_speed = batch("stribeck_speed", stribeck_speed, 0.0, 10.0, "m/s",
+                                    low_open=True)
+        self.bristle_stiffness = batch("bristle_stiffness", bristle_stiffness, 0.0, 1e9, "N/m",
+                                       low_open=True)
+        self.bristle_damping = batch("bristle_damping", bristle_damping, 0.0, 10.0, "N·s/m")
         if positions is None:
             positions, impulses = np.full((size, 1), np.inf), np.zeros((size, 1))
         self.positions = np.ascontiguousarray(np.broadcast_to(np.asarray(positions, float),
@@ -82,24 +125,58 @@ class Friction:
 
     @property
     def coulomb(self) -> np.ndarray:
-        """μ N cos θ, N, ``(B,)``: the sliding force's magnitude."""
+        """μ_c N cos θ, N, ``(B,)``: the sliding force's magnitude."""
         return self.mu * self.normal_force * np.cos(self.angle)
 
-    def force(self, velocity) -> np.ndarray:
-        """The smooth part ``μ N cos θ tanh(v/v_s) + c v``, N, for v (m/s) of shape ``(B, ...)``."""
+    def _ex(self, v: np.ndarray):
+        return (slice(None),) + (None,) * (v.ndim - 1)
+
+    def sliding(self, velocity) -> np.ndarray:
+        """``μ(v) N cos θ``, N, for v (m/s) of shape ``(B, ...)``: the Stribeck curve (μ_c for
+        Coulomb records); LuGre's g(v)."""
         v = np.asarray(velocity, float)
-        ex = (slice(None),) + (None,) * (v.ndim - 1)
-        return (self.coulomb[ex] * np.tanh(v / self.slip_speed[ex]) + self.viscous[ex] * v)
+        ex = self._ex(v)
+        stribeck = np.where(self.law == 0, 0.0, self.static_ratio - 1)[ex]
+        return self.coulomb[ex] * (1 + stribeck * np.exp(-(v / self.stribeck_speed[ex]) ** 2))
+
+    def force(self, velocity) -> np.ndarray:
+        """The force in steady sliding at v (m/s), shape ``(B, ...)``, N: ``μ(v) N cos θ
+        tanh(v/v_r) + c v`` (Coulomb, Stribeck), ``g(v) sign(v) + c v`` (LuGre)."""
+        v = np.asarray(velocity, float)
+        ex = self._ex(v)
+        shape = np.where((self.law == 2)[ex], np.sign(v), np.tanh(v / self.slip_speed[ex]))
+        return self.sliding(v) * shape + self.viscous[ex] * v
+
+    def sweep(self, velocity, dt: float) -> np.ndarray:
+        """The force (N) along a prescribed velocity ``(B, n)`` (m/s) at the samples ``k dt``,
+        the law stepped as :func:`simulate_friction` steps it (the bristle from rest); no
+        asperities."""
+        v = np.ascontiguousarray(np.broadcast_to(np.asarray(velocity, float),
+                                                 (self.batch, np.shape(velocity)[-1])))
+        out = np.empty_like(v)
+        _sweep(v, dt, *self._law_arrays(), out)
+        return out
+
+    def _law_arrays(self) -> tuple[np.ndarray, ...]:
+        return (self.law, self.coulomb, self.slip_speed, self.viscous, self.static_ratio,
+                self.stribeck_speed, self.bristle_stiffness, self.bristle_damping)
 
 
-def describing_function(coulomb, speed) -> np.ndarray:
-    """Re Zm of pure Coulomb friction at the fundamental, ``4 μ N cos θ / (π |V|)``, N·s/m.
+def describing_function(coulomb, speed, static_ratio=1.0, stribeck_speed=1.0) -> np.ndarray:
+    """Re Zm of sliding friction at the fundamental, N·s/m: the sliding speed v = V cos ωt
+    through ``μ(v) N cos θ sign(v)`` (not regularised): ``4 N cos θ (μ_c + (μ_s − μ_c)
+    D(y)/y) / (π |V|)``, ``y = |V|/v_s``, D Dawson's integral (``4 μ N cos θ / (π |V|)`` for
+    Coulomb, μ_s = μ_c). The work per cycle of a sliding amplitude A is ``π A |V|`` times it.
 
     Args:
-        coulomb: μ N cos θ, N.  speed: |V|, the velocity's amplitude, m/s (> 0).
+        coulomb: μ_c N cos θ, N.  speed: |V|, the velocity's amplitude, m/s (> 0).
+        static_ratio: μ_s / μ_c.  stribeck_speed: v_s, m/s (> 0).
     """
     speed = check_range("speed", speed, 0.0, np.inf, unit="m/s", low_open=True)
-    return 4 * np.asarray(coulomb, float) / (np.pi * speed)
+    check_range("stribeck_speed", stribeck_speed, 0.0, np.inf, unit="m/s", low_open=True)
+    y = np.asarray(speed, float) / stribeck_speed
+    rise = (np.asarray(static_ratio, float) - 1) * dawsn(y) / y
+    return 4 * np.asarray(coulomb, float) * (1 + rise) / (np.pi * speed)
 
 
 def grains(rng: np.random.Generator, size_m: float, reach_m: float, *, spread: float = 0.3,
@@ -158,9 +235,8 @@ def simulate_friction(model, e, de_step, de_out, dt: float, load: Friction, coup
         _step_friction(lam[..., b].copy(), gain[..., b].copy(), out[..., b].copy(),
                        feed[..., b].copy(), *(np.ascontiguousarray(a[own])
                                               for a in (e, de_step, de_out)),
-                       load.coulomb[b].copy(), load.slip_speed[b].copy(),
-                       load.viscous[b].copy(), load.positions[b], load.impulses[b],
-                       start[b].copy(), dt, cols, values[:, b])
+                       *(a[b].copy() for a in load._law_arrays()), load.positions[b],
+                       load.impulses[b], start[b].copy(), dt, cols, values[:, b])
 
     with ThreadPoolExecutor(min(len(blocks), threads or available_cores())) as pool:
         list(pool.map(step, blocks))
@@ -168,18 +244,70 @@ def simulate_friction(model, e, de_step, de_out, dt: float, load: Friction, coup
 
 
 @njit(cache=True, nogil=True)
-def _step_friction(lam, gain, out, feed, e, de_step, de_out, coulomb, slip, viscous,
-                   positions, impulses, start, dt, cols, values):
+def _law(code, v, v_last, f_last, first, z, dt, coulomb, slip, viscous, ratio, vst, sig0,
+         sig1):
+    """One record's law at a sample: the force at the sample (N), the force held over the
+    coming step (N) and the bristle state at the next sample (m).
+
+    ``v`` (m/s) is the velocity at the sample, ``v_last`` and ``f_last`` the velocity and the
+    force at the last sample (unused when ``first``); ``z`` the bristle state (LuGre; carried
+    unchanged otherwise). Coulomb and Stribeck hold their force extrapolated to mid-step; LuGre
+    holds the step's mean force with v held at its mid-step extrapolation and z stepped exactly.
+    """
+    if code == 0:
+        now = coulomb * np.tanh(v / slip) + viscous * v
+    elif code == 1:
+        now = (coulomb * (1.0 + (ratio - 1.0) * np.exp(-(v / vst) ** 2)) * np.tanh(v / slip)
+               + viscous * v)
+    else:
+        g = coulomb * (1.0 + (ratio - 1.0) * np.exp(-(v / vst) ** 2))
+        zdot = v - sig0 * abs(v) * z / g if g > 0 else 0.0
+        now = sig0 * z + sig1 * zdot + viscous * v
+        vh = v if first else 1.5 * v - 0.5 * v_last
+        gh = coulomb * (1.0 + (ratio - 1.0) * np.exp(-(vh / vst) ** 2))
+        if gh > 0:
+            x = sig0 * abs(vh) * dt / gh  # the relaxation over the step
+            if x < 1e-3:  # φ1 = (1 - e^-x)/x and φ2 = (x - 1 + e^-x)/x², by their series
+                p1 = 1.0 - x / 2 + x * x / 6 - x**3 / 24
+                p2 = 0.5 - x / 6 + x * x / 24 - x**3 / 120
+            else:
+                em = np.expm1(-x)
+                p1, p2 = -em / x, (x + em) / (x * x)
+            z_next = z * (1.0 - x * p1) + vh * dt * p1
+            z_mean = z * p1 + vh * dt * p2
+        else:
+            z_next = z_mean = 0.0
+        held = sig0 * z_mean + sig1 * (z_next - z) / dt + viscous * vh
+        return now, held, z_next
+    return now, (now if first else 1.5 * now - 0.5 * f_last), z
+
+
+@njit(cache=True, nogil=True)
+def _sweep(v, dt, law, coulomb, slip, viscous, ratio, vst, sig0, sig1, out):
+    """The force ``out`` (B, n) along the prescribed velocity ``v`` (B, n) (:meth:`Friction.
+    sweep`)."""
+    for b in range(v.shape[0]):
+        z, f = 0.0, 0.0
+        for k in range(v.shape[1]):
+            f, _, z = _law(law[b], v[b, k], v[b, k - 1], f, k == 0, z, dt, coulomb[b], slip[b],
+                           viscous[b], ratio[b], vst[b], sig0[b], sig1[b])
+            out[b, k] = f
+
+
+@njit(cache=True, nogil=True)
+def _step_friction(lam, gain, out, feed, e, de_step, de_out, law, coulomb, slip, viscous,
+                   ratio, vst, sig0, sig1, positions, impulses, start, dt, cols, values):
     """The friction stepper for a block of B records side by side, in the free tip's
     eigenbasis: ``lam`` (2, m, B), ``gain`` (2, 3, m, B) on ``[E, Ė, F]``, ``out`` (2, 4, m, B)
     and ``feed`` (4, 3, B) on ``[E, Ė_out, F]`` for the outputs (u, v, F, i). At each sample
     the force is evaluated from v and from the grains the tip crosses during the coming step
     (by ``u + v dt``, u without the force's own residual part: the impulse lands in the step
-    that holds the crossing, not one step late) and recorded; its smooth part, extrapolated to the
-    middle of the step from the last two samples, and the grains' impulse are held over the step
-    (second order in dt for the smooth part).
+    that holds the crossing, not one step late) and recorded; the law's force held over the step
+    (:func:`_law`: second order in dt) and the grains' impulse are held over the step.
 
     Args:
+        law, coulomb, slip, viscous, ratio, vst, sig0, sig1: ``(B,)``, as
+            :meth:`Friction._law_arrays`.
         positions, impulses: ``(B, G)`` grains; start: the grains below u = 0, ``(B,)``.
         values: written, ``(len(cols), B, n_steps)``.
     """
@@ -187,7 +315,9 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, coulomb, slip, visc
     w = np.zeros((2, m, bsz))
     ptr = start.copy()
     force = np.zeros(bsz)
-    smooth = np.zeros(bsz)  # the smooth part at the last sample
+    smooth = np.zeros(bsz)  # the law's force at the last sample
+    v_last = np.zeros(bsz)  # the velocity at the last sample
+    z = np.zeros(bsz)  # LuGre's bristles
     y = np.zeros(4)
     n_grain = positions.shape[1]
     for k in range(e.shape[1]):
@@ -208,12 +338,13 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, coulomb, slip, visc
             while ptr[b] > 0 and positions[b, ptr[b] - 1] > u:
                 kick -= impulses[b, ptr[b] - 1]
                 ptr[b] -= 1
-            now = coulomb[b] * np.tanh(v / slip[b]) + viscous[b] * v
+            now, held, z[b] = _law(law[b], v, v_last[b], smooth[b], k == 0, z[b], dt,
+                                   coulomb[b], slip[b], viscous[b], ratio[b], vst[b], sig0[b],
+                                   sig1[b])
             y[2] = now + kick / dt
             y[0] += feed[0, 2, b] * y[2]
-            # held over the step: the smooth part extrapolated to mid-step (second order)
-            force[b] = (1.5 * now - 0.5 * smooth[b] if k > 0 else now) + kick / dt
-            smooth[b] = now
+            force[b] = held + kick / dt
+            smooth[b], v_last[b] = now, v
             for c in range(len(cols)):
                 values[c, b, k] = y[cols[c]]
         for j in range(m):

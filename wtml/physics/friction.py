@@ -244,54 +244,90 @@ def simulate_friction(model, e, de_step, de_out, dt: float, load: Friction, coup
 
 
 @njit(cache=True, nogil=True)
-def _law(code, v, v_last, f_last, first, z, dt, coulomb, slip, viscous, ratio, vst, sig0,
-         sig1):
-    """One record's law at a sample: the force at the sample (N), the force held over the
-    coming step (N) and the bristle state at the next sample (m).
-
-    ``v`` (m/s) is the velocity at the sample, ``v_last`` and ``f_last`` the velocity and the
-    force at the last sample (unused when ``first``); ``z`` the bristle state (LuGre; carried
-    unchanged otherwise). Coulomb and Stribeck hold their force extrapolated to mid-step; LuGre
-    holds the step's mean force with v held at its mid-step extrapolation and z stepped exactly.
-    """
+def _sample_force(code, v, z, coulomb, slip, viscous, ratio, vst, sig0, sig1):
+    """One record's law at a sample: the force (N) at velocity v (m/s), bristle state z (m)."""
     if code == 0:
-        now = coulomb * np.tanh(v / slip) + viscous * v
-    elif code == 1:
-        now = (coulomb * (1.0 + (ratio - 1.0) * np.exp(-(v / vst) ** 2)) * np.tanh(v / slip)
-               + viscous * v)
+        return coulomb * np.tanh(v / slip) + viscous * v
+    mu = coulomb * (1.0 + (ratio - 1.0) * np.exp(-(v / vst) ** 2))
+    if code == 1:
+        return mu * np.tanh(v / slip) + viscous * v
+    zdot = v - sig0 * abs(v) * z / mu if mu > 0 else 0.0
+    return sig0 * z + sig1 * zdot + viscous * v
+
+
+@njit(cache=True, nogil=True)
+def _bristle(u, z, dt, coulomb, viscous, ratio, vst, sig0, sig1):
+    """LuGre over a step dt with the velocity u (m/s) held: z relaxes exactly from z (m)
+    towards ``g(u) sign(u)/σ0`` at the rate ``σ0 |u| / g(u)``. Returns the step's mean force
+    ``σ0 z̄ + σ1 (z' − z)/dt + c u`` (N), its derivative in u (N·s/m) and z' at its end (m)."""
+    mu_e = np.exp(-(u / vst) ** 2)
+    g = coulomb * (1.0 + (ratio - 1.0) * mu_e)
+    if g <= 0:
+        return viscous * u, viscous, 0.0
+    dg = -2.0 * coulomb * (ratio - 1.0) * mu_e * u / vst**2
+    x = sig0 * abs(u) * dt / g  # the relaxation over the step
+    dx = sig0 * dt * (np.sign(u) * g - abs(u) * dg) / g**2
+    if x < 1e-3:  # φ1 = (1 - e^-x)/x and φ2 = (x - 1 + e^-x)/x², by their series
+        p1 = 1.0 - x / 2 + x * x / 6 - x**3 / 24
+        p2 = 0.5 - x / 6 + x * x / 24 - x**3 / 120
+        d1 = -0.5 + x / 3 - x * x / 8 + x**3 / 30
+        d2 = -1.0 / 6 + x / 12 - x * x / 40 + x**3 / 180
     else:
-        g = coulomb * (1.0 + (ratio - 1.0) * np.exp(-(v / vst) ** 2))
-        zdot = v - sig0 * abs(v) * z / g if g > 0 else 0.0
-        now = sig0 * z + sig1 * zdot + viscous * v
-        vh = v if first else 1.5 * v - 0.5 * v_last
-        gh = coulomb * (1.0 + (ratio - 1.0) * np.exp(-(vh / vst) ** 2))
-        if gh > 0:
-            x = sig0 * abs(vh) * dt / gh  # the relaxation over the step
-            if x < 1e-3:  # φ1 = (1 - e^-x)/x and φ2 = (x - 1 + e^-x)/x², by their series
-                p1 = 1.0 - x / 2 + x * x / 6 - x**3 / 24
-                p2 = 0.5 - x / 6 + x * x / 24 - x**3 / 120
-            else:
-                em = np.expm1(-x)
-                p1, p2 = -em / x, (x + em) / (x * x)
-            z_next = z * (1.0 - x * p1) + vh * dt * p1
-            z_mean = z * p1 + vh * dt * p2
+        em = np.expm1(-x)
+        p1, p2 = -em / x, (x + em) / (x * x)
+        d1 = (1.0 + em - p1) / x
+        d2 = -(d1 + p2) / x
+    decay = 1.0 - x * p1  # e^-x
+    z_next = z * decay + u * dt * p1
+    z_mean = z * p1 + u * dt * p2
+    dz_next = -z * decay * dx + dt * p1 + u * dt * d1 * dx
+    dz_mean = z * d1 * dx + dt * p2 + u * dt * d2 * dx
+    held = sig0 * z_mean + sig1 * (z_next - z) / dt + viscous * u
+    return held, sig0 * dz_mean + sig1 * dz_next / dt + viscous, z_next
+
+
+@njit(cache=True, nogil=True)
+def _implicit_bristle(v0, v1, answer, z, dt, coulomb, viscous, ratio, vst, sig0, sig1):
+    """LuGre's force F (N) held over a step whose velocity runs from v0 (m/s) to ``v1 + answer
+    F`` (v1: where it would end without F; answer < 0: the force the tip applies slows it), the
+    bristle stepped at the mean of the two; solved by Newton's method kept within a bracket
+    (bisection where a step leaves it). Returns F and z at the step's end (m)."""
+    bound = (coulomb * ratio * (1.0 + 2.0 * sig1 / (sig0 * dt))
+             + viscous * (abs(v0) + abs(v1))) / max(1.0 - viscous * abs(answer), 1e-3)
+    lo, hi = -1.001 * bound - 1e-300, 1.001 * bound + 1e-300
+    f = 0.0
+    for _ in range(60):
+        held, dheld, _ = _bristle(0.5 * (v0 + v1 + answer * f), z, dt, coulomb, viscous,
+                                  ratio, vst, sig0, sig1)
+        r = f - held  # negative below the root, positive above it
+        if r < 0:
+            lo = f
         else:
-            z_next = z_mean = 0.0
-        held = sig0 * z_mean + sig1 * (z_next - z) / dt + viscous * vh
-        return now, held, z_next
-    return now, (now if first else 1.5 * now - 0.5 * f_last), z
+            hi = f
+        d = 1.0 - 0.5 * answer * dheld
+        nxt = f - r / d if d > 0 else 0.5 * (lo + hi)
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        done = abs(nxt - f) <= 1e-14 * bound or hi - lo <= 1e-14 * bound
+        f = nxt
+        if done:
+            break
+    return f, _bristle(0.5 * (v0 + v1 + answer * f), z, dt, coulomb, viscous, ratio, vst, sig0,
+                       sig1)[2]
 
 
 @njit(cache=True, nogil=True)
 def _sweep(v, dt, law, coulomb, slip, viscous, ratio, vst, sig0, sig1, out):
     """The force ``out`` (B, n) along the prescribed velocity ``v`` (B, n) (:meth:`Friction.
-    sweep`)."""
+    sweep`): LuGre's bristle stepped at each step's mean velocity."""
     for b in range(v.shape[0]):
-        z, f = 0.0, 0.0
+        z = 0.0
         for k in range(v.shape[1]):
-            f, _, z = _law(law[b], v[b, k], v[b, k - 1], f, k == 0, z, dt, coulomb[b], slip[b],
-                           viscous[b], ratio[b], vst[b], sig0[b], sig1[b])
-            out[b, k] = f
+            out[b, k] = _sample_force(law[b], v[b, k], z, coulomb[b], slip[b], viscous[b],
+                                      ratio[b], vst[b], sig0[b], sig1[b])
+            if law[b] == 2 and k + 1 < v.shape[1]:
+                z = _bristle(0.5 * (v[b, k] + v[b, k + 1]), z, dt, coulomb[b], viscous[b],
+                             ratio[b], vst[b], sig0[b], sig1[b])[2]
 
 
 @njit(cache=True, nogil=True)
@@ -302,8 +338,11 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, law, coulomb, slip,
     and ``feed`` (4, 3, B) on ``[E, Ė_out, F]`` for the outputs (u, v, F, i). At each sample
     the force is evaluated from v and from the grains the tip crosses during the coming step
     (by ``u + v dt``, u without the force's own residual part: the impulse lands in the step
-    that holds the crossing, not one step late) and recorded; the law's force held over the step
-    (:func:`_law`: second order in dt) and the grains' impulse are held over the step.
+    that holds the crossing, not one step late) and recorded. Held over the step with the
+    grains' impulse: Coulomb and Stribeck, their force extrapolated to mid-step from the last
+    two samples (second order); LuGre, the step's mean force with v held at the step's mean
+    ``(v_k + v_{k+1})/2``, v_{k+1} answering the force (implicit: the stiff bristle is no
+    explicit feedback), solved once the state has been advanced without it.
 
     Args:
         law, coulomb, slip, viscous, ratio, vst, sig0, sig1: ``(B,)``, as
@@ -312,15 +351,22 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, law, coulomb, slip,
         values: written, ``(len(cols), B, n_steps)``.
     """
     m, bsz = lam.shape[1], lam.shape[2]
+    n_steps = e.shape[1]
     w = np.zeros((2, m, bsz))
     ptr = start.copy()
     force = np.zeros(bsz)
     smooth = np.zeros(bsz)  # the law's force at the last sample
-    v_last = np.zeros(bsz)  # the velocity at the last sample
+    vel = np.zeros(bsz)  # the velocity at this sample
     z = np.zeros(bsz)  # LuGre's bristles
     y = np.zeros(4)
     n_grain = positions.shape[1]
-    for k in range(e.shape[1]):
+    implicit = np.any(law == 2)
+    grain = np.zeros(bsz)  # the grains' impulse over the coming step / dt
+    answer = np.zeros(bsz)  # ∂v_{k+1}/∂F: the velocity's answer to a held force, m/s/N
+    for b in range(bsz):
+        for j in range(m):
+            answer[b] += out[0, 1, j, b] * gain[0, 2, j, b] - out[1, 1, j, b] * gain[1, 2, j, b]
+    for k in range(n_steps):
         for b in range(bsz):
             src = b if e.shape[0] > 1 else 0
             ek, ok = e[src, k], de_out[src, k]
@@ -338,21 +384,39 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, law, coulomb, slip,
             while ptr[b] > 0 and positions[b, ptr[b] - 1] > u:
                 kick -= impulses[b, ptr[b] - 1]
                 ptr[b] -= 1
-            now, held, z[b] = _law(law[b], v, v_last[b], smooth[b], k == 0, z[b], dt,
-                                   coulomb[b], slip[b], viscous[b], ratio[b], vst[b], sig0[b],
-                                   sig1[b])
+            now = _sample_force(law[b], v, z[b], coulomb[b], slip[b], viscous[b], ratio[b],
+                                vst[b], sig0[b], sig1[b])
             y[2] = now + kick / dt
             y[0] += feed[0, 2, b] * y[2]
-            force[b] = held + kick / dt
-            smooth[b], v_last[b] = now, v
+            # Coulomb, Stribeck: held over the step at the mid-step extrapolation
+            force[b] = (1.5 * now - 0.5 * smooth[b] if k > 0 else now) + kick / dt
+            smooth[b], vel[b], grain[b] = now, v, kick / dt
             for c in range(len(cols)):
                 values[c, b, k] = y[cols[c]]
-        for j in range(m):
+        for j in range(m):  # the state advanced without the force
             for b in range(bsz):
                 src = b if e.shape[0] > 1 else 0
-                ek, dk, fk = e[src, k], de_step[src, k], force[b]
+                ek, dk = e[src, k], de_step[src, k]
                 re, im = w[0, j, b], w[1, j, b]
                 w[0, j, b] = (lam[0, j, b] * re - lam[1, j, b] * im + gain[0, 0, j, b] * ek
-                              + gain[0, 1, j, b] * dk + gain[0, 2, j, b] * fk)
+                              + gain[0, 1, j, b] * dk)
                 w[1, j, b] = (lam[0, j, b] * im + lam[1, j, b] * re + gain[1, 0, j, b] * ek
-                              + gain[1, 1, j, b] * dk + gain[1, 2, j, b] * fk)
+                              + gain[1, 1, j, b] * dk)
+        if implicit:
+            nxt = min(k + 1, n_steps - 1)
+            for b in range(bsz):
+                if law[b] != 2:
+                    continue
+                src = b if e.shape[0] > 1 else 0
+                acc = feed[1, 0, b] * e[src, nxt] + feed[1, 1, b] * de_out[src, nxt]
+                for j in range(m):
+                    acc += out[0, 1, j, b] * w[0, j, b] - out[1, 1, j, b] * w[1, j, b]
+                held, z[b] = _implicit_bristle(vel[b], acc + answer[b] * grain[b], answer[b],
+                                               z[b], dt, coulomb[b], viscous[b], ratio[b],
+                                               vst[b], sig0[b], sig1[b])
+                force[b] = held + grain[b]
+        for j in range(m):
+            for b in range(bsz):
+                fk = force[b]
+                w[0, j, b] = w[0, j, b] + gain[0, 2, j, b] * fk
+                w[1, j, b] = w[1, j, b] + gain[1, 2, j, b] * fk

@@ -76,7 +76,9 @@ class StribeckLaw:
     line ``μ_c(d) = mu_0 + mu_per_um · d/µm`` (fitted to Table 4.10 at the nominal set-up by
     :func:`fit_friction_law` with the shape at the middle of its ranges) and each specimen's
     shape: ``static_ratio`` μ_s/μ_c (uniform) and ``stribeck_speed`` v_s (m/s, log-uniform),
-    the ranges of physics.md §12."""
+    the ranges of physics.md §12. The default line is the fit's (intercept 0.4884, slope
+    0.003875 /µm: the Coulomb law's to 1e-5, the tip sliding at ~100 v_s at the nominal set-up).
+    """
 
     mu_0: float = bounded(-1.0, 2.0, default=0.488)
     mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
@@ -91,8 +93,11 @@ class LuGreLaw(StribeckLaw):
     the nominal N and θ (m, log-uniform; it sets the stiffness σ0, a property of the
     specimen), and ``bristle_damping`` σ1 (N·s/m, uniform: up to about 0.15 of the critical
     damping of a 1e3 N/m bristle on the tip's modal mass ``1/Σφb²`` ≈ 1 mg). σ2 is ``viscous``.
+    The default line is the fit's (intercept 0.4862, slope 0.003869 /µm).
     """
 
+    mu_0: float = bounded(-1.0, 2.0, default=0.486)
+    mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
     presliding_m: tuple[float, float] = bounded(1e-9, 1e-4, default=(2e-8, 2e-6))
     bristle_damping: tuple[float, float] = bounded(0.0, 1.0, default=(0.0, 0.01))
 

@@ -26,21 +26,24 @@ The force is evaluated once per step from the tip's velocity and position at the
 over the step (the linear part is stepped exactly, in the free tip's eigenbasis):
 
 - Coulomb and Stribeck: a smooth function of v, held at its mid-step extrapolation from the last
-  two samples (second order). Stable where the force's slope ``dF/dv · dt Σφb²`` stays below 1
-  (the extrapolation's real stability interval): at the texture scene's step (9.8 µs, Σφb² ≈
-  1.0e6 /kg for the macro WT) the slope at rest, ``μ_s N cos θ / v_r + c`` ≈ 0.03 N·s/m, gives
-  ≈ 0.3; Stribeck's falling branch is a negative slope (a growth the scheme follows).
-- LuGre: the bristle state is stepped exactly for the velocity held over the step (its
-  mid-step extrapolation v_h): z relaxes to ``g(v_h) sign(v_h)/σ0`` at the rate
-  ``σ0 |v_h| / g(v_h)``, whatever that rate's product with dt (the ODE is stiff: 1e7 /s in
-  sliding), so |z| never overshoots its steady state; the force held is the step's mean
-  ``σ0 z̄ + σ1 (z_{k+1} − z_k)/dt + c v_h``. Sticking, the bristle is a spring σ0 on the tip fed
-  back one step late: stable where ``σ0 dt² Σφb²`` stays below about 1 (the stiffest default,
-  0.02 µm pre-sliding at the scene's N, σ0 ≈ 1.5e4 N/m: ≈ 1.5) and it lasts a few steps at each
-  reversal before the bristle saturates; σ1 acts as a viscous term there (``σ1 dt Σφb²`` < 1).
+  two samples (explicit, second order). Stable where the force's slope ``dF/dv · dt Σφb²``
+  stays below 1 (the extrapolation's real stability interval): at the texture scene's step
+  (9.8 µs; Σφb² ≈ 1.0e6 /kg for the macro WT) the slope at rest ``μ_s N cos θ / v_r + c`` ≈
+  0.03 N·s/m gives ≈ 0.3; Stribeck's falling branch is a negative slope (a growth the scheme
+  follows). A v_r of 0.5 mm/s (slope ×20) is unstable there.
+- LuGre: sticking, the bristle is a spring σ0 on the tip (up to ~1.7e4 N/m, ``σ0 dt² Σφb²`` ≈
+  1.7 at that step), which explicit feedback would not hold. The force held over the step is
+  instead solved implicitly: the step's mean force ``σ0 z̄ + σ1 (z_{k+1} − z_k)/dt + c v̄`` with
+  v held at the step's mean ``v̄ = (v_k + v_{k+1})/2``, where v_{k+1} answers the force through
+  the exact step (one scalar per record, Newton's method in a bracket). Over the step z relaxes
+  exactly to ``g(v̄) sign(v̄)/σ0`` at the rate ``σ0 |v̄| / g(v̄)`` (stiff: ~1e7 /s in sliding), so
+  |z| never passes its steady state. Second order; the bristle rings on the tip near each
+  reversal, excited by the grains, so that at the texture scene's step halving it moves the
+  current's fundamental by up to ~3 × a 0.25 s window's noise: the scene steps LuGre at twice
+  that rate (``LUGRE_OVERSAMPLE`` of :mod:`wtml.scenes.texture`), where it is within the noise.
 
 The tests show halving the step moves the fundamental phasors by less than a scene's noise for
-each law.
+each law (at its step) and the order of convergence.
 """
 
 from __future__ import annotations

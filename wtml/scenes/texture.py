@@ -10,11 +10,13 @@ here and fitted to the thesis (:func:`fit_friction_law`, printed by ``wtml fidel
 Each specimen (``specimens_per_grade`` per grade per shard, so a shard's specimens are its own
 and a split by shard holds out specimens) draws its own Coulomb coefficient
 (``μ(d) + N(0, mu_spread)``), asperity factor (log-normal ``asperity_spread``), grain-size
-spread and grain positions, and its friction law from the mixture ``friction.law`` (Coulomb,
-Stribeck or LuGre, each with its own line μ_c(d) fitted to Table 4.10 and its shape drawn as
-nuisance: :class:`StribeckLaw`, :class:`LuGreLaw`). Each record draws the nuisance: whisking
-amplitude and frequency, N, θ, and the device's coupling (calibration error). Both channels go
-through a 24-bit ADC with noise; the current through an I-V converter.
+spread and grain positions. Each record draws the nuisance: whisking amplitude and frequency,
+N, θ, and the device's coupling (calibration error). Both channels go through a 24-bit ADC with
+noise; the current through an I-V converter.
+
+Each specimen also draws its friction law from the mixture ``friction.law`` (Coulomb, Stribeck
+or LuGre, each with its own line μ_c(d) fitted to Table 4.10 and its shape drawn as nuisance:
+:class:`StribeckLaw`, :class:`LuGreLaw`).
 
 ``grades: thesis`` holds the five sandpapers of the thesis as classes; ``grades: fepa`` the ten
 other FEPA P-grades (the regression test of unseen grain sizes; their class label is -1).

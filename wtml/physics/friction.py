@@ -290,15 +290,16 @@ def _bristle(u, z, dt, coulomb, viscous, ratio, vst, sig0, sig1):
 
 
 @njit(cache=True, nogil=True)
-def _implicit_bristle(v0, v1, answer, z, dt, coulomb, viscous, ratio, vst, sig0, sig1):
+def _implicit_bristle(v0, v1, answer, guess, z, dt, coulomb, viscous, ratio, vst, sig0, sig1):
     """LuGre's force F (N) held over a step whose velocity runs from v0 (m/s) to ``v1 + answer
     F`` (v1: where it would end without F; answer < 0: the force the tip applies slows it), the
-    bristle stepped at the mean of the two; solved by Newton's method kept within a bracket
-    (bisection where a step leaves it). Returns F and z at the step's end (m)."""
+    bristle stepped at the mean of the two; solved by Newton's method from ``guess`` (N) kept
+    within a bracket (bisection where a step leaves it). Returns F and z at the step's end
+    (m)."""
     bound = (coulomb * ratio * (1.0 + 2.0 * sig1 / (sig0 * dt))
              + viscous * (abs(v0) + abs(v1))) / max(1.0 - viscous * abs(answer), 1e-3)
     lo, hi = -1.001 * bound - 1e-300, 1.001 * bound + 1e-300
-    f = 0.0
+    f = min(max(guess, lo), hi)
     for _ in range(60):
         held, dheld, _ = _bristle(0.5 * (v0 + v1 + answer * f), z, dt, coulomb, viscous,
                                   ratio, vst, sig0, sig1)
@@ -364,7 +365,9 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, law, coulomb, slip,
     y = np.zeros(4)
     n_grain = positions.shape[1]
     implicit = np.any(law == 2)
+    explicit = 0.0 if implicit else 1.0
     grain = np.zeros(bsz)  # the grains' impulse over the coming step / dt
+    held = np.zeros(bsz)  # LuGre's force held over the last step
     answer = np.zeros(bsz)  # ∂v_{k+1}/∂F: the velocity's answer to a held force, m/s/N
     for b in range(bsz):
         for j in range(m):
@@ -396,15 +399,15 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, law, coulomb, slip,
             smooth[b], vel[b], grain[b] = now, v, kick / dt
             for c in range(len(cols)):
                 values[c, b, k] = y[cols[c]]
-        for j in range(m):  # the state advanced without the force
+        for j in range(m):  # the state advanced (with LuGre in the block: without the force)
             for b in range(bsz):
                 src = b if e.shape[0] > 1 else 0
-                ek, dk = e[src, k], de_step[src, k]
+                ek, dk, fk = e[src, k], de_step[src, k], force[b] * explicit
                 re, im = w[0, j, b], w[1, j, b]
                 w[0, j, b] = (lam[0, j, b] * re - lam[1, j, b] * im + gain[0, 0, j, b] * ek
-                              + gain[0, 1, j, b] * dk)
+                              + gain[0, 1, j, b] * dk + gain[0, 2, j, b] * fk)
                 w[1, j, b] = (lam[0, j, b] * im + lam[1, j, b] * re + gain[1, 0, j, b] * ek
-                              + gain[1, 1, j, b] * dk)
+                              + gain[1, 1, j, b] * dk + gain[1, 2, j, b] * fk)
         if implicit:
             nxt = min(k + 1, n_steps - 1)
             for b in range(bsz):
@@ -414,12 +417,12 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, law, coulomb, slip,
                 acc = feed[1, 0, b] * e[src, nxt] + feed[1, 1, b] * de_out[src, nxt]
                 for j in range(m):
                     acc += out[0, 1, j, b] * w[0, j, b] - out[1, 1, j, b] * w[1, j, b]
-                held, z[b] = _implicit_bristle(vel[b], acc + answer[b] * grain[b], answer[b],
-                                               z[b], dt, coulomb[b], viscous[b], ratio[b],
-                                               vst[b], sig0[b], sig1[b])
-                force[b] = held + grain[b]
-        for j in range(m):
-            for b in range(bsz):
-                fk = force[b]
-                w[0, j, b] = w[0, j, b] + gain[0, 2, j, b] * fk
-                w[1, j, b] = w[1, j, b] + gain[1, 2, j, b] * fk
+                held[b], z[b] = _implicit_bristle(vel[b], acc + answer[b] * grain[b],
+                                                  answer[b], held[b], z[b], dt, coulomb[b],
+                                                  viscous[b], ratio[b], vst[b], sig0[b],
+                                                  sig1[b])
+                force[b] = held[b] + grain[b]
+            for j in range(m):
+                for b in range(bsz):
+                    w[0, j, b] = w[0, j, b] + gain[0, 2, j, b] * force[b]
+                    w[1, j, b] = w[1, j, b] + gain[1, 2, j, b] * force[b]

@@ -15,16 +15,21 @@ N, θ, and the device's coupling (calibration error, times the temperature drift
 ``acquisition.effects``). Both channels go through a 24-bit ADC with noise and the effects of
 :mod:`wtml.signals.acquisition`; the current through an I-V converter.
 
+Each specimen also draws its friction law from the mixture ``friction.law`` (Coulomb, Stribeck
+or LuGre, each with its own line μ_c(d) fitted to Table 4.10 and its shape drawn as nuisance:
+:class:`StribeckLaw`, :class:`LuGreLaw`).
+
 ``grades: thesis`` holds the five sandpapers of the thesis as classes; ``grades: fepa`` the ten
 other FEPA P-grades (the regression test of unseen grain sizes; their class label is -1).
 Labels: ``grade`` (class index), ``grain_m`` (the grade's mean grain size, m), ``specimen``
-(an id unique within the dataset), and the nuisance drawn. Stored: ``e`` (V) and ``i`` (A)
+(an id unique within the dataset), and the nuisance drawn (``friction_law``: the law's code,
+its index in :data:`~wtml.physics.friction.LAWS`). Stored: ``e`` (V) and ``i`` (A)
 float32 ``(n, n_samples)``, 2 × 4 bytes × 51200 = 410 kB per 1 s record.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -32,7 +37,7 @@ from scipy.signal import resample_poly
 
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import build
-from wtml.physics.friction import Friction, grains, pad_grains
+from wtml.physics.friction import LAWS, Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.scenes.config import SceneError, bounded, one_of
 from wtml.scenes.onset import Acquisition
@@ -71,12 +76,56 @@ class Contact:
 
 
 @dataclass(frozen=True)
+class StribeckLaw:
+    """The Stribeck law ``μ(v) = μ_c + (μ_s − μ_c) exp(−(v/v_s)²)`` (physics.md §12): its own
+    line ``μ_c(d) = mu_0 + mu_per_um · d/µm`` (fitted to Table 4.10 at the nominal set-up by
+    :func:`fit_friction_law` with the shape at the middle of its ranges) and each specimen's
+    shape: ``static_ratio`` μ_s/μ_c (uniform) and ``stribeck_speed`` v_s (m/s, log-uniform),
+    the ranges of physics.md §12. The default line is the fit's (intercept 0.4884, slope
+    0.003875 /µm: the Coulomb law's to 1e-5, the tip sliding at ~100 v_s at the nominal set-up).
+    """
+
+    mu_0: float = bounded(-1.0, 2.0, default=0.488)
+    mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
+    static_ratio: tuple[float, float] = bounded(1.0, 3.0, default=(1.0, 1.5))
+    stribeck_speed: tuple[float, float] = bounded(1e-5, 1.0, default=(1e-3, 1e-2))
+
+
+@dataclass(frozen=True)
+class LuGreLaw(StribeckLaw):
+    """The LuGre law (physics.md §12) on the Stribeck curve: as :class:`StribeckLaw`, and each
+    specimen's bristles: ``presliding_m``, the pre-sliding distance ``μ_s N cos θ / σ0`` at
+    the nominal N and θ (m, log-uniform; it sets the stiffness σ0, a property of the
+    specimen), and ``bristle_damping`` σ1 (N·s/m, uniform: up to about 0.15 of the critical
+    damping of a 1e3 N/m bristle on the tip's modal mass ``1/Σφb²`` ≈ 1 mg). σ2 is ``viscous``.
+    The default line is the fit's (intercept 0.4862, slope 0.003869 /µm).
+    """
+
+    mu_0: float = bounded(-1.0, 2.0, default=0.486)
+    mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
+    presliding_m: tuple[float, float] = bounded(1e-9, 1e-4, default=(2e-8, 2e-6))
+    bristle_damping: tuple[float, float] = bounded(0.0, 1.0, default=(0.0, 0.01))
+
+
+LUGRE_OVERSAMPLE = 4
+"""The least ``oversample`` for LuGre records: the bristle rings on the tip at up to ~11 kHz
+while it sticks (σ0 ≈ 1.4e4 N/m), excited by the grains at each reversal; at 102.4 kS/s
+halving the step moves the current's fundamental by up to ~3 × a 0.25 s window's noise, at
+204.8 kS/s by less than it."""
+
+
+@dataclass(frozen=True)
 class FrictionLaw:
     """The friction law against grain size (see the module docstring) and each specimen's
-    deviations from it: ``mu_0`` and ``mu_per_um`` (the line μ(d)), ``asperity`` a at 35 µm,
-    ``slip_speed`` v_s (m/s), ``viscous`` c (N·s/m); ``mu_spread`` (std of μ),
-    ``asperity_spread`` (log-normal σ of a), ``grain_spread`` (range of the coefficient of
-    variation of grain spacing and size)."""
+    deviations from it: ``mu_0`` and ``mu_per_um`` (the Coulomb law's line μ(d)), ``asperity``
+    a at 35 µm, ``slip_speed`` v_s (m/s; the regularisation v_r of Coulomb and Stribeck),
+    ``viscous`` c (N·s/m); ``mu_spread`` (std of μ), ``asperity_spread`` (log-normal σ of a),
+    ``grain_spread`` (range of the coefficient of variation of grain spacing and size).
+
+    ``law``: the mixture each specimen's law is drawn from, ``{name: weight}`` over
+    :data:`~wtml.physics.friction.LAWS` (default Coulomb only); ``stribeck`` and ``lugre``
+    those laws' own lines and shapes. Every law has the same asperities.
+    """
 
     mu_0: float = bounded(-1.0, 2.0, default=0.488)
     mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
@@ -86,6 +135,54 @@ class FrictionLaw:
     mu_spread: float = bounded(0.0, 0.5, default=0.005)
     asperity_spread: float = bounded(0.0, 1.0, default=0.08)
     grain_spread: tuple[float, float] = bounded(0.05, 1.5, default=(0.25, 0.4))
+    law: dict = field(default_factory=lambda: {"coulomb": 1.0})
+    stribeck: StribeckLaw = field(default_factory=StribeckLaw)
+    lugre: LuGreLaw = field(default_factory=LuGreLaw)
+
+    def check(self, path: str) -> None:
+        pre = (path + "." if path else "") + "law"
+        for name, weight in self.law.items():
+            if name not in LAWS:
+                raise SceneError(f"{pre}: unknown law {name!r}; allowed laws: {list(LAWS)}")
+            if isinstance(weight, bool) or not isinstance(weight, int | float) or not (
+                    0 <= weight < float("inf")):
+                raise SceneError(f"{pre}.{name}: the weight must be a number >= 0, "
+                                 f"got {weight!r}")
+        if sum(self.law.values()) <= 0:
+            raise SceneError(f"{pre}: the weights must not all be 0 (laws: {list(LAWS)})")
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Each law's probability, in the order of :data:`LAWS`."""
+        w = np.array([float(self.law.get(name, 0.0)) for name in LAWS])
+        return w / w.sum()
+
+    def line(self, law: str) -> tuple[float, float]:
+        """``(mu_0, mu_per_um)`` of ``law``'s μ_c(d)."""
+        own = {"coulomb": self, "stribeck": self.stribeck, "lugre": self.lugre}[law]
+        return own.mu_0, own.mu_per_um
+
+    def shape(self, code: np.ndarray, rng: np.random.Generator | None) -> dict[str, np.ndarray]:
+        """Each specimen's shape for its law ``code`` ``(n,)``: ``static_ratio``,
+        ``stribeck_speed`` (m/s), ``presliding_m`` (m) and ``bristle_damping`` (N·s/m); drawn
+        from ``rng`` (per specimen, uniform or log-uniform as documented), or with ``rng``
+        None the middle of each range (the geometric one for the log-uniform). Coulomb
+        specimens get μ_s/μ_c = 1; shapes a law does not use are its defaults' middles."""
+        n = len(code)
+
+        def draw(pair, log=False):
+            lo, hi = (np.log(pair[0]), np.log(pair[1])) if log else pair
+            x = rng.uniform(lo, hi, n) if rng is not None else np.full(n, 0.5 * (lo + hi))
+            return np.exp(x) if log else x
+
+        out = {}
+        for key, log in (("static_ratio", False), ("stribeck_speed", True),
+                         ("presliding_m", True), ("bristle_damping", False)):
+            stri = draw(getattr(self.stribeck, key, getattr(self.lugre, key)), log)
+            lug = draw(getattr(self.lugre, key), log)
+            out[key] = np.where(code == 2, lug, stri)
+        out["static_ratio"] = np.where(code == 0, 1.0, out["static_ratio"])
+        return out
 
 
 @dataclass(frozen=True)
@@ -128,6 +225,10 @@ class TextureScene:
         if self.drive.lead_s * self.acquisition.sample_rate_hz < 64:
             raise SceneError(f"{pre}drive.lead_s: at least 64 samples "
                              f"({64 / self.acquisition.sample_rate_hz:g} s) for the decimation")
+        if self.friction.law.get("lugre", 0) > 0 and self.oversample < LUGRE_OVERSAMPLE:
+            raise SceneError(f"{pre}oversample: LuGre friction (friction.law.lugre > 0) needs "
+                             f"oversample >= {LUGRE_OVERSAMPLE} (its bristle resolved), got "
+                             f"{self.oversample}")
         if self.drive.whisk_hz[1] >= self.acquisition.sample_rate_hz / 8:
             raise SceneError(f"{pre}drive.whisk_hz: must stay below an eighth of the sample "
                              f"rate ({self.acquisition.sample_rate_hz / 8:g} Hz)")
@@ -164,9 +265,15 @@ class TextureScene:
     def n_samples(self) -> int:
         return int(round(self.drive.record_s * self.acquisition.sample_rate_hz))
 
-    def mu(self, grain_um) -> np.ndarray:
-        """The law's Coulomb coefficient at mean grain size ``grain_um`` (µm)."""
-        return self.friction.mu_0 + self.friction.mu_per_um * np.asarray(grain_um, float)
+    def mu(self, grain_um, law="coulomb") -> np.ndarray:
+        """The law's Coulomb coefficient μ_c at mean grain size ``grain_um`` (µm): ``law`` a
+        name of :data:`~wtml.physics.friction.LAWS` or an array of codes (broadcast)."""
+        grain_um = np.asarray(grain_um, float)
+        if isinstance(law, str):
+            mu_0, per_um = self.friction.line(law)
+            return mu_0 + per_um * grain_um
+        lines = np.array([self.friction.line(name) for name in LAWS])[np.asarray(law)]
+        return lines[..., 0] + lines[..., 1] * grain_um
 
     def asperity(self, grain_um) -> np.ndarray:
         """The law's asperity factor a at ``grain_um`` (µm)."""
@@ -194,24 +301,32 @@ class TextureScene:
 
     def specimens(self, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """This shard's specimens, ``specimens_per_grade`` of each grade: ``grade`` (index),
-        ``grain_um``, ``mu``, ``asperity`` and ``spread`` each ``(n_specimens,)``."""
+        ``grain_um``, ``mu``, ``asperity``, ``spread``, ``seed``, ``law`` (code) and its shape
+        (:meth:`FrictionLaw.shape`) each ``(n_specimens,)``. The law and its shape are drawn
+        from the specimens' seeds, so that ``rng`` is drawn from as with Coulomb alone; a
+        specimen's μ deviates from its own law's line by the same draw."""
         f = self.friction
         sizes = np.array(list(self.grade_table.values()))
         grade = np.repeat(np.arange(len(sizes)), self.specimens_per_grade)
         n = len(grade)
-        return {"grade": grade, "grain_um": sizes[grade],
+        spec = {"grade": grade, "grain_um": sizes[grade],
                 "mu": self.mu(sizes[grade]) + f.mu_spread * rng.standard_normal(n),
                 "asperity": self.asperity(sizes[grade]) * np.exp(
                     f.asperity_spread * rng.standard_normal(n)),
                 "spread": rng.uniform(*f.grain_spread, n),
                 "seed": rng.integers(0, 2**32 - 1, n)}
+        own = np.random.default_rng([*spec["seed"].tolist(), len(LAWS)])
+        spec["law"] = own.choice(len(LAWS), n, p=f.weights)
+        spec["mu"] = np.where(spec["law"] == 0, spec["mu"], spec["mu"] - self.mu(
+            spec["grain_um"]) + self.mu(spec["grain_um"], spec["law"]))
+        return {**spec, **f.shape(spec["law"], own)}
 
     def friction_load(self, spec: dict, which: np.ndarray, normal: np.ndarray,
                       angle: np.ndarray, *, asperities: bool = True,
                       mu: np.ndarray | None = None) -> Friction:
         """The records' friction: specimen ``which[r]`` under normal force ``normal[r]`` (N)
         and angle ``angle[r]`` (rad); ``mu`` overrides the specimens' Coulomb coefficients."""
-        rows = []
+        f, rows = self.friction, []
         for r, s in enumerate(which):
             if asperities:
                 rows.append(grains(np.random.default_rng(int(spec["seed"][s])),
@@ -222,8 +337,21 @@ class TextureScene:
                 rows.append((np.array([np.inf]), np.zeros(1)))
         pos, imp = pad_grains(rows)
         coulomb = spec["mu"][which] if mu is None else mu
-        return Friction(np.clip(coulomb, 0.0, None), normal, angle, self.friction.slip_speed,
-                        self.friction.viscous, pos, imp)
+        return Friction(np.clip(coulomb, 0.0, None), normal, angle, f.slip_speed, f.viscous,
+                        pos, imp, **self.law_shape(spec, which))
+
+    def law_shape(self, spec: dict, which: np.ndarray) -> dict[str, np.ndarray]:
+        """The keyword arguments of :class:`~wtml.physics.friction.Friction` for the law of
+        specimen ``which[r]``: its code and shape, σ0 set by its pre-sliding distance at the
+        nominal N and θ on its law's line μ_s(d)."""
+        law, ratio = spec["law"][which], spec["static_ratio"][which]
+        stiffness = (ratio * np.clip(self.mu(spec["grain_um"][which], law), 1e-3, None)
+                     * NOMINAL_N * np.cos(np.deg2rad(NOMINAL_ANGLE_DEG))
+                     / spec["presliding_m"][which])
+        return {"law": law, "static_ratio": ratio,
+                "stribeck_speed": spec["stribeck_speed"][which],
+                "bristle_stiffness": stiffness,
+                "bristle_damping": spec["bristle_damping"][which]}
 
     def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64,
                  asperities: bool = True, mean_friction: bool = True,
@@ -236,8 +364,9 @@ class TextureScene:
         calibrated device, no specimen deviations)."""
         spec = self.specimens(rng)
         if nominal:
-            spec["mu"] = self.mu(spec["grain_um"])
+            spec["mu"] = self.mu(spec["grain_um"], spec["law"])
             spec["asperity"] = self.asperity(spec["grain_um"])
+            spec.update(self.friction.shape(spec["law"], None))
         n_spec = len(spec["grade"])
         which = np.arange(n) % n_spec
         d, c, a = self.drive, self.contact, self.acquisition
@@ -252,8 +381,8 @@ class TextureScene:
             volts, hz, normal = (np.full(n, NOMINAL_V), np.full(n, NOMINAL_HZ),
                                  np.full(n, NOMINAL_N))
             angle, scale = np.full(n, np.deg2rad(NOMINAL_ANGLE_DEG)), np.ones(n)
-        mid = float(self.mu(np.median(list(THESIS_GRADES.values()))))
-        mu = None if mean_friction else np.full(n, mid)
+        mid = self.mu(np.median(list(THESIS_GRADES.values())), spec["law"][which])
+        mu = None if mean_friction else mid
         model = self.transducer()
         dt = 1 / (a.sample_rate_hz * self.oversample)
         cur = np.empty((n, self.n_samples))
@@ -275,14 +404,16 @@ class TextureScene:
         return {"e": e_rec, "i": i_rec,
                 "grade": grade, "grain_m": spec["grain_um"][which] * 1e-6,
                 "specimen": rng.integers(0, 2**62) + which, "mu": spec["mu"][which],
-                "asperity": spec["asperity"][which], "whisk_v": volts, "whisk_hz": hz,
+                "asperity": spec["asperity"][which], "friction_law": spec["law"][which],
+                "whisk_v": volts, "whisk_hz": hz,
                 "normal_force": normal, "angle": angle, "coupling": scale,
                 "rms_speed": np.sqrt(np.mean(vel.astype(float) ** 2, axis=1))}
 
 
-def fit_friction_law(scene: TextureScene, *, iterations: int = 6) -> dict:
-    """Fit μ per thesis grade so that the simulated RMS tip speed at the nominal set-up matches
-    Table 4.10 (secant steps on all five at once, asperities included), then a line μ(d).
+def fit_friction_law(scene: TextureScene, *, iterations: int = 6, law: str = "coulomb") -> dict:
+    """Fit μ (μ_c for Stribeck and LuGre, their shape at the middle of its ranges) per thesis
+    grade so that the simulated RMS tip speed at the nominal set-up matches Table 4.10 (secant
+    steps on all five at once, asperities included), then a line μ(d).
 
     Returns ``mu_per_grade``, ``intercept``, ``slope`` (per µm), ``r2`` of the line and the
     achieved ``rms_speed`` per grade (m/s).
@@ -291,9 +422,9 @@ def fit_friction_law(scene: TextureScene, *, iterations: int = 6) -> dict:
     target = np.array(list(TABLE_4_10_RMS_SPEED.values()))
 
     def speeds(mu: np.ndarray) -> np.ndarray:
-        return nominal_response(scene, mu=mu)["rms_speed"]
+        return nominal_response(scene, mu=mu, law=law)["rms_speed"]
 
-    mu0, mu1 = scene.mu(sizes), scene.mu(sizes) + 0.05
+    mu0, mu1 = scene.mu(sizes, law), scene.mu(sizes, law) + 0.05
     s0, s1 = speeds(mu0), speeds(mu1)
     for _ in range(iterations):
         slope = (s1 - s0) / np.where(mu1 != mu0, mu1 - mu0, 1.0)
@@ -308,13 +439,19 @@ def fit_friction_law(scene: TextureScene, *, iterations: int = 6) -> dict:
             "r2": float(r2), "rms_speed": s1}
 
 
-def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None
-                     ) -> dict[str, np.ndarray]:
-    """The five thesis grades at the nominal set-up (10 V, 36 Hz, 3.3e-4 N, 10°), the law's
-    own parameters (``mu`` overrides μ per grade), no noise, at the simulation rate: the
+def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None,
+                     law: str = "coulomb") -> dict[str, np.ndarray]:
+    """The five thesis grades at the nominal set-up (10 V, 36 Hz, 3.3e-4 N, 10°) under friction
+    ``law`` (a name of :data:`~wtml.physics.friction.LAWS`; its shape at the middle of its
+    ranges), the law's own parameters (``mu`` overrides μ_c per grade), no noise, at the
+    simulation rate (LuGre's at least :data:`LUGRE_OVERSAMPLE` × the sampling rate): the
     fundamental phasors of the tip's force and velocity over the recorded part (``force``,
     ``velocity``, complex, N and m/s), ``zm`` = F/V and ``rms_speed`` (m/s), each ``(5,)``;
     ``e``, ``i``, ``v`` (the records, ``(5, n)``) and ``rate`` (Hz) for the spectra."""
+    if law not in LAWS:
+        raise ValueError(f"law: one of {list(LAWS)}, got {law!r}")
+    if law == "lugre" and scene.oversample < LUGRE_OVERSAMPLE:
+        scene = replace(scene, oversample=LUGRE_OVERSAMPLE)
     sizes = np.array(list(THESIS_GRADES.values()))
     rate = scene.acquisition.sample_rate_hz * scene.oversample
     rows = []
@@ -324,9 +461,12 @@ def nominal_response(scene: TextureScene, *, mu: np.ndarray | None = None
                            asperity=float(scene.asperity(d)),
                            pressing_n=NOMINAL_N * np.cos(np.deg2rad(NOMINAL_ANGLE_DEG))))
     pos, imp = pad_grains(rows)
-    load = Friction(scene.mu(sizes) if mu is None else mu, NOMINAL_N,
+    code = np.full(len(sizes), LAWS.index(law))
+    spec = {"grain_um": sizes, "law": code, **scene.friction.shape(code, None)}
+    load = Friction(scene.mu(sizes, law) if mu is None else mu, NOMINAL_N,
                     np.deg2rad(NOMINAL_ANGLE_DEG), scene.friction.slip_speed,
-                    scene.friction.viscous, pos, imp)
+                    scene.friction.viscous, pos, imp,
+                    **scene.law_shape(spec, np.arange(len(sizes))))
     e, de, n_lead = scene.drive_voltage(np.array([NOMINAL_V]), np.array([NOMINAL_HZ]))
     out = scene.transducer().simulate(e[0], 1 / rate, load, drive_rate=de[0],
                                       record=("v", "force", "i"), dtype=np.float64,

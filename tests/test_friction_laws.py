@@ -1,0 +1,316 @@
+"""The texture scene's friction laws (physics.md §12): Stribeck and LuGre against their limits
+and closed forms, the stepper against a slow per-record reference, convergence in the step, the
+fit to Table 4.10 and the scene's mixture."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from wtml.physics.beam_presets import build
+from wtml.physics.friction import LAWS, Friction, describing_function, grains, pad_grains
+from wtml.physics.modal import ModalTransducer
+from wtml.scenes import SceneError
+from wtml.scenes.config import build as build_config
+from wtml.scenes.texture import (
+    LUGRE_OVERSAMPLE,
+    NOMINAL_ANGLE_DEG,
+    NOMINAL_N,
+    TABLE_4_10_RMS_SPEED,
+    TextureScene,
+    fit_friction_law,
+    nominal_response,
+)
+
+F0 = 36.0
+PRESS = NOMINAL_N * np.cos(np.deg2rad(NOMINAL_ANGLE_DEG))
+
+
+@pytest.fixture(scope="module")
+def macro() -> ModalTransducer:
+    return ModalTransducer.from_beam(build("macro"), 14, reference_hz=F0)
+
+
+def tone(rate: float, seconds: float, volts: float = 10.0):
+    t = np.arange(int(round(seconds * rate))) / rate
+    w = 2 * np.pi * F0
+    return t, volts * np.sin(w * t), volts * w * np.cos(w * t)
+
+
+def phasor(x: np.ndarray, t: np.ndarray, start: float) -> np.ndarray:
+    sel = t >= start
+    return 2 * np.mean(x[..., sel] * np.exp(-2j * np.pi * F0 * t[sel]), axis=-1)
+
+
+def one_of_each(mu=0.61, presliding=2e-7, damping=0.0, positions=None, impulses=None,
+                slip=0.01):
+    """Three records: Coulomb, Stribeck (μ_s/μ_c 1.25, v_s 3.2 mm/s), LuGre on that curve."""
+    stiff = 1.25 * mu * PRESS / presliding
+    return Friction(np.full(3, mu), NOMINAL_N, np.deg2rad(NOMINAL_ANGLE_DEG), slip, 0.0,
+                    positions, impulses, law=[0, 1, 2], static_ratio=[1.0, 1.25, 1.25],
+                    stribeck_speed=3.16e-3, bristle_stiffness=stiff, bristle_damping=damping)
+
+
+def test_stribeck_with_equal_coefficients_is_coulomb(macro):
+    v = np.linspace(-0.5, 0.5, 2001)[None, :] * np.ones((2, 1))
+    kw = dict(mu=[0.4, 0.8], normal_force=3.3e-4, angle=0.2, slip_speed=4e-3, viscous=1e-4,
+              stribeck_speed=2e-3)
+    coulomb, stribeck = Friction(**kw, law=0), Friction(**kw, law=1, static_ratio=1.0)
+    np.testing.assert_allclose(stribeck.force(v), coulomb.force(v), rtol=1e-12, atol=0)
+    t, e, de = tone(51200.0, 0.05)
+    a = macro.simulate(e, t[1], coulomb, drive_rate=de, dtype=np.float64)
+    b = macro.simulate(e, t[1], stribeck, drive_rate=de, dtype=np.float64)
+    for key in ("u", "v", "force", "i"):
+        np.testing.assert_allclose(b[key], a[key], rtol=1e-12, atol=1e-12 * np.abs(a[key]).max())
+
+
+def test_lugre_steady_sliding_is_the_stribeck_curve_plus_viscous():
+    v = np.array([-0.3, -4e-3, -1e-3, 2e-4, 1e-3, 3e-3, 0.05, 0.4])
+    load = Friction(np.full(len(v), 0.6), 3.3e-4, 0.1, viscous=2e-4, law=2, static_ratio=1.4,
+                    stribeck_speed=3e-3, bristle_stiffness=3e3, bristle_damping=0.01)
+    dt = 1e-6
+    path = np.broadcast_to(v[:, None], (len(v), 40000))  # 40 ms: many pre-sliding lengths
+    got = load.sweep(path, dt)[:, -1]
+    mu = 0.6 * (1 + 0.4 * np.exp(-(v / 3e-3) ** 2))
+    expected = mu * 3.3e-4 * np.cos(0.1) * np.sign(v) + 2e-4 * v
+    np.testing.assert_allclose(got, expected, rtol=1e-9)
+    np.testing.assert_allclose(load.force(v), expected, rtol=1e-12)
+
+
+def test_lugre_presliding_is_a_spring_of_stiffness_sigma0():
+    """A displacement a thousandth of the pre-sliding distance, there and half back: F = σ0 x
+    (σ1 = σ2 = 0), to the order of x over the pre-sliding distance."""
+    sig0 = 2e3
+    load = Friction([0.6], 3.3e-4, 0.0, law=2, static_ratio=1.2, stribeck_speed=3e-3,
+                    bristle_stiffness=sig0)
+    reach = 1e-3 * 0.6 * 1.2 * 3.3e-4 / sig0
+    dt, n = 1e-6, 4000
+    t = np.arange(n) * dt
+    x = reach * np.sin(2 * np.pi * t / (n * dt)) ** 2 * np.where(t < n * dt / 2, 1, 0.75)
+    v = np.gradient(x, dt)
+    xs = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * dt)])  # trapezoid path
+    got = load.sweep(v[None], dt)[0]
+    np.testing.assert_allclose(got, sig0 * xs, rtol=0, atol=3e-3 * sig0 * reach)
+
+
+@pytest.mark.parametrize("law", [0, 1, 2])
+def test_work_per_cycle_is_the_closed_form_and_the_describing_function(law):
+    """Prescribed sliding x = A sin ωt: the work per cycle ∮F dx is 4 μ N A for Coulomb and
+    ``π A V · describing_function`` (Dawson's rise) for Stribeck and LuGre in steady sliding
+    (a pre-sliding distance 1e-5 of A); the fundamental in phase with v is that function."""
+    amp, w = 1e-3, 2 * np.pi * F0
+    speed = amp * w
+    vs, ratio, mu = 0.08, 1.5 if law else 1.0, 0.6
+    load = Friction([mu], NOMINAL_N, 0.0, slip_speed=1e-6, law=law, static_ratio=ratio,
+                    stribeck_speed=vs, bristle_stiffness=ratio * mu * NOMINAL_N / 1e-8)
+    n = 200000  # per cycle
+    dt = 1 / (F0 * n)
+    t = np.arange(2 * n) * dt
+    v = speed * np.cos(w * t)
+    f = load.sweep(v[None], dt)[0, n:]  # the second cycle
+    work = np.sum(f * v[n:]) * dt
+    expected = np.pi * amp * speed * describing_function(load.coulomb, speed, ratio, vs)
+    if law == 0:
+        np.testing.assert_allclose(expected, 4 * mu * NOMINAL_N * amp, rtol=1e-12)
+    tol = 1e-4 if law == 2 else 1e-8  # LuGre: its pre-sliding, 1e-5 of A
+    np.testing.assert_allclose(work, expected, rtol=tol)
+    in_phase = 2 * np.mean(f * np.cos(w * t[n:]))
+    np.testing.assert_allclose(in_phase / speed, expected / (np.pi * amp * speed), rtol=tol)
+
+
+def test_step_halving_converges_at_second_order_for_each_law(macro):
+    """No grains: the current's fundamental at the steps 1/51.2k, 1/102.4k, 1/204.8k; each
+    halving shrinks the change about four times (order 2 of the held force)."""
+    answers = []
+    for rate in (51200.0, 102400.0, 204800.0):
+        t, e, de = tone(rate, 0.75)
+        out = macro.simulate(e, 1 / rate, one_of_each(), drive_rate=de, record=("i",),
+                             dtype=np.float64)
+        answers.append(phasor(out["i"], t, 0.5))
+    first, second = np.abs(answers[0] - answers[1]), np.abs(answers[1] - answers[2])
+    order = np.log2(first / second)
+    assert np.all((order > 1.7) & (order < 2.6)), order
+
+
+def test_halving_the_step_moves_the_phasors_less_than_the_noise(macro):
+    """With grains, each law at the texture scene's step (LuGre at its own): the current's
+    fundamental at that step and at half of it differ by less than the phasor noise of the
+    scene's current channel over a 0.25 s window."""
+    scene = TextureScene()
+    pos, imp = pad_grains([grains(np.random.default_rng(1), 35e-6, 5e-3, spread=0.33,
+                                  asperity=0.2, pressing_n=PRESS)] * 3)
+    load = one_of_each(positions=pos, impulses=imp)
+    window = int(0.25 * scene.acquisition.sample_rate_hz)
+    noise = scene.acquisition.i_noise_a * np.sqrt(2 / window)
+    for laws, over in (([0, 1], scene.oversample), ([2], LUGRE_OVERSAMPLE)):
+        answers = []
+        for rate in (scene.acquisition.sample_rate_hz * over,
+                     2 * scene.acquisition.sample_rate_hz * over):
+            t, e, de = tone(rate, 0.75)
+            sub = Friction(load.mu[laws], NOMINAL_N, load.angle[laws], 0.01, 0.0,
+                           pos[laws], imp[laws], law=load.law[laws],
+                           static_ratio=load.static_ratio[laws], stribeck_speed=3.16e-3,
+                           bristle_stiffness=load.bristle_stiffness[laws])
+            out = macro.simulate(e, 1 / rate, sub, drive_rate=de, record=("i",),
+                                 dtype=np.float64)
+            answers.append(phasor(out["i"], t, 0.5))
+        change = np.abs(answers[0] - answers[1])
+        assert np.all(change < noise) and np.all(change > 0), (laws, change / noise)
+
+
+def reference(model, e, de_out, dt, load: Friction) -> np.ndarray:
+    """A slow per-record stepper on the full state (``step_matrices``, no eigenbasis): the
+    grains as the production stepper lands them, Coulomb and Stribeck held at their mid-step
+    extrapolation, LuGre's held force solved by Brent's method with z's closed form. Returns
+    (u, v, F, i) ``(4, B, n)``."""
+    n_steps = e.shape[-1]
+    de_step = np.diff(e, append=e[-1]) / dt
+    ns = 2 * model.n_modes + 1
+    out = np.empty((4, load.batch, n_steps))
+    for b in range(load.batch):
+        m = model.step_matrices(dt, [0.0], [0.0], force_input=True)[0]
+        step, outs = m[:ns], m[ns:]
+        code, c, vr = load.law[b], load.coulomb[b], load.slip_speed[b]
+        ratio, vst = load.static_ratio[b], load.stribeck_speed[b]
+        s0, s1, s2 = load.bristle_stiffness[b], load.bristle_damping[b], load.viscous[b]
+
+        def g(v, c=c, ratio=ratio, vst=vst):
+            return c * (1 + (ratio - 1) * np.exp(-(v / vst) ** 2))
+
+        def bristle(u, z, g=g, s0=s0, s1=s1, s2=s2):  # (mean force, z at the end)
+            if u == 0:
+                return s0 * z, z
+            x = s0 * abs(u) * dt / g(u)
+            zss = g(u) * np.sign(u) / s0
+            z1 = zss + (z - zss) * np.exp(-x)
+            mean = zss + (z - zss) * (-np.expm1(-x)) / x
+            return s0 * mean + s1 * (z1 - z) / dt + s2 * u, z1
+
+        def outputs(x, k, force, outs=outs):
+            return outs @ np.concatenate([x, [e[k], 0.0, force, de_out[k]]])
+
+        x, z, last = np.zeros(ns), 0.0, 0.0
+        ptr = np.searchsorted(load.positions[b], 0.0)
+        for k in range(n_steps):
+            y = outputs(x, k, 0.0)
+            reach = y[0] + y[1] * dt
+            kick = 0.0
+            while ptr < load.positions.shape[1] and load.positions[b, ptr] <= reach:
+                kick, ptr = kick + load.impulses[b, ptr], ptr + 1
+            while ptr > 0 and load.positions[b, ptr - 1] > reach:
+                kick, ptr = kick - load.impulses[b, ptr - 1], ptr - 1
+            v = y[1]
+            if code == 2:
+                now = s0 * z + s1 * (v - s0 * abs(v) * z / g(v)) + s2 * v
+            else:
+                now = (g(v) if code == 1 else c) * np.tanh(v / vr) + s2 * v
+            out[:, b, k] = outputs(x, k, now + kick / dt)
+            advance = step @ np.concatenate([x, [e[k], de_step[k], 0.0, 0.0]])
+            per_force = step[:, ns + 2]
+            if code == 2:
+                nxt = min(k + 1, n_steps - 1)
+
+                def v_next(f, nxt=nxt, advance=advance, per_force=per_force, kick=kick):
+                    return outputs(advance + per_force * (f + kick / dt), nxt, 0.0)[1]
+
+                def gap(f, v=v, z=z, v_next=v_next):
+                    return f - bristle(0.5 * (v + v_next(f)), z)[0]
+
+                top = 4 * c * ratio + 1e-12
+                held = brentq(gap, -top, top, xtol=1e-18, rtol=1e-14)
+                z = bristle(0.5 * (v + v_next(held)), z)[1]
+            else:
+                held = now if k == 0 else 1.5 * now - 0.5 * last
+            last = now
+            x = advance + per_force * (held + kick / dt)
+    return out
+
+
+def test_stepper_agrees_with_a_slow_per_record_reference(macro):
+    """Two records of each law (one with grains 4 µm apart), a drive with a 400 Hz part so
+    that the tip turns several times: the numba stepper in the eigenbasis against the
+    reference on the full state."""
+    rate, n = 102400.0, 1500
+    t = np.arange(n) / rate
+    e = 10 * np.sin(2 * np.pi * F0 * t) + 4 * np.sin(2 * np.pi * 400 * t)
+    de = 2 * np.pi * (10 * F0 * np.cos(2 * np.pi * F0 * t) + 1600 * np.cos(2 * np.pi * 400 * t))
+    pos = np.arange(-40, 41) * 4e-6 + 1e-6
+    imp = np.full(len(pos), 0.2 * PRESS * 4e-6)
+    rows = [(pos, imp) if r % 2 else (np.array([np.inf]), np.zeros(1)) for r in range(6)]
+    pos, imp = pad_grains(rows)
+    load = Friction(np.full(6, 0.61), NOMINAL_N, np.deg2rad(NOMINAL_ANGLE_DEG), 0.01, 1e-4, pos,
+                    imp, law=[0, 0, 1, 1, 2, 2], static_ratio=[1, 1, 1.3, 1.3, 1.3, 1.3],
+                    stribeck_speed=2e-3, bristle_stiffness=[1, 1, 1, 1, 3e3, 1.4e4],
+                    bristle_damping=[0, 0, 0, 0, 0.01, 0.0])
+    got = macro.simulate(e, 1 / rate, load, drive_rate=de, dtype=np.float64)
+    ref = reference(macro, e, de, 1 / rate, load)
+    v = got["v"]
+    assert np.all(np.sum(np.diff(np.sign(v), axis=1) != 0, axis=1) >= 3)  # the tip turns
+    for row, key in enumerate(("u", "v", "force", "i")):
+        scale = np.abs(ref[row]).max(axis=1, keepdims=True)
+        assert np.all(np.abs(got[key] - ref[row]) <= 1e-9 * scale), key
+
+
+@pytest.mark.parametrize("law", LAWS)
+def test_each_law_reproduces_table_4_10_at_the_nominal_set_up(law):
+    """Each law on its default line (the fit's) within the Coulomb fit's tolerance (10 %)."""
+    r = nominal_response(TextureScene(), law=law)
+    table = np.array(list(TABLE_4_10_RMS_SPEED.values()))
+    assert np.all(np.abs(r["rms_speed"] / table - 1) < 0.10)
+    assert np.all(np.diff(r["zm"].real) > 0)
+    assert np.all(np.abs(r["zm"].imag) < 0.2 * r["zm"].real)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("law", ["stribeck", "lugre"])
+def test_default_lines_are_the_fit(law):
+    """fit_friction_law for each law gives the scene's default line to its stated digits."""
+    scene = TextureScene()
+    fit = fit_friction_law(scene, law=law)
+    mu_0, per_um = scene.friction.line(law)
+    assert abs(fit["intercept"] - mu_0) < 1e-3 and abs(fit["slope"] - per_um) < 1e-4
+    table = np.array(list(TABLE_4_10_RMS_SPEED.values()))
+    np.testing.assert_allclose(fit["rms_speed"], table, rtol=1e-3)
+
+
+def scene_with(law: dict, **kw) -> TextureScene:
+    data = {"specimens_per_grade": 4, "oversample": LUGRE_OVERSAMPLE if "lugre" in law else 2,
+            "drive": {"record_s": 0.05, "lead_s": 0.05}, "friction": {"law": law}, **kw}
+    return build_config(TextureScene, data)
+
+
+def test_mixture_is_drawn_per_specimen_and_leaves_coulomb_records_as_they_were():
+    """A mixture draws a law per specimen (labelled per record) from the specimens' seeds:
+    the records' other nuisance is as with Coulomb alone, and a Coulomb specimen's records are
+    the same to the bit."""
+    alone = scene_with({"coulomb": 1.0}, oversample=LUGRE_OVERSAMPLE)
+    mixed = scene_with({"coulomb": 0.4, "stribeck": 0.3, "lugre": 0.3})
+    a = alone.simulate(20, np.random.default_rng(5))
+    b = mixed.simulate(20, np.random.default_rng(5))
+    assert np.all(a["friction_law"] == 0) and set(b["friction_law"]) == {0, 1, 2}
+    for key in ("whisk_v", "whisk_hz", "normal_force", "angle", "coupling", "grade"):
+        np.testing.assert_array_equal(a[key], b[key])
+    same = b["friction_law"] == 0
+    for key in ("e", "i", "mu"):
+        np.testing.assert_array_equal(a[key][same], b[key][same])
+    assert np.all(np.isfinite(b["i"])) and not np.array_equal(a["i"][~same], b["i"][~same])
+
+
+def test_bad_law_config_is_a_scene_error_naming_the_allowed_laws():
+    with pytest.raises(SceneError, match=r"friction.law: unknown law 'dahl'.*coulomb"):
+        scene_with({"dahl": 1.0})
+    with pytest.raises(SceneError, match="friction.law.stribeck"):
+        scene_with({"stribeck": -1.0})
+    with pytest.raises(SceneError, match="oversample"):
+        scene_with({"lugre": 1.0}, oversample=2)
+    with pytest.raises(ValueError, match="law"):
+        Friction([0.5], 1e-3, law=3)
+    with pytest.raises(ValueError, match="bristle_stiffness"):
+        Friction([0.5], 1e-3, law=2, bristle_stiffness=0.0)
+
+
+def test_default_scene_is_coulomb_only():
+    scene = replace(TextureScene(), specimens_per_grade=1)
+    spec = scene.specimens(np.random.default_rng(0))
+    assert np.all(spec["law"] == 0) and np.all(spec["static_ratio"] == 1.0)

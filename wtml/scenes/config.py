@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 
@@ -47,6 +48,25 @@ def bounded(low: float, high: float, *, default: Any = dataclasses.MISSING) -> A
 def one_of(*choices: str, default: Any = dataclasses.MISSING) -> Any:
     """A string field restricted to ``choices``."""
     return dataclasses.field(default=default, metadata={"choices": choices})
+
+
+def mixture(path: str, weights: Any, family: tuple[str, ...]) -> np.ndarray:
+    """The probabilities of a mixture ``{member: weight}`` over ``family``, in its order, shape
+    ``(len(family),)``. A member not in the family, a weight that is not a number >= 0, or
+    weights that are all 0 is a SceneError naming ``path`` and the allowed members."""
+    if not isinstance(weights, Mapping) or not weights:
+        raise SceneError(f"{path}: a mapping of members of {list(family)} to weights, "
+                         f"got {weights!r}")
+    for name, weight in weights.items():
+        if name not in family:
+            raise SceneError(f"{path}: unknown law {name!r}; allowed laws: {list(family)}")
+        if isinstance(weight, bool) or not isinstance(weight, int | float) or not (
+                0 <= weight < float("inf")):
+            raise SceneError(f"{path}.{name}: the weight must be a number >= 0, got {weight!r}")
+    p = np.array([float(weights.get(name, 0.0)) for name in family])
+    if p.sum() <= 0:
+        raise SceneError(f"{path}: the weights must not all be 0 (laws: {list(family)})")
+    return p / p.sum()
 
 
 def _check_number(path: str, value: Any, low: float, high: float, kind: type) -> float | int:

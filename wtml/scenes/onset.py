@@ -45,7 +45,7 @@ from wtml.physics.contact import (
     ContactWall,
 )
 from wtml.physics.modal import ModalTransducer, Wall
-from wtml.scenes.config import SceneError, bounded, one_of
+from wtml.scenes.config import SceneError, bounded, mixture, one_of
 from wtml.signals.excitation import lead_in
 from wtml.signals.noise import quantize
 
@@ -119,21 +119,11 @@ class WallSpec:
     alpha: tuple[float, float] = bounded(0.0, 100.0, default=(0.1, 1.0))
     mount_fraction: tuple[float, float] = bounded(0.01, 0.99, default=(0.5, 0.9))
 
-    def mixture(self, path: str = "wall") -> tuple[np.ndarray, np.ndarray]:
-        """The law codes of the mixture and their normalised weights (SceneError naming
-        ``path.law`` and the allowed laws where it is not a mixture of them)."""
-        laws = self.law if isinstance(self.law, dict) else {}
-        bad = sorted(set(map(str, laws)) - set(LAWS))
-        if not laws or bad:
-            raise SceneError(f"{path}.law: a mapping of laws from {list(LAWS)} to weights, "
-                             f"got {self.law!r}")
-        weights = np.array([laws[x] for x in laws], dtype=object)
-        if not all(isinstance(x, int | float) and not isinstance(x, bool) and 0 <= x < np.inf
-                   for x in weights) or sum(weights) <= 0:
-            raise SceneError(f"{path}.law: weights must be numbers >= 0 with a positive sum, "
-                             f"got {self.law!r}")
-        return (np.array([LAWS.index(x) for x in laws]),
-                np.asarray(weights, float) / float(sum(weights)))
+    def mixture(self, path: str = "wall") -> np.ndarray:
+        """Each law's probability, in the order of :data:`~wtml.physics.contact.LAWS`
+        (SceneError naming ``path.law`` and the allowed laws where it is not a mixture of
+        them)."""
+        return mixture(f"{path}.law", self.law, LAWS)
 
     def check(self, path: str) -> None:
         self.mixture(path)
@@ -303,12 +293,12 @@ class OnsetScene:
         (labels as :meth:`simulate` names them). A mixture of the linear law alone draws
         nothing, so its records are those of a scene without the option."""
         w = self.wall
-        codes, weights = w.mixture()
+        weights = w.mixture()
         law = np.full(n, LINEAR, np.int8)
         n_exp, alpha = np.ones(n), np.zeros(n)
         delta_ref, mount = np.full(n, np.nan), np.ones(n)
-        if np.any(codes != LINEAR):
-            law = rng.choice(codes, n, p=weights).astype(np.int8)
+        if weights[LINEAR] < 1:
+            law = rng.choice(len(LAWS), n, p=weights).astype(np.int8)
             smooth = law != LINEAR
             delta_ref[smooth] = rng.uniform(*w.delta_ref, n)[smooth]
             power = (law == POWER) | (law == HUNT_CROSSLEY)

@@ -39,7 +39,7 @@ from wtml.interface import OutputRange
 from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
-from wtml.scenes.config import SceneError, bounded, one_of
+from wtml.scenes.config import SceneError, bounded, mixture, one_of
 from wtml.scenes.onset import Acquisition
 from wtml.signals.excitation import lead_in
 
@@ -140,22 +140,12 @@ class FrictionLaw:
     lugre: LuGreLaw = field(default_factory=LuGreLaw)
 
     def check(self, path: str) -> None:
-        pre = (path + "." if path else "") + "law"
-        for name, weight in self.law.items():
-            if name not in LAWS:
-                raise SceneError(f"{pre}: unknown law {name!r}; allowed laws: {list(LAWS)}")
-            if isinstance(weight, bool) or not isinstance(weight, int | float) or not (
-                    0 <= weight < float("inf")):
-                raise SceneError(f"{pre}.{name}: the weight must be a number >= 0, "
-                                 f"got {weight!r}")
-        if sum(self.law.values()) <= 0:
-            raise SceneError(f"{pre}: the weights must not all be 0 (laws: {list(LAWS)})")
+        mixture((path + "." if path else "") + "law", self.law, LAWS)
 
     @property
     def weights(self) -> np.ndarray:
         """Each law's probability, in the order of :data:`LAWS`."""
-        w = np.array([float(self.law.get(name, 0.0)) for name in LAWS])
-        return w / w.sum()
+        return mixture("friction.law", self.law, LAWS)
 
     def line(self, law: str) -> tuple[float, float]:
         """``(mu_0, mu_per_um)`` of ``law``'s μ_c(d)."""

@@ -128,7 +128,8 @@ def _bench_texture(args: argparse.Namespace) -> int:
 
     print(run_bench(args.data, args.fepa, args.checkpoint, args.model, args.out,
                     peer_kernels=args.peer_kernels,
-                    ablation_records=args.ablation_records))
+                    ablation_records=args.ablation_records,
+                    transfer_records=args.transfer_records))
     return 0
 
 
@@ -286,7 +287,8 @@ def build_parser() -> argparse.ArgumentParser:
                                        "and confusion (decoder, thesis cues, MiniRocket, "
                                        "kinetic signature, the amplitude oracle), accuracy "
                                        "against window length and each nuisance, grain size "
-                                       "on unseen FEPA grades, the cue ablation, latency.")
+                                       "on unseen FEPA grades, the cue ablation, the transfer "
+                                       "table (held-out physics), latency.")
     bt.add_argument("--data", default="datasets/texture", help="the thesis grades' dataset")
     bt.add_argument("--fepa", default="datasets/texture_fepa",
                     help="the unseen FEPA grades' dataset (configs/scenes/texture_fepa.yaml)")
@@ -298,6 +300,9 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--peer-kernels", type=int, default=10000, help="MiniRocket's kernels")
     bt.add_argument("--ablation-records", type=int, default=40,
                     help="fresh records per ablation variant")
+    bt.add_argument("--transfer-records", type=int, default=24,
+                    help="fresh records per row of the transfer table (each friction law "
+                         "alone, the held-out one included; each acquisition effect alone)")
     bt.set_defaults(func=_bench_texture)
 
     pl = verb("pipeline", "the main job: generate, train, export, predict, bench, summary")

@@ -25,6 +25,10 @@ from wtml.scenes import config_hash, load_scene, scene_from_dict
 from wtml.scenes.config import yaml_load
 from wtml.training import cli_main, duration
 
+TRANSFER_RECORDS = 4
+"""Fresh records per row of the time-domain benches' transfer tables in the main job (a small
+version: their benches' defaults are the full tables)."""
+
 
 class Stages:
     """Wall-clock time of each stage of each slice, for the closing summary."""
@@ -310,8 +314,9 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
     print("true: " + ", ".join(f"{names[g]} ({1e6 * d:.1f} µm)"
                                for g, d in zip(test["grade"][:2], test["grain_m"][:2],
                                                strict=True)))
-    stages.begin("texture", "bench", f"wtml bench texture --out {bench}")
-    report = run_bench(data, fepa, ckpt, model, bench)
+    stages.begin("texture", "bench", f"wtml bench texture --out {bench} "
+                                     f"--transfer-records {TRANSFER_RECORDS}")
+    report = run_bench(data, fepa, ckpt, model, bench, transfer_records=TRANSFER_RECORDS)
     print(report.split("\n\nConfusion matrices")[0])
     stages.end()
     return json.loads((bench / "summary.json").read_text())
@@ -350,8 +355,25 @@ def _texture_lines(s: dict, stages: Stages) -> list[str]:
         f"  {1e3 * dec['latency_s']:.1f} ms per window at batch 1 (MiniRocket "
         f"{1e3 * peer['latency_s']:.0f} ms); {short['window_s']:g} s windows "
         f"{100 * short['accuracy']:.1f} %",
+        *_texture_transfer_lines(s["transfer"]),
         "  report runs/texture/bench/report.md, plots runs/texture/bench/*.png",
         f"  time: {stages.line('texture')}"]
+
+
+def _texture_transfer_lines(rows: list[dict]) -> list[str]:
+    """The decoder's accuracy on the trained scene beside each friction law alone (target: the
+    held-out law within 3 points of the in-family accuracy)."""
+    acc = {r["name"]: r["methods"][0]["accuracy"] for r in rows}
+    n = rows[0]["records"]
+    family = acc["the trained scene (in family)"]
+    laws = [r for r in rows if r["name"].startswith("friction law")]
+    held = [r for r in laws if r["kind"] == "held out"]
+    line = (f"  transfer ({n} fresh records per row): in family {100 * family:.1f} %; "
+            + ", ".join(f"{r['name'].removeprefix('friction law ').replace(' alone', '')} "
+                        f"{100 * acc[r['name']]:.1f} %" for r in laws))
+    verdicts = [f"{r['name']}: {_met(acc[r['name']] >= family - 0.03)}" for r in held]
+    return [line + (f" (target: held out within 3 points: {'; '.join(verdicts)})"
+                    if verdicts else "")]
 
 
 def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:

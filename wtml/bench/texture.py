@@ -13,7 +13,9 @@ the trained window, the ONNX graph's windows pooled per record as ``wtml predict
 them), grain size on the unseen FEPA grades (interpolated and extrapolated, with the fraction the
 domain gate flags), and an ablation: fresh held-out specimens simulated with both cues, with
 asperities only (every grade the middle grade's mean friction) and with mean friction only
-(no grains). Writes ``report.md``, ``summary.json`` and PNGs.
+(no grains). And the transfer table (:mod:`wtml.bench.texture_transfer`): every method on fresh
+records of each friction law alone (those the training mixture leaves out held out) and of
+each acquisition effect alone. Writes ``report.md``, ``summary.json`` and PNGs.
 """
 
 from __future__ import annotations
@@ -28,7 +30,10 @@ import torch
 
 from wtml.baselines.texture_peers import KineticSignature, MiniRocketPeer
 from wtml.bench.resampling import group_interval
+from wtml.bench.texture_transfer import scorer as transfer_scorer
+from wtml.bench.texture_transfer import texture_variants, transfer_table
 from wtml.bench.timing import latency_p50, throughput
+from wtml.bench.transfer import run_variants
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.checkpoint import load_decoder
@@ -160,7 +165,8 @@ def _grain_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, float]:
 
 def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path,
               model_dir: str | Path, out: str | Path, *, peer_kernels: int = 10000,
-              ablation_records: int = 40, oracle_draws: int = 100_000) -> str:
+              ablation_records: int = 40, oracle_draws: int = 100_000,
+              transfer_records: int = 24) -> str:
     """The whole bench; returns the markdown report (also written to ``out/report.md``)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -220,6 +226,9 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     unseen = _unseen(fepa, graphs | {kinetic.name: kinetic.predict}, window_s, rate)
     _progress(f"ablation on {ablation_records} fresh held-out records per variant")
     ablation = _ablation(scene, graphs, window_s, ablation_records)
+    transfer = run_variants(
+        texture_variants(scene), transfer_records, scene.seed,
+        transfer_scorer(methods, lambda r: _windows(r, window_s, rate)), _progress)
     summary = {"task": "texture", "n_test_records": len(test["grade"]),
                "n_test_specimens": len(np.unique(specimen)),
                "n_test_windows": len(truth), "window_s": window_s,
@@ -228,7 +237,8 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
                "methods": results, "decoder_minus_peer": versus_peer,
                "oracle": oracle | {"confusion": oracle["confusion"].tolist()},
                "grain_oracle": grain_oracle | {"confusion": grain_oracle["confusion"].tolist()},
-               "by_window": by_window, "unseen": unseen, "ablation": ablation}
+               "by_window": by_window, "unseen": unseen, "ablation": ablation,
+               "transfer": transfer}
     report = _report(summary)
     (out / "report.md").write_text(report)
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
@@ -330,6 +340,12 @@ def _unseen(fepa: dict, methods: dict, window_s: float, rate: float) -> dict:
                                             ["rms_pct"] if kept.any() else None)
             out["pooled"].append(row)
     return out
+
+
+def _windows(records: dict, window_s: float, rate: float) -> tuple[np.ndarray, ...]:
+    """Records cut into windows: ``(e, i, grade)`` of each window."""
+    e, i, owner = _cut(records, window_s, rate)
+    return e, i, records["grade"][owner]
 
 
 def _ablation(scene, methods: dict, window_s: float, n: int) -> list[dict]:
@@ -435,6 +451,12 @@ def _report(s: dict) -> str:
               "| variant | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for r in abl:
         lines.append(f"| {r['variant']} | " + " | ".join(_pct(r[c]) for c in cols) + " |")
+    lines += ["", "## Transfer: held-out physics", "",
+              "Fresh held-out specimens per row: the trained scene, each friction law alone "
+              "(a law the training mixture leaves out is held out), an ideal acquisition and "
+              "each acquisition effect alone. Window accuracy (and the share the domain gate "
+              "flags).", ""]
+    lines += transfer_table(s["transfer"])
     lines += ["", "## Robustness: accuracy by quartile of each nuisance", ""]
     for key, (label, unit, _) in NUISANCES.items():
         edges = s["methods"][0]["robustness"][key]["edges"]

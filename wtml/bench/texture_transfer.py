@@ -12,11 +12,15 @@ import numpy as np
 
 from wtml.bench.transfer import Variant, acquisition_variants, member_variants
 from wtml.physics.friction import LAWS
+from wtml.scenes.texture import LUGRE_OVERSAMPLE
 
 
 def _with_law(scene, law: str):
-    return dataclasses.replace(scene, friction=dataclasses.replace(scene.friction,
-                                                                   law={law: 1.0}))
+    """The scene with ``law`` alone (LuGre stepped at the rate its bristle needs: the records
+    are decimated to the same sampling rate)."""
+    step = max(scene.oversample, LUGRE_OVERSAMPLE) if law == "lugre" else scene.oversample
+    return dataclasses.replace(scene, oversample=step, friction=dataclasses.replace(
+        scene.friction, law={law: 1.0}))
 
 
 def texture_variants(scene) -> list[Variant]:

@@ -9,6 +9,8 @@ import sys
 import numpy as np
 import pytest
 import torch
+from hypothesis import given
+from hypothesis import strategies as st
 
 from tests.conftest import ROOT
 from wtml.runtime.onset import (
@@ -97,7 +99,8 @@ def onset_export(tmp_path_factory, scene):
 
     root = tmp_path_factory.mktemp("onset")
     cfg = root / "scene.yaml"
-    cfg.write_text(yaml.safe_dump({"name": "onset", "task": "onset", **SMALL}))
+    cfg.write_text(yaml.safe_dump({"name": "onset", "task": "onset", **SMALL,
+                                   "wall": {"free_fraction": 0.25}}))
     data, run, model = root / "data", root / "run", root / "export"
     subprocess.run([sys.executable, "-m", "wtml.cli", "generate", "--config", str(cfg),
                     "--out", str(data)], check=True, capture_output=True, cwd=ROOT)
@@ -256,3 +259,80 @@ def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_pa
     np.savez(bad, e=rec["e"][0], sample_rate_hz=rate)
     with pytest.raises(InputError, match="missing \\['i'\\]"):
         read_record(bad, rate, scene.n_samples)
+
+
+def test_a_missing_wall_passes_the_gates_range_check_only_where_absence_is_an_answer():
+    """NaN (no wall) is in range for an output declared ``absent_ok`` (the onset scene's
+    gap), out of range for any other; a finite answer outside the range fails either way."""
+    from wtml.decoders.domain import DomainGate, ZeParts
+
+    gap = torch.tensor([float("nan"), 5e-6, 50e-6])
+    for absent, expect in (((0,), [True, True, False]), ((), [False, True, False])):
+        gate = DomainGate(ZeParts(), 2, {0: (1e-6, 1e-5)}, absent)
+        assert gate.outputs_in_range((gap,)).tolist() == expect
+    with pytest.raises(ValueError, match="absent"):
+        DomainGate(ZeParts(), 2, {0: (1e-6, 1e-5)}, (1,))
+    ranges = load_scene(ROOT / "configs/scenes/onset.yaml").output_ranges()
+    assert ranges["gap"].absent_ok
+
+
+@given(top=st.lists(st.floats(0.0, 1.0), min_size=4, max_size=4),
+       shift=st.lists(st.floats(-3e-6, 3e-6), min_size=4, max_size=4),
+       off=st.lists(st.floats(-3e-6, 3e-6), min_size=4, max_size=4))
+def test_a_wall_is_reported_if_and_only_if_a_contact_interval_is(top, shift, off):
+    """One decision gives the wall and the contacts (``answer``): over any contact
+    probabilities and onset/detachment levels, a record reports g (and σ) exactly when its
+    margins give at least one contact interval (``contacts_from``); otherwise both are NaN."""
+    import json
+
+    from wtml.decoders.onset import answer
+
+    n = 40
+    reach = torch.linspace(-1e-6, 1e-6, n).repeat(4, 1) + torch.tensor(shift)[:, None]
+    p = {"reach": reach, "reach_on": reach + 0.05e-6}
+    top, on = torch.tensor(top), torch.tensor(shift) * 0.5
+    gap, sd, on_margin, off_margin = answer(torch.full((4,), 3e-6), torch.full((4,), 1e-7),
+                                            top, p["reach_on"].amax(-1), p, on,
+                                            torch.tensor(off))
+    meta = {"frame_s": "0.001", "merge_s": "0.002", "scene": json.dumps({"max_contacts": 8}),
+            "onset_offset_s": "0.0", "detach_offset_s": "0.001"}
+    onset, _ = contacts_from({"contact": np.zeros((4, n)), "onset_margin": on_margin.numpy(),
+                              "detach_margin": off_margin.numpy()}, meta)
+    has_interval = np.isfinite(onset).any(1)
+    np.testing.assert_array_equal(np.isfinite(gap.numpy()), has_interval)
+    np.testing.assert_array_equal(np.isfinite(sd.numpy()), has_interval)
+    np.testing.assert_array_equal(has_interval, (top.numpy() > 0.5)
+                                  & (p["reach_on"].amax(-1) >= on).numpy())
+
+
+def test_a_free_record_answers_no_contact_in_domain(onset_export, scene):
+    """Free whisking is normal input: a record without a wall gets no contact, no wall, and
+    in_domain true, from the exported decoder (``wtml predict``'s rows) and the streaming
+    graph alike."""
+    free = dataclasses.replace(scene, wall=dataclasses.replace(scene.wall, free_fraction=1.0))
+    rec = free.simulate(3, np.random.default_rng(11))
+    path = onset_export["model"] / "free.npz"
+    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
+    rows = [r for r in predict_records(onset_export["model"], path) if r["method"] == "decoder"]
+    assert len(rows) == 3
+    for r in rows:
+        assert r["contact"] == -1 and np.isnan(r["gap (m)"]) and np.isnan(r["sigma (m)"])
+        assert r["in_domain"] and r["flags"] == ""
+    streamed = stream_record(OnnxModel(onset_export["model"] / "stream.onnx"), rec["e"],
+                             rec["i"])
+    assert np.all(np.isnan(streamed["gap"])) and np.all(streamed["in_domain"])
+
+
+def test_the_bench_counts_every_wall_and_contact_on_free_records():
+    """A free record that reports a wall counts once, and each contact interval once more,
+    over the free records' total duration."""
+    from wtml.bench.onset import free_positives
+
+    gap = np.array([np.nan, 4e-6, np.nan, 2e-6])
+    onset = np.full((4, 8), np.nan)
+    onset[1, :2] = [0.3, 1.3]
+    onset[3, 0] = 0.5
+    out = free_positives(gap, onset, seconds=8.0)
+    assert (out["walls"], out["contacts"]) == (2, 3)
+    assert out["per_s"] == pytest.approx(5 / 8.0)
+    assert free_positives(np.full(4, np.nan), np.full((4, 8), np.nan), 8.0)["per_s"] == 0

@@ -29,9 +29,10 @@ The graph takes the raw records and computes its own features per probe period (
    bias fitted on the training data), so the timing does not depend on the calibration
    error. The outputs ``onset_margin``/``detach_margin`` are reach minus level per frame (m).
 
-Outputs (each ``(batch,)`` unless said): ``gap`` (m, NaN where no frame is in contact),
-``sigma`` (m), ``contact`` (``(batch, n_frames)``, probability per frame), ``onset_margin``
-and ``detach_margin`` (m, ``(batch, n_frames)``; -1 m in a record without contact).
+Outputs (each ``(batch,)`` unless said): ``gap`` and ``sigma`` (m, NaN in a record without
+contact: :func:`answer` decides wall and contacts together), ``contact`` (``(batch,
+n_frames)``, probability per frame), ``onset_margin`` and ``detach_margin`` (m, ``(batch,
+n_frames)``; -1 m in a record without contact).
 Intervals come from the margins by :func:`wtml.runtime.onset.contacts_from` plus the
 onset/detachment phases in the metadata (where in its frame a contact starts and ends,
 fitted on training labels).
@@ -229,17 +230,25 @@ class OnsetNet(nn.Module):
         p = self.per_frame(e, i)
         g, sd, on, off = self.pooled(p)
         prob = torch.sigmoid(p["contact"])
-        gap, sd, on_margin, off_margin = answer(g, sd, prob.amax(-1) > 0.5, p, on, off)
+        gap, sd, on_margin, off_margin = answer(g, sd, prob.amax(-1), p["reach_on"].amax(-1),
+                                                p, on, off)
         return gap, sd, prob, on_margin, off_margin
 
 
-def answer(g, sd, touched, p: dict, on, off) -> tuple[torch.Tensor, ...]:
-    """The location and margins from the pooled quantities (``(batch,)``, m), whether the
-    record has a frame in contact (bool ``(batch,)``) and the per-frame reaches ``p["reach_on"]``
-    and ``p["reach"]`` (m, ``(batch, n)``): ``(gap, sigma, onset_margin, detach_margin)``; a
-    record without contact gets gap NaN and margins -1 m."""
-    never = torch.full_like(p["reach"], -1.0)
-    return (torch.where(touched, g, torch.full_like(g, float("nan"))), sd,
+def answer(g, sd, top, reach_top, p: dict, on, off) -> tuple[torch.Tensor, ...]:
+    """The location and margins from the pooled quantities (``(batch,)``, m), the record's
+    highest contact probability ``top`` and highest reach on a probe peak ``reach_top`` (m)
+    (each ``(batch,)``), and the per-frame reaches ``p["reach_on"]`` and ``p["reach"]`` (m,
+    ``(batch, n)``): ``(gap, sigma, onset_margin, detach_margin)``.
+
+    One decision gives the wall and the contacts: a record touches a wall where a frame's
+    contact probability passes 0.5 and the free tip's reach passes the onset level; then
+    the onset margin is >= 0 on at least one frame (a contact interval,
+    :func:`wtml.runtime.onset.contacts_from`) and g and σ are reported. Otherwise gap and
+    σ are NaN ("no wall": free whisking) and the margins -1 m (no interval)."""
+    touched = (top > 0.5) & (reach_top >= on)
+    nan, never = torch.full_like(g, float("nan")), torch.full_like(p["reach"], -1.0)
+    return (torch.where(touched, g, nan), torch.where(touched, sd, nan),
             torch.where(touched[:, None], p["reach_on"] - on[:, None], never),
             torch.where(touched[:, None], p["reach"] - off[:, None], never))
 

@@ -30,8 +30,9 @@ from wtml.decoders.onset import CausalConv, OnsetNet, answer
 POOLS = (("vote", "est", "log_sd", 0), ("vote_on", "est_on", None, 4),
          ("vote_off", "est_off", None, 7))
 """The three softmax poolings: vote, estimate, (for g) the log std, and where their running
-sums start in the pooled state (16 values: the poolings' (max, Σ exp, Σ exp·x[, Σ exp·σ²]),
-then the top contact probability, the frame count, Σ|E_H|, max u_L, min u_L, Σ|I_H|)."""
+sums start in the pooled state (17 values: the poolings' (max, Σ exp, Σ exp·x[, Σ exp·σ²]),
+then the top contact probability, the frame count, Σ|E_H|, max u_L, min u_L, Σ|I_H|, and the
+top reach on a probe peak)."""
 
 
 class StreamingOnset(nn.Module):
@@ -55,7 +56,7 @@ class StreamingOnset(nn.Module):
             raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
         self.net, self.gate, self.chunk_frames = net, gate, int(chunk_frames)
         self.convs = [m for m in net.body if isinstance(m, CausalConv)]
-        self.sizes = [1] + [m.conv.in_channels * m.pad for m in self.convs] + [16]
+        self.sizes = [1] + [m.conv.in_channels * m.pad for m in self.convs] + [17]
         self.state_size = sum(self.sizes)
 
     @property
@@ -116,11 +117,13 @@ class StreamingOnset(nn.Module):
         sum_i = pool[:, 15] + f[..., 4].sum(-1)
         summary = torch.stack([1e3 * sum_e / count, 1e6 * (u_max - u_min) / 2,
                                torch.log10(sum_i / count)], -1)
+        reach_top = running(torch.maximum, pool[:, 16], p["reach_on"].amax(-1))
         # this chunk's margins use the levels so far and contact seen so far
-        gap, sd, on_margin, off_margin = answer(*pooled[:2], top > 0.5, p, *pooled[2:])
+        gap, sd, on_margin, off_margin = answer(*pooled[:2], top, reach_top, p, *pooled[2:])
         score = self.gate.score(summary)
         inside = (score <= 1.0) & self.gate.outputs_in_range((gap, sd))
         sd = torch.where(inside, sd, torch.full_like(sd, float("nan")))
-        new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i], -1)
+        new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i, reach_top],
+                               -1)
         next_state = torch.cat([f[:, -1:, 0], *carried, new_pool], 1)
         return prob, on_margin, off_margin, gap, sd, next_state, inside, score

@@ -128,9 +128,8 @@ def test_exported_graphs_match_torch(onset_export, scene):
     cl = OnnxModel(onset_export["model"] / "classical.onnx").run(rec["e"], rec["i"])
     np.testing.assert_allclose(dec["gap"], ref[0].numpy(), rtol=1e-4, atol=1e-10)
     np.testing.assert_allclose(dec["contact"], ref[2].numpy(), atol=1e-4)
-    for k, name in ((3, "onset_margin"), (4, "detach_margin")):
-        np.testing.assert_allclose(dec[name], ref[k].numpy(),
-                                   atol=1e-4 * scene.whisk_amplitude_m())
+    np.testing.assert_allclose(dec["detach_margin"], ref[3].numpy(),
+                               atol=1e-4 * scene.whisk_amplitude_m())
     np.testing.assert_array_equal(dec["in_domain"], ref[-2].numpy())
     np.testing.assert_allclose(cl["gap"], ref_cl[0].numpy(), rtol=1e-4, atol=1e-10)
     assert np.mean(cl["contact"] == ref_cl[2].numpy()) > 0.9999
@@ -157,41 +156,69 @@ def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene
         stream_record(stream, rec["e"][:, :-1], rec["i"][:, :-1])
 
 
-def test_timing_rule_finds_every_contact_from_levels_inside_their_brackets(scene):
-    """The decoder's timing rule is exact up to the phase in a frame: with each record's
-    onset and detachment levels in the middle of their brackets (level_brackets), the rule on
-    the calibrated reach (contacts_from) finds every onset and detachment within 0.3 ms."""
+def test_timing_rule_finds_every_contact_from_its_frames_and_the_detachment_level(scene):
+    """The decoder's timing rule is exact up to the phase in a frame: with the contact
+    probability passing 0.5 on the frames that hold a touching instant (the labels,
+    frame_labels) and each record's detachment level in the middle of its brackets
+    (detach_brackets), the rule (contacts_from) finds every onset and detachment within
+    0.3 ms, and a free record gets none."""
     import json
 
     from wtml.bench.onset import event_metrics, match_events
-    from wtml.decoders.onset import OnsetDecoder, edge_offsets, frame_period, level_brackets
+    from wtml.decoders.onset import (
+        OnsetDecoder,
+        detach_brackets,
+        edge_offsets,
+        frame_labels,
+        frame_period,
+    )
 
-    rec = scene.simulate(4, np.random.default_rng(8))
+    rec = scene.simulate(4, np.random.default_rng(8), gaps=[2e-6, 6e-6, np.nan, 10e-6])
     targets = np.concatenate([rec["gap"][:, None], rec["onset"], rec["detachment"],
                               rec["coupling"][:, None]], 1)
     frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
     offsets = edge_offsets(targets, frame_s, scene.max_contacts)
-    net = OnsetDecoder()._make(scene, torch.stack([torch.zeros(5), torch.ones(5)]),
-                               offsets[0] / frame_s - 0.5)
+    net = OnsetDecoder()._make(scene, torch.stack([torch.zeros(5), torch.ones(5)]))
     with torch.no_grad():
-        f = net.frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double()
-        reach, reach_on = net.double().reaches(f, net.steps(f, f[:, :1, 0]))
-    lo_on, hi_on, lo_off, hi_off = level_brackets(torch.tensor(targets), reach_on, reach,
-                                                  frame_s, scene.max_contacts)
-    on = torch.nanmean((lo_on + hi_on) / 2, 1)[:, None]
-    off = torch.nanmean((lo_off + hi_off) / 2, 1)[:, None]
-    assert torch.all(torch.nan_to_num(lo_on, -1.0) < on)
-    assert torch.all(on <= torch.nan_to_num(hi_on, 1.0))
+        reach = net.reach(net.frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double())
+    lo, hi = detach_brackets(torch.tensor(targets), reach, frame_s, scene.max_contacts)
+    off = torch.nanmean((lo + hi) / 2, 1)[:, None]
+    walled = np.isfinite(rec["gap"])
+    assert torch.all(lo[walled].nan_to_num(-1.0) < off[walled])
+    assert torch.all(off[walled] <= hi[walled].nan_to_num(1.0))
+    labels = frame_labels(torch.tensor(targets), reach.shape[1], frame_s, scene.max_contacts)
     meta = {"frame_s": json.dumps(frame_s), "merge_s": json.dumps(2 / scene.drive.probe_hz),
             "scene": json.dumps({"max_contacts": scene.max_contacts}),
             "onset_offset_s": json.dumps(offsets[0]), "detach_offset_s": json.dumps(offsets[1])}
-    pred = {"contact": np.ones(reach.shape), "onset_margin": (reach_on - on).numpy(),
-            "detach_margin": (reach - off).numpy()}
+    margin = torch.where(torch.tensor(walled)[:, None], reach - off, -1.0)
+    pred = {"contact": labels.numpy(), "detach_margin": margin.numpy()}
     onset, detach = contacts_from(pred, meta)
     assert event_metrics(rec, onset, detach)["f1"] == 1.0
+    assert np.all(np.isnan(onset[~walled]))
     for key, found in (("onset", onset), ("detachment", detach)):
         tp, fp, fn, err = match_events(rec[key], found, 0.3e-3)
         assert fp == fn == 0 and tp == np.isfinite(rec[key]).sum(), (key, err)
+
+
+def test_a_first_touch_shows_in_its_own_frame_as_a_step_of_zm(scene):
+    """Why the decoder can call the onset's frame: Zm's step from the frame before is, on the
+    frame that holds a first touch, at least 30 times the largest step over the free
+    whisking before it, for walls across the range (and the penetrations of the first probe
+    peak that they get)."""
+    from wtml.decoders.onset import OnsetDecoder, OnsetNet, frame_period
+
+    amp = scene.whisk_amplitude_m()
+    rec = scene.simulate(12, np.random.default_rng(12),
+                         gaps=np.linspace(0.1, 0.9, 12) * amp)
+    frames = OnsetDecoder()._frames(scene)
+    with torch.no_grad():
+        f = frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double()
+    step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:].norm(dim=-1).numpy()
+    frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
+    for r in range(len(step)):
+        k = int(rec["onset"][r, 0] // frame_s)
+        free = step[r, k - 40:k].max()  # the 95 ms of free whisking before the first touch
+        assert step[r, k] > 30 * free, (r, step[r, k], free)
 
 
 def test_ruptures_peer_is_pelt_with_the_l2_cost():
@@ -281,28 +308,26 @@ def test_a_missing_wall_passes_the_gates_range_check_only_where_absence_is_an_an
        off=st.lists(st.floats(-3e-6, 3e-6), min_size=4, max_size=4))
 def test_a_wall_is_reported_if_and_only_if_a_contact_interval_is(top, shift, off):
     """One decision gives the wall and the contacts (``answer``): over any contact
-    probabilities and onset/detachment levels, a record reports g (and σ) exactly when its
-    margins give at least one contact interval (``contacts_from``); otherwise both are NaN."""
+    probabilities and detachment levels, a record reports g (and σ) exactly when the rule
+    (``contacts_from``) gives it at least one contact interval; otherwise both are NaN."""
     import json
 
     from wtml.decoders.onset import answer
 
     n = 40
     reach = torch.linspace(-1e-6, 1e-6, n).repeat(4, 1) + torch.tensor(shift)[:, None]
-    p = {"reach": reach, "reach_on": reach + 0.05e-6}
-    top, on = torch.tensor(top), torch.tensor(shift) * 0.5
-    gap, sd, on_margin, off_margin = answer(torch.full((4,), 3e-6), torch.full((4,), 1e-7),
-                                            top, p["reach_on"].amax(-1), p, on,
-                                            torch.tensor(off))
+    # each record's probabilities peak at `top` in the middle of the record
+    prob = torch.tensor(top)[:, None] * torch.exp(-torch.linspace(-3, 3, n) ** 2)[None]
+    gap, sd, off_margin = answer(torch.full((4,), 3e-6), torch.full((4,), 1e-7),
+                                 prob.amax(-1), {"reach": reach}, torch.tensor(off))
     meta = {"frame_s": "0.001", "merge_s": "0.002", "scene": json.dumps({"max_contacts": 8}),
             "onset_offset_s": "0.0", "detach_offset_s": "0.001"}
-    onset, _ = contacts_from({"contact": np.zeros((4, n)), "onset_margin": on_margin.numpy(),
-                              "detach_margin": off_margin.numpy()}, meta)
+    onset, _ = contacts_from({"contact": prob.numpy(), "detach_margin": off_margin.numpy()},
+                             meta)
     has_interval = np.isfinite(onset).any(1)
     np.testing.assert_array_equal(np.isfinite(gap.numpy()), has_interval)
     np.testing.assert_array_equal(np.isfinite(sd.numpy()), has_interval)
-    np.testing.assert_array_equal(has_interval, (top.numpy() > 0.5)
-                                  & (p["reach_on"].amax(-1) >= on).numpy())
+    np.testing.assert_array_equal(has_interval, prob.amax(-1).numpy() > 0.5)
 
 
 def test_a_free_record_answers_no_contact_in_domain(onset_export, scene):

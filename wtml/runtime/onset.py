@@ -4,8 +4,8 @@ Both graphs (``model.onnx``: the decoder; ``classical.onnx``: the thesis's pipel
 ``e`` (V) and ``i`` (A), float32 ``(batch, n_samples)`` at the trained sampling rate, and
 return ``gap`` (m), ``sigma`` (m; NaN for the classical path and out of domain), ``contact``
 (``(batch, n_frames)``: a probability per probe frame for the decoder, a 0/1 state per sample
-for the classical path), the decoder also ``onset_margin`` and ``detach_margin`` (m per frame:
-the free tip's reach past its onset and detachment levels), then ``in_domain`` and
+for the classical path), the decoder also ``detach_margin`` (m per frame: the free tip's
+reach past its detachment level), then ``in_domain`` and
 ``domain_score``. The metadata says how frames map to time (``frame_s``, ``onset_offset_s``,
 ``detach_offset_s``, ``merge_s``), so every device turns these into intervals the same way
 (:func:`contacts_from`). A third graph, ``stream.onnx``, is the decoder's streaming form
@@ -33,9 +33,9 @@ from wtml.scenes.onset import intervals
 
 ONSET_INPUTS = ("e", "i")
 ONSET_OUTPUTS = ("gap", "sigma", "contact")
-DECODER_OUTPUTS = ONSET_OUTPUTS + ("onset_margin", "detach_margin")
+DECODER_OUTPUTS = ONSET_OUTPUTS + ("detach_margin",)
 STREAM_INPUTS = ("e", "i", "state")
-STREAM_OUTPUTS = ("contact", "onset_margin", "detach_margin", "gap", "sigma", "next_state")
+STREAM_OUTPUTS = ("contact", "detach_margin", "gap", "sigma", "next_state")
 STREAM_CHUNK_FRAMES = 1
 """Probe periods per chunk of the exported streaming graph (2.4 ms at the defaults)."""
 FRESH_RECORDS = 64
@@ -102,18 +102,19 @@ def contacts_from(pred: dict, metadata: dict) -> tuple[np.ndarray, np.ndarray]:
     """Onset and detachment times (s) of each record's contacts from a graph's outputs and
     its metadata; each ``(n, max_contacts)``, NaN-padded.
 
-    With margins (the decoder), a contact is a run of frames where either margin is >= 0; it
-    starts on the run's first frame with ``onset_margin >= 0`` and ends on its last with
-    ``detach_margin >= 0``. Without (the classical path), a run of ``contact > 0.5``.
+    With a margin (the decoder), a contact is a run of frames where the contact probability
+    passes 0.5 or ``detach_margin >= 0``; it starts on the run's first frame with
+    ``contact > 0.5`` and ends on its last with ``detach_margin >= 0``. Without (the
+    classical path), a run of ``contact > 0.5``.
     Runs closer than ``merge_s`` are one contact.
     """
     frame_s = json.loads(metadata["frame_s"])
     max_count = json.loads(metadata["scene"]).get("max_contacts", 8)
     merge = json.loads(metadata["merge_s"])
-    if "onset_margin" not in pred:
+    if "detach_margin" not in pred:
         start, end = intervals(pred["contact"] > 0.5, 1 / frame_s, merge, max_count)
     else:
-        rise, fall = pred["onset_margin"] >= 0, pred["detach_margin"] >= 0
+        rise, fall = pred["contact"] > 0.5, pred["detach_margin"] >= 0
         start, end = intervals(rise | fall, 1 / frame_s, merge, max_count)
         n_frames = rise.shape[1]
         for r, k in zip(*np.nonzero(np.isfinite(start)), strict=True):

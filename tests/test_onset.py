@@ -156,21 +156,23 @@ def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene
         stream_record(stream, rec["e"][:, :-1], rec["i"][:, :-1])
 
 
-def test_timing_rule_finds_every_contact_from_its_frames_and_the_detachment_level(scene):
-    """The decoder's timing rule is exact up to the phase in a frame: with the contact
-    probability passing 0.5 on the frames that hold a touching instant (the labels,
-    frame_labels) and each record's detachment level in the middle of its brackets
-    (detach_brackets), the rule (contacts_from) finds every onset and detachment within
-    0.3 ms, and a free record gets none."""
+def test_timing_rule_finds_every_contact_from_zm_steps_and_the_detachment_level(scene):
+    """The decoder's timing rule is exact up to the phase in a frame: with Zm's steps over
+    the fitted threshold (touch_threshold), a contact probability that passes 0.5 three
+    frames late (frame_labels shifted: a slow net) and each record's detachment level in the
+    middle of its brackets (detach_brackets), the rule (contacts_from) finds every onset and
+    detachment within 0.3 ms, and a free record gets none."""
     import json
 
     from wtml.bench.onset import event_metrics, match_events
     from wtml.decoders.onset import (
         OnsetDecoder,
+        OnsetNet,
         detach_brackets,
         edge_offsets,
         frame_labels,
         frame_period,
+        touch_threshold,
     )
 
     rec = scene.simulate(4, np.random.default_rng(8), gaps=[2e-6, 6e-6, np.nan, 10e-6])
@@ -180,7 +182,10 @@ def test_timing_rule_finds_every_contact_from_its_frames_and_the_detachment_leve
     offsets = edge_offsets(targets, frame_s, scene.max_contacts)
     net = OnsetDecoder()._make(scene, torch.stack([torch.zeros(5), torch.ones(5)]))
     with torch.no_grad():
-        reach = net.reach(net.frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double())
+        f = net.frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double()
+    reach = net.reach(f)
+    step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:].norm(dim=-1).numpy()
+    threshold = touch_threshold(step, targets, frame_s, scene.max_contacts)
     lo, hi = detach_brackets(torch.tensor(targets), reach, frame_s, scene.max_contacts)
     off = torch.nanmean((lo + hi) / 2, 1)[:, None]
     walled = np.isfinite(rec["gap"])
@@ -191,7 +196,8 @@ def test_timing_rule_finds_every_contact_from_its_frames_and_the_detachment_leve
             "scene": json.dumps({"max_contacts": scene.max_contacts}),
             "onset_offset_s": json.dumps(offsets[0]), "detach_offset_s": json.dumps(offsets[1])}
     margin = torch.where(torch.tensor(walled)[:, None], reach - off, -1.0)
-    pred = {"contact": labels.numpy(), "detach_margin": margin.numpy()}
+    late = torch.nn.functional.pad(labels, (3, 0))[:, :-3]
+    pred = {"contact": late.numpy(), "detach_margin": margin.numpy(), "touch": step / threshold}
     onset, detach = contacts_from(pred, meta)
     assert event_metrics(rec, onset, detach)["f1"] == 1.0
     assert np.all(np.isnan(onset[~walled]))

@@ -20,23 +20,27 @@ The graph takes the raw records and computes its own features per probe period (
    each frame near an edge says where the wall is relative to the whisking position, which
    accounts for the tip touching on the probe's peaks before u_L reaches g (§10). g's
    variance is the same weighted mean of the frames' variances.
-4. Timing. A contact starts on the first frame whose contact probability passes 0.5: the
-   first touch, on a probe peak, shows in its own frame, as a step of Zm between that frame
-   and the one before (1e-5 N·s/m and more where free whisking's frames differ by ~1e-8), so
-   a causal net can call that frame; the labels are the frames that hold a touching
-   instant. (Taking the onset from the trajectory instead, the first frame whose reach
-   passes a learned level, needs that level to ~10 nm: the frames' reach brackets are
-   0.09-0.19 µm wide and the true level is often within 10 nm of an edge; the main job's
-   small training gets it to 34 nm and every miss is one probe period early or late.) A
-   contact ends on the last frame whose reach on the probe peaks, ``u_L + |u_H|``
+4. Timing. The first touch, on a probe peak, shows in its own frame as a step of Zm from
+   the frame before (5e-6 N·s/m and more, where free whisking's frames differ by ~1e-7):
+   the output ``touch`` is that step's size over a threshold fitted between the two on the
+   training data (:func:`touch_threshold`). A contact is a run of frames whose contact
+   probability passes 0.5 (labels: the frames that hold a touching instant) and it starts
+   on the first frame, from a few before the run up to its first such frame, whose
+   ``touch`` is >= 1 (:func:`wtml.runtime.onset.contacts_from`). (Taking the onset from the
+   trajectory instead, the first frame whose reach passes a learned level, needs that level
+   to ~10 nm: the frames' reach brackets are 0.09-0.19 µm wide and the true level is often
+   within 10 nm of an edge; the main job's small training got it to 34 nm, and every miss
+   was one probe period early or late.) A first touch that only grazes its probe peak
+   (a few nm) steps Zm no more than free whisking does, and the onset is then called one
+   frame late. A contact ends on the last frame whose reach on the probe peaks, ``u_L + |u_H|``
    (``|u_H| = |E_H| / (ωH |t12|)``, the calibrated free-tip response, known per frame to
    ~1e-12 m from e alone), passes the detachment level, which the net estimates; the
    output ``detach_margin`` is reach minus that level per frame (m).
 
 Outputs (each ``(batch,)`` unless said): ``gap`` and ``sigma`` (m, NaN in a record without
 contact: :func:`answer` decides wall and contacts together), ``contact`` (``(batch,
-n_frames)``, probability per frame) and ``detach_margin`` (m, ``(batch, n_frames)``; -1 m
-in a record without contact).
+n_frames)``, probability per frame), ``detach_margin`` (m, ``(batch, n_frames)``; -1 m in a
+record without contact) and ``touch`` (``(batch, n_frames)``).
 Intervals come from these by :func:`wtml.runtime.onset.contacts_from` plus the
 onset/detachment phases in the metadata (where in its frame a contact starts and ends,
 fitted on training labels).
@@ -151,6 +155,7 @@ class OnsetNet(nn.Module):
         scale: ``(mean, std)`` of the 5 frame features over the training data, ``(2, 5)``.
         zm_step: the scale of Zm's frame-to-frame step (Re, Im; N·s/m), ``(2,)``: its median
             over the training frames, nearly all of free whisking.
+        touch_step: the size of Zm's step (N·s/m) that marks a touch (:func:`touch_threshold`).
         amp: the whisking amplitude, m (the offsets' unit).
         reach_per_volt: the calibrated free tip's probe amplitude per probe volt,
             ``1/(ωH |t12|)``, m/V.
@@ -162,13 +167,14 @@ class OnsetNet(nn.Module):
     detachment level."""
 
     def __init__(self, frames: ProbeFrames, scale: torch.Tensor, zm_step: torch.Tensor,
-                 amp: float, reach_per_volt: float, channels: int, dilations: tuple[int, ...],
-                 kernel: int = 3) -> None:
+                 touch_step: float, amp: float, reach_per_volt: float, channels: int,
+                 dilations: tuple[int, ...], kernel: int = 3) -> None:
         super().__init__()
         self.frames = frames
         self.register_buffer("mean", scale[0].float().clone())
         self.register_buffer("std", scale[1].float().clone())
         self.register_buffer("zm_step", zm_step.float().clone())
+        self.register_buffer("touch_step", torch.tensor(float(touch_step)))
         self.amp = float(amp)
         self.reach_per_volt = float(reach_per_volt)
         layers, c_in = [], 8
@@ -191,14 +197,14 @@ class OnsetNet(nn.Module):
 
     def per_frame(self, e: torch.Tensor, i: torch.Tensor) -> dict[str, torch.Tensor]:
         """Per frame, each ``(batch, n_frames)``: ``contact`` logit, ``vote``/``est``/
-        ``log_sd`` of g (m), ``vote_off``/``est_off`` of the detachment level (m) and
-        ``reach`` (m)."""
+        ``log_sd`` of g (m), ``vote_off``/``est_off`` of the detachment level (m),
+        ``reach`` (m) and ``touch`` (Zm's step over :attr:`touch_step`: >= 1 on a touch)."""
         f = self.frames(e, i)
         return self.split(f, self.steps(f, f[:, :1, :3]))
 
     def split(self, f: torch.Tensor, step: torch.Tensor) -> dict[str, torch.Tensor]:
         """The heads of frames ``f`` ``(batch, n, 5)`` with their steps (:meth:`steps`)."""
-        return self.outputs(self.head(self.body(self.inputs(f, step))), f)
+        return self.outputs(self.head(self.body(self.inputs(f, step))), f, step)
 
     def inputs(self, f: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
         """The convolution's input ``(batch, 8, n)``: normalised frames, u_L's step, and
@@ -207,12 +213,16 @@ class OnsetNet(nn.Module):
         du = step[..., :1] / self.std[0] * 10.0
         return torch.cat([x, du, torch.asinh(step[..., 1:] / self.zm_step)], -1).transpose(1, 2)
 
-    def outputs(self, h: torch.Tensor, f: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The per-frame quantities (see :meth:`per_frame`) from the heads ``(batch, 6, n)``."""
+    def outputs(self, h: torch.Tensor, f: torch.Tensor, step: torch.Tensor
+                ) -> dict[str, torch.Tensor]:
+        """The per-frame quantities (see :meth:`per_frame`) from the heads ``(batch, 6, n)``,
+        the frames and their steps."""
         u = f[..., 0]
+        zm = step[..., 1:]
         return {"contact": h[:, 0], "vote": h[:, 1], "est": u + self.amp * h[:, 2],
                 "log_sd": h[:, 3], "vote_off": h[:, 4], "est_off": u + self.amp * h[:, 5],
-                "reach": self.reach(f)}
+                "reach": self.reach(f),
+                "touch": torch.sqrt((zm * zm).sum(-1)) / self.touch_step}
 
     def pooled(self, p: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
         """``(g, sd, detachment level)``, m, each ``(batch,)``."""
@@ -227,7 +237,7 @@ class OnsetNet(nn.Module):
         g, sd, off = self.pooled(p)
         prob = torch.sigmoid(p["contact"])
         gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
-        return gap, sd, prob, off_margin
+        return gap, sd, prob, off_margin, p["touch"]
 
 
 def answer(g, sd, top, p: dict, off) -> tuple[torch.Tensor, ...]:
@@ -268,6 +278,22 @@ def onset_frames(targets: torch.Tensor, n_frames: int, frame_s: float, max_conta
         at = torch.where(torch.isfinite(on), (k + shift).clamp(0, n_frames - 1), n_frames)
         out.scatter_(1, at, 1.0)
     return out[:, :n_frames]
+
+
+def touch_threshold(step: np.ndarray, targets: np.ndarray, frame_s: float, max_contacts: int,
+                    before: int = 40) -> float:
+    """The size of Zm's frame-to-frame step (N·s/m) that marks a first touch: the geometric
+    mean of the largest step over free whisking (the ``before`` frames ahead of each
+    training onset) and the smallest step on an onset's own frame. ``step`` ``(n,
+    n_frames)`` the steps' size, targets as :func:`frame_labels`; 1.0 without an onset."""
+    on = targets[:, 1:1 + max_contacts]
+    free, touch = [], []
+    for r, k in zip(*np.nonzero(np.isfinite(on)), strict=True):
+        j = int(on[r, k] // frame_s)
+        if before <= j < step.shape[1]:
+            free.append(step[r, j - before:j].max())
+            touch.append(step[r, j])
+    return float(np.sqrt(max(free) * min(touch))) if touch else 1.0
 
 
 def detach_brackets(targets: torch.Tensor, reach: torch.Tensor, frame_s: float,
@@ -345,12 +371,12 @@ class OnsetDecoder(DecoderModule):
     def domain_features(self, scene) -> tuple[nn.Module, int]:
         return RecordSummary(self._frames(scene)), 3
 
-    def _make(self, scene, scale: torch.Tensor, zm_step: torch.Tensor | None = None
-              ) -> OnsetNet:
+    def _make(self, scene, scale: torch.Tensor, zm_step: torch.Tensor | None = None,
+              touch_step: float = 1.0) -> OnsetNet:
         h = self.hparams
         reach = 1 / (2 * np.pi * scene.drive.probe_hz * abs(self._probe_t(scene)[0, 1]))
         return OnsetNet(self._frames(scene), scale,
-                        torch.ones(2) if zm_step is None else zm_step,
+                        torch.ones(2) if zm_step is None else zm_step, touch_step,
                         scene.whisk_amplitude_m(), reach, h.channels, tuple(h.dilations))
 
     def build_net(self, scene, e, i, targets) -> nn.Module:
@@ -361,13 +387,15 @@ class OnsetDecoder(DecoderModule):
         # float32 resolves it, or rounding differences between graphs would drive the net
         floor = RESOLUTION * f.abs().amax((0, 1))
         scale = torch.stack([f.mean((0, 1)), torch.maximum(f.std((0, 1)), floor)])
-        step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:].abs()
-        zm_step = torch.maximum(step.flatten(0, 1).median(0).values, floor[1:3])
+        step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:]
+        zm_step = torch.maximum(step.abs().flatten(0, 1).median(0).values, floor[1:3])
         frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
         self.offsets.copy_(torch.tensor(edge_offsets(targets.numpy(), frame_s,
                                                      scene.max_contacts)))
         self._frame_s, self._max_contacts = frame_s, scene.max_contacts
-        return self._make(scene, scale, zm_step)
+        touch = touch_threshold(step.norm(dim=-1).double().numpy(), targets.numpy(), frame_s,
+                                scene.max_contacts)
+        return self._make(scene, scale, zm_step, max(touch, float(floor[1:3].max())))
 
     def net_shape(self) -> dict:
         return {}

@@ -34,7 +34,7 @@ then the top contact probability, the frame count, Σ|E_H|, max u_L, min u_L, Σ
 
 
 class StreamingOnset(nn.Module):
-    """``(e, i, state) -> (contact, detach_margin, gap, sigma, next_state, in_domain,
+    """``(e, i, state) -> (contact, detach_margin, touch, gap, sigma, next_state, in_domain,
     domain_score)`` for chunks of ``chunk_frames`` probe periods.
 
     Args:
@@ -44,7 +44,7 @@ class StreamingOnset(nn.Module):
             samples of each channel).
 
     Shapes: ``e``, ``i`` ``(batch, chunk_samples)`` V and A; ``state`` ``(batch,
-    state_size)``; ``contact`` and the margin ``(batch, chunk_frames)``; the rest
+    state_size)``; ``contact``, the margin and ``touch`` ``(batch, chunk_frames)``; the rest
     ``(batch,)``.
     """
 
@@ -77,7 +77,8 @@ class StreamingOnset(nn.Module):
             return torch.where(first, new, op(old, new))
 
         prev = torch.where(first[:, None, None], f[:, :1, :3], prev[:, None])
-        x = net.inputs(f, net.steps(f, prev))
+        step = net.steps(f, prev)
+        x = net.inputs(f, step)
         carried = []
         for layer in net.body:
             if isinstance(layer, CausalConv):
@@ -87,7 +88,7 @@ class StreamingOnset(nn.Module):
                 x = layer.conv(full)
             else:
                 x = layer(x)
-        p = net.outputs(net.head(x), f)
+        p = net.outputs(net.head(x), f, step)
         pooled, merged = [], []
         for vote, est, log_sd, at in POOLS:
             run = pool[:, at:at + (4 if log_sd else 3)]
@@ -121,4 +122,4 @@ class StreamingOnset(nn.Module):
         sd = torch.where(inside, sd, torch.full_like(sd, float("nan")))
         new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i], -1)
         next_state = torch.cat([f[:, -1, :3], *carried, new_pool], 1)
-        return prob, off_margin, gap, sd, next_state, inside, score
+        return prob, off_margin, p["touch"], gap, sd, next_state, inside, score

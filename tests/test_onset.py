@@ -352,7 +352,8 @@ def test_a_free_record_is_in_domain_and_reports_a_wall_only_with_a_contact(onset
     assert {r["record"] for r in rows} == {0, 1, 2}
     for r in rows:
         assert r["domain_score"] <= 1  # free whisking's inputs are in the trained domain
-        assert np.isfinite(r["gap (m)"]) == np.isfinite(r["sigma (m)"]) == (r["contact"] >= 0)
+        assert np.isfinite(r["gap (m)"]) == (r["contact"] >= 0)
+        assert np.isfinite(r["gap (m)"]) or np.isnan(r["sigma (m)"])  # σ NaN out of domain too
         if r["contact"] < 0:  # "no wall" passes the range check
             assert r["in_domain"] and r["flags"] == ""
     streamed = stream_record(OnnxModel(onset_export["model"] / "stream.onnx"), rec["e"],

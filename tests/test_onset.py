@@ -9,6 +9,8 @@ import sys
 import numpy as np
 import pytest
 import torch
+from hypothesis import given
+from hypothesis import strategies as st
 
 from tests.conftest import ROOT
 from wtml.runtime.onset import (
@@ -97,7 +99,8 @@ def onset_export(tmp_path_factory, scene):
 
     root = tmp_path_factory.mktemp("onset")
     cfg = root / "scene.yaml"
-    cfg.write_text(yaml.safe_dump({"name": "onset", "task": "onset", **SMALL}))
+    cfg.write_text(yaml.safe_dump({"name": "onset", "task": "onset", **SMALL,
+                                   "wall": {"free_fraction": 0.25}}))
     data, run, model = root / "data", root / "run", root / "export"
     subprocess.run([sys.executable, "-m", "wtml.cli", "generate", "--config", str(cfg),
                     "--out", str(data)], check=True, capture_output=True, cwd=ROOT)
@@ -125,9 +128,8 @@ def test_exported_graphs_match_torch(onset_export, scene):
     cl = OnnxModel(onset_export["model"] / "classical.onnx").run(rec["e"], rec["i"])
     np.testing.assert_allclose(dec["gap"], ref[0].numpy(), rtol=1e-4, atol=1e-10)
     np.testing.assert_allclose(dec["contact"], ref[2].numpy(), atol=1e-4)
-    for k, name in ((3, "onset_margin"), (4, "detach_margin")):
-        np.testing.assert_allclose(dec[name], ref[k].numpy(),
-                                   atol=1e-4 * scene.whisk_amplitude_m())
+    np.testing.assert_allclose(dec["detach_margin"], ref[3].numpy(),
+                               atol=1e-4 * scene.whisk_amplitude_m())
     np.testing.assert_array_equal(dec["in_domain"], ref[-2].numpy())
     np.testing.assert_allclose(cl["gap"], ref_cl[0].numpy(), rtol=1e-4, atol=1e-10)
     assert np.mean(cl["contact"] == ref_cl[2].numpy()) > 0.9999
@@ -154,41 +156,75 @@ def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene
         stream_record(stream, rec["e"][:, :-1], rec["i"][:, :-1])
 
 
-def test_timing_rule_finds_every_contact_from_levels_inside_their_brackets(scene):
-    """The decoder's timing rule is exact up to the phase in a frame: with each record's
-    onset and detachment levels in the middle of their brackets (level_brackets), the rule on
-    the calibrated reach (contacts_from) finds every onset and detachment within 0.3 ms."""
+def test_timing_rule_finds_every_contact_from_zm_steps_and_the_detachment_level(scene):
+    """The decoder's timing rule is exact up to the phase in a frame: with Zm's steps over
+    the fitted threshold (touch_threshold), a contact probability that passes 0.5 three
+    frames late (frame_labels shifted: a slow net) and each record's detachment level in the
+    middle of its brackets (detach_brackets), the rule (contacts_from) finds every onset and
+    detachment within 0.3 ms, and a free record gets none."""
     import json
 
     from wtml.bench.onset import event_metrics, match_events
-    from wtml.decoders.onset import OnsetDecoder, edge_offsets, frame_period, level_brackets
+    from wtml.decoders.onset import (
+        OnsetDecoder,
+        OnsetNet,
+        detach_brackets,
+        edge_offsets,
+        frame_labels,
+        frame_period,
+        touch_threshold,
+    )
 
-    rec = scene.simulate(4, np.random.default_rng(8))
+    rec = scene.simulate(4, np.random.default_rng(8), gaps=[2e-6, 6e-6, np.nan, 10e-6])
     targets = np.concatenate([rec["gap"][:, None], rec["onset"], rec["detachment"],
                               rec["coupling"][:, None]], 1)
     frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
     offsets = edge_offsets(targets, frame_s, scene.max_contacts)
-    net = OnsetDecoder()._make(scene, torch.stack([torch.zeros(5), torch.ones(5)]),
-                               offsets[0] / frame_s - 0.5)
+    net = OnsetDecoder()._make(scene, torch.stack([torch.zeros(5), torch.ones(5)]))
     with torch.no_grad():
         f = net.frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double()
-        reach, reach_on = net.double().reaches(f, net.steps(f, f[:, :1, 0]))
-    lo_on, hi_on, lo_off, hi_off = level_brackets(torch.tensor(targets), reach_on, reach,
-                                                  frame_s, scene.max_contacts)
-    on = torch.nanmean((lo_on + hi_on) / 2, 1)[:, None]
-    off = torch.nanmean((lo_off + hi_off) / 2, 1)[:, None]
-    assert torch.all(torch.nan_to_num(lo_on, -1.0) < on)
-    assert torch.all(on <= torch.nan_to_num(hi_on, 1.0))
+    reach = net.reach(f)
+    step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:].norm(dim=-1).numpy()
+    threshold = touch_threshold(step, targets, frame_s, scene.max_contacts)
+    lo, hi = detach_brackets(torch.tensor(targets), reach, frame_s, scene.max_contacts)
+    off = torch.nanmean((lo + hi) / 2, 1)[:, None]
+    walled = np.isfinite(rec["gap"])
+    assert torch.all(lo[walled].nan_to_num(-1.0) < off[walled])
+    assert torch.all(off[walled] <= hi[walled].nan_to_num(1.0))
+    labels = frame_labels(torch.tensor(targets), reach.shape[1], frame_s, scene.max_contacts)
     meta = {"frame_s": json.dumps(frame_s), "merge_s": json.dumps(2 / scene.drive.probe_hz),
             "scene": json.dumps({"max_contacts": scene.max_contacts}),
             "onset_offset_s": json.dumps(offsets[0]), "detach_offset_s": json.dumps(offsets[1])}
-    pred = {"contact": np.ones(reach.shape), "onset_margin": (reach_on - on).numpy(),
-            "detach_margin": (reach - off).numpy()}
+    margin = torch.where(torch.tensor(walled)[:, None], reach - off, -1.0)
+    late = torch.nn.functional.pad(labels, (3, 0))[:, :-3]
+    pred = {"contact": late.numpy(), "detach_margin": margin.numpy(), "touch": step / threshold}
     onset, detach = contacts_from(pred, meta)
     assert event_metrics(rec, onset, detach)["f1"] == 1.0
+    assert np.all(np.isnan(onset[~walled]))
     for key, found in (("onset", onset), ("detachment", detach)):
         tp, fp, fn, err = match_events(rec[key], found, 0.3e-3)
         assert fp == fn == 0 and tp == np.isfinite(rec[key]).sum(), (key, err)
+
+
+def test_a_first_touch_shows_in_its_own_frame_as_a_step_of_zm(scene):
+    """Why the decoder can call the onset's frame: Zm's step from the frame before is, on the
+    frame that holds a first touch, at least 30 times the largest step over the free
+    whisking before it, for walls across the range (and the penetrations of the first probe
+    peak that they get)."""
+    from wtml.decoders.onset import OnsetDecoder, OnsetNet, frame_period
+
+    amp = scene.whisk_amplitude_m()
+    rec = scene.simulate(12, np.random.default_rng(12),
+                         gaps=np.linspace(0.1, 0.9, 12) * amp)
+    frames = OnsetDecoder()._frames(scene)
+    with torch.no_grad():
+        f = frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double()
+    step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:].norm(dim=-1).numpy()
+    frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
+    for r in range(len(step)):
+        k = int(rec["onset"][r, 0] // frame_s)
+        free = step[r, k - 40:k].max()  # the 95 ms of free whisking before the first touch
+        assert step[r, k] > 30 * free, (r, step[r, k], free)
 
 
 def test_ruptures_peer_is_pelt_with_the_l2_cost():
@@ -214,7 +250,8 @@ def test_cramer_rao_bound_scales_with_the_noise_and_not_with_its_numerics(scene)
     by less than 2x with the finite-difference step and the simulation's upsampling."""
     from wtml.bench.onset import cramer_rao_bound
 
-    labels = scene.simulate(3, np.random.default_rng(4))
+    gaps = np.array([0.3, 0.6, 0.5]) * scene.whisk_amplitude_m()  # the scene has free records
+    labels = scene.simulate(3, np.random.default_rng(4), gaps=gaps)
     labels["gap"][2] = np.nan
     base = cramer_rao_bound(scene, labels, upsample=2, step_m=10e-9)
     other = cramer_rao_bound(scene, labels, upsample=4, step_m=40e-9)
@@ -258,3 +295,107 @@ def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_pa
     np.savez(bad, e=rec["e"][0], sample_rate_hz=rate)
     with pytest.raises(InputError, match="missing \\['i'\\]"):
         read_record(bad, rate, scene.n_samples)
+
+
+def test_a_missing_wall_passes_the_gates_range_check_only_where_absence_is_an_answer():
+    """NaN (no wall) is in range for an output declared ``absent_ok`` (the onset scene's
+    gap), out of range for any other; a finite answer outside the range fails either way."""
+    from wtml.decoders.domain import DomainGate, ZeParts
+
+    gap = torch.tensor([float("nan"), 5e-6, 50e-6])
+    for absent, expect in (((0,), [True, True, False]), ((), [False, True, False])):
+        gate = DomainGate(ZeParts(), 2, {0: (1e-6, 1e-5)}, absent)
+        assert gate.outputs_in_range((gap,)).tolist() == expect
+    with pytest.raises(ValueError, match="absent"):
+        DomainGate(ZeParts(), 2, {0: (1e-6, 1e-5)}, (1,))
+    ranges = load_scene(ROOT / "configs/scenes/onset.yaml").output_ranges()
+    assert ranges["gap"].absent_ok
+
+
+@given(top=st.lists(st.floats(0.0, 1.0), min_size=4, max_size=4),
+       shift=st.lists(st.floats(-3e-6, 3e-6), min_size=4, max_size=4),
+       off=st.lists(st.floats(-3e-6, 3e-6), min_size=4, max_size=4))
+def test_a_wall_is_reported_if_and_only_if_a_contact_interval_is(top, shift, off):
+    """One decision gives the wall and the contacts (``answer``): over any contact
+    probabilities and detachment levels, a record reports g (and σ) exactly when the rule
+    (``contacts_from``) gives it at least one contact interval; otherwise both are NaN."""
+    import json
+
+    from wtml.decoders.onset import answer
+
+    n = 40
+    reach = torch.linspace(-1e-6, 1e-6, n).repeat(4, 1) + torch.tensor(shift)[:, None]
+    # each record's probabilities peak at `top` in the middle of the record
+    prob = torch.tensor(top)[:, None] * torch.exp(-torch.linspace(-3, 3, n) ** 2)[None]
+    gap, sd, off_margin = answer(torch.full((4,), 3e-6), torch.full((4,), 1e-7),
+                                 prob.amax(-1), {"reach": reach}, torch.tensor(off))
+    meta = {"frame_s": "0.001", "merge_s": "0.002", "scene": json.dumps({"max_contacts": 8}),
+            "onset_offset_s": "0.0", "detach_offset_s": "0.001"}
+    onset, _ = contacts_from({"contact": prob.numpy(), "detach_margin": off_margin.numpy(),
+                              "touch": np.zeros((4, n))}, meta)
+    has_interval = np.isfinite(onset).any(1)
+    np.testing.assert_array_equal(np.isfinite(gap.numpy()), has_interval)
+    np.testing.assert_array_equal(np.isfinite(sd.numpy()), has_interval)
+    np.testing.assert_array_equal(has_interval, prob.amax(-1).numpy() > 0.5)
+
+
+def test_a_free_record_is_in_domain_and_reports_a_wall_only_with_a_contact(onset_export,
+                                                                          scene):
+    """Free whisking is normal input: records without a wall score in the trained domain for
+    the exported decoder (``wtml predict``'s rows) and the streaming graph alike, a record
+    reports a wall (g, σ) exactly when it reports a contact, and "no wall" is in domain.
+    (Whether a trained decoder answers "no contact" on them is the bench's count,
+    :func:`wtml.bench.onset.free_positives`: this fixture's decoder has 3 epochs.)"""
+    free = dataclasses.replace(scene, wall=dataclasses.replace(scene.wall, free_fraction=1.0))
+    rec = free.simulate(3, np.random.default_rng(11))
+    path = onset_export["model"] / "free.npz"
+    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
+    rows = [r for r in predict_records(onset_export["model"], path) if r["method"] == "decoder"]
+    assert {r["record"] for r in rows} == {0, 1, 2}
+    for r in rows:
+        assert r["domain_score"] <= 1  # free whisking's inputs are in the trained domain
+        assert np.isfinite(r["gap (m)"]) == (r["contact"] >= 0)
+        assert np.isfinite(r["gap (m)"]) or np.isnan(r["sigma (m)"])  # σ NaN out of domain too
+        if r["contact"] < 0:  # "no wall" passes the range check
+            assert r["in_domain"] and r["flags"] == ""
+    streamed = stream_record(OnnxModel(onset_export["model"] / "stream.onnx"), rec["e"],
+                             rec["i"])
+    offline = OnnxModel(onset_export["model"] / "model.onnx").run(rec["e"], rec["i"])
+    np.testing.assert_array_equal(streamed["in_domain"], offline["in_domain"])
+    np.testing.assert_array_equal(np.isnan(streamed["gap"]), np.isnan(offline["gap"]))
+    assert np.all(offline["in_domain"] | np.isfinite(offline["gap"]))
+
+
+def test_the_bench_counts_every_wall_and_contact_on_free_records():
+    """A free record that reports a wall counts once, and each contact interval once more,
+    over the free records' total duration."""
+    from wtml.bench.onset import free_positives
+
+    gap = np.array([np.nan, 4e-6, np.nan, 2e-6])
+    onset = np.full((4, 8), np.nan)
+    onset[1, :2] = [0.3, 1.3]
+    onset[3, 0] = 0.5
+    out = free_positives(gap, onset, seconds=8.0)
+    assert (out["walls"], out["contacts"]) == (2, 3)
+    assert out["per_s"] == pytest.approx(5 / 8.0)
+    assert free_positives(np.full(4, np.nan), np.full((4, 8), np.nan), 8.0)["per_s"] == 0
+
+
+def test_the_main_jobs_onset_lines_state_free_whisking_and_f1_targets():
+    from wtml.pipeline import Stages, _onset_lines
+
+    row = {"rmse": 0.07e-6, "max": 0.2e-6, "range": "all", "missed": 0}
+    free = {"walls": 0, "contacts": 1, "seconds": 108.0, "per_s": 1 / 108.0, "flagged": 0.0}
+    onset = {"n_test": 32, "methods": [
+        {"name": "decoder (ONNX)", "rows": [row], "f1": 0.97, "false_per_s": free["per_s"],
+         "free": free, "fig522_r2": 0.9997},
+        {"name": "thesis pipeline (ONNX)", "rows": [row | {"rmse": 0.5e-6}]}],
+        "reference": [{"rows": [row | {"rmse": 1.4e-12}]}],
+        "streaming": {"chunk_ms": 2.38, "delay_ms_p50": 3.0, "gap_max_diff_m": 1e-11},
+        "domain_flag": {"whisk 7.5 V": 1.0}, "false_alarm_held_out": 0.0,
+        "simulator": [{"modes": 6, "threads": 1, "per_core": 1500.0}]}
+    text = "\n".join(_onset_lines(onset, Stages()))
+    for needle in ("F1 at ±1 ms 0.970 (target in the main job ≥ 0.95: met",
+                   "free whisking, 108 s: 0 walls and 1 contacts reported (target none: MISSED)",
+                   "0 % flagged out of domain (target 0: met)"):
+        assert needle in text, needle

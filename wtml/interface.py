@@ -33,6 +33,8 @@ class OutputRange:
         margin: how far beyond ``[low, high]`` a decoder's answer still counts as in domain,
             as a fraction of the span (of the log10 span when ``log``).
         log: the range is judged on log10 of the value (positive outputs spanning decades).
+        absent_ok: NaN is a legitimate answer, "nothing to locate" (a record without a wall),
+            and passes the range check.
     """
 
     low: float
@@ -40,6 +42,7 @@ class OutputRange:
     physical: tuple[float, float]
     margin: float = 0.05
     log: bool = False
+    absent_ok: bool = False
 
     def widened(self) -> tuple[float, float]:
         """``[low, high]`` with the margin, in the output's unit."""

@@ -262,9 +262,9 @@ def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
     test = _export_and_predict_records(stages, "onset", ckpt, model, data, predict_records)
     print("true: gap " + ", ".join(f"{g:.4g} m" for g in test["gap"][:2]) + "; onsets "
           + ", ".join(f"{t:.4f}" for t in test["onset"][:2].ravel() if np.isfinite(t)) + " s")
-    stages.begin("onset", "bench", f"wtml bench onset --out {bench} --free-records 20 "
+    stages.begin("onset", "bench", f"wtml bench onset --out {bench} --free-records 50 "
                                    "--variant-records 8")
-    print(run_bench(data, model, bench, free_records=20, variant_records=8))
+    print(run_bench(data, model, bench, free_records=50, variant_records=8))
     stages.end()
     return json.loads((bench / "summary.json").read_text())
 
@@ -272,7 +272,7 @@ def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
 def _onset_lines(onset: dict, stages: Stages) -> list[str]:
     by = {m["name"]: m for m in onset["methods"]}
     dec, thesis = by["decoder (ONNX)"], by["thesis pipeline (ONNX)"]
-    rmse = dec["rows"][-1]["rmse"]
+    rmse, free = dec["rows"][-1]["rmse"], dec["free"]
     six = max(r["per_core"] for r in onset["simulator"] if r["modes"] >= 6 and r["threads"] == 1)
     return [
         f"onset ({onset['n_test']} test records, decoder ONNX):",
@@ -280,9 +280,12 @@ def _onset_lines(onset: dict, stages: Stages) -> list[str]:
         f"pipeline {1e6 * thesis['rows'][-1]['rmse']:.3f} µm (target ours ≤ half: "
         f"{_met(rmse <= thesis['rows'][-1]['rmse'] / 2)}); Cramér–Rao bound "
         f"{1e6 * onset['reference'][-1]['rows'][-1]['rmse']:.2g} µm",
-        f"  F1 at ±1 ms {dec['f1']:.3f} (target ≥ 0.995: {_met(dec['f1'] >= 0.995)}); false "
-        f"contacts {dec['false_per_s']:.3f}/s of free whisking (target 0: "
-        f"{_met(dec['false_per_s'] == 0)}); Fig 5.22 R² {dec['fig522_r2']:.4f}",
+        f"  F1 at ±1 ms {dec['f1']:.3f} (target in the main job ≥ 0.95: "
+        f"{_met(dec['f1'] >= 0.95)}; at full size ≥ 0.99); Fig 5.22 R² {dec['fig522_r2']:.4f}",
+        f"  free whisking, {free['seconds']:.0f} s: {free['walls']} walls and "
+        f"{free['contacts']} contacts reported (target none: {_met(dec['false_per_s'] == 0)}), "
+        f"{100 * free['flagged']:.0f} % flagged out of domain (target 0: "
+        f"{_met(free['flagged'] == 0)})",
         f"  streaming (stream.onnx, {onset['streaming']['chunk_ms']:.1f} ms chunks): detection "
         f"delay p50 {onset['streaming']['delay_ms_p50']:.1f} ms (aim ≤ 5 ms: "
         f"{_met(onset['streaming']['delay_ms_p50'] <= 5)}); after the last chunk, gap within "

@@ -76,7 +76,9 @@ class DecoderModule(L.LightningModule, ABC):
         declared = scene.output_ranges()
         ranges = {k: declared[name].widened() for k, name in enumerate(scene.OUTPUTS)
                   if name in declared}
-        return DomainGate(features, n_feat, ranges)
+        absent = tuple(k for k, name in enumerate(scene.OUTPUTS)
+                       if name in declared and declared[name].absent_ok)
+        return DomainGate(features, n_feat, ranges, absent)
 
     def setup(self, stage: str) -> None:
         if self.net is not None:

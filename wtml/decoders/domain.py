@@ -49,12 +49,15 @@ class DomainGate(nn.Module):
         features: ``(ze_re, ze_im) -> (batch, n_feat)`` float32 (part of the exported graph).
         n_feat: number of features.
         ranges: trained range of each output that is checked, by output index.
+        absent: indices of checked outputs for which NaN is a legitimate answer ("nothing to
+            locate": a record without a wall) and passes the range check.
 
     Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` -> ``score (batch,)`` (``<= 1`` inside).
     """
 
     def __init__(self, features: nn.Module, n_feat: int,
-                 ranges: dict[int, tuple[float, float]] | None = None) -> None:
+                 ranges: dict[int, tuple[float, float]] | None = None,
+                 absent: tuple[int, ...] = ()) -> None:
         super().__init__()
         self.features = features
         # folded for a device (few ONNX ops): ellipsoid |(x - mean) W|² with the scales and
@@ -64,6 +67,10 @@ class DomainGate(nn.Module):
         self.register_buffer("box_a", torch.zeros(n_feat))
         self.register_buffer("box_b", torch.zeros(n_feat))
         self.ranges = dict(ranges or {})
+        if set(absent) - set(self.ranges):
+            raise ValueError(f"absent {sorted(absent)}: each must be a checked output "
+                             f"({sorted(self.ranges)})")
+        self.absent = tuple(sorted(absent))
         lo = [self.ranges[k][0] for k in sorted(self.ranges)]
         hi = [self.ranges[k][1] for k in sorted(self.ranges)]
         self.register_buffer("low", torch.tensor(lo, dtype=torch.float32))
@@ -82,10 +89,12 @@ class DomainGate(nn.Module):
 
     def outputs_in_range(self, outputs: tuple[torch.Tensor, ...]) -> torch.Tensor:
         """Whether every checked output lies in its trained range, ``(batch,)`` bool (all
-        true when none is checked)."""
+        true when none is checked); NaN passes for the outputs in ``absent``."""
         ok = None
         for j, k in enumerate(sorted(self.ranges)):
             inside = (outputs[k] >= self.low[j]) & (outputs[k] <= self.high[j])
+            if k in self.absent:
+                inside = inside | torch.isnan(outputs[k])
             ok = inside if ok is None else ok & inside
         return torch.ones_like(outputs[0], dtype=torch.bool) if ok is None else ok
 

@@ -10,29 +10,38 @@ The graph takes the raw records and computes its own features per probe period (
    ``E_H, I_H``, then ``Zm = (t22 E_H - t12 I_H)/(t11 I_H - t21 E_H)`` through the
    calibrated T at the probe frequency (real arithmetic, exportable).
 2. A causal temporal convolution over the frames (dilated, so it sees ~60 frames back: the
-   400 Hz mode rings for ~40 ms). Per frame: the contact logit, and for each of three
-   quantities a vote weight and the frame's estimate (relative to the whisking position):
-   the wall's location g (with a log std), and the *reach levels* at which contacts start and
-   end (below). Because it is causal, the streaming form (:class:`StreamingOnset`, fed chunks,
-   its state carried) gives the offline answer.
+   400 Hz mode rings for ~40 ms), fed the normalised frames, u_L's step and Zm's step from
+   the frame before (compressed by asinh on the scale of free whisking's frame-to-frame
+   jitter). Per frame: the contact logit, and for two quantities a vote weight and the
+   frame's estimate (relative to the whisking position): the wall's location g (with a log
+   std) and the *detachment level* (below). Because it is causal, the streaming form
+   (:class:`StreamingOnset`, fed chunks, its state carried) gives the offline answer.
 3. Each quantity is pooled over the frames by softmax weights, ``g = Σ_t w_t (u_L(t) + δ_t)``:
    each frame near an edge says where the wall is relative to the whisking position, which
    accounts for the tip touching on the probe's peaks before u_L reaches g (§10). g's
    variance is the same weighted mean of the frames' variances.
-4. Timing from the trajectory: the free tip reaches ``u_L + |u_H|`` on each probe peak
-   (``|u_H| = |E_H| / (ωH |t12|)``, the calibrated free-tip response), known per frame to
-   ~1e-12 m from e alone. A contact starts on the first frame whose reach on its probe peak
-   (the frame's reach moved to the peak's phase, from u_L's step) passes the onset level, and
-   ends on the last frame whose reach passes the detachment level. The levels are in the
-   calibrated model's units: the onset level is the wall as the calibrated model sees it,
-   ``g / s`` for a device whose coupling is ``s`` times the calibrated one (less a small
-   bias fitted on the training data), so the timing does not depend on the calibration
-   error. The outputs ``onset_margin``/``detach_margin`` are reach minus level per frame (m).
+4. Timing. The first touch, on a probe peak, shows in its own frame as a step of Zm from
+   the frame before (5e-6 N·s/m and more, where free whisking's frames differ by ~1e-7):
+   the output ``touch`` is that step's size over a threshold, twice free whisking's largest
+   step on the training data (:func:`touch_threshold`). A contact is a run of frames whose contact
+   probability passes 0.5 (labels: the frames that hold a touching instant) and it starts
+   on the first frame, from a few before the run up to its first such frame, whose
+   ``touch`` is >= 1 (:func:`wtml.runtime.onset.contacts_from`). (Taking the onset from the
+   trajectory instead, the first frame whose reach passes a learned level, needs that level
+   to ~10 nm: the frames' reach brackets are 0.09-0.19 µm wide and the true level is often
+   within 10 nm of an edge; the main job's small training got it to 34 nm, and every miss
+   was one probe period early or late.) A first touch that only grazes its probe peak
+   (a few nm) steps Zm no more than free whisking does, and the onset is then called one
+   frame late. A contact ends on the last frame whose reach on the probe peaks, ``u_L + |u_H|``
+   (``|u_H| = |E_H| / (ωH |t12|)``, the calibrated free-tip response, known per frame to
+   ~1e-12 m from e alone), passes the detachment level, which the net estimates; the
+   output ``detach_margin`` is reach minus that level per frame (m).
 
-Outputs (each ``(batch,)`` unless said): ``gap`` (m, NaN where no frame is in contact),
-``sigma`` (m), ``contact`` (``(batch, n_frames)``, probability per frame), ``onset_margin``
-and ``detach_margin`` (m, ``(batch, n_frames)``; -1 m in a record without contact).
-Intervals come from the margins by :func:`wtml.runtime.onset.contacts_from` plus the
+Outputs (each ``(batch,)`` unless said): ``gap`` and ``sigma`` (m, NaN in a record without
+contact: :func:`answer` decides wall and contacts together), ``contact`` (``(batch,
+n_frames)``, probability per frame), ``detach_margin`` (m, ``(batch, n_frames)``; -1 m in a
+record without contact) and ``touch`` (``(batch, n_frames)``).
+Intervals come from these by :func:`wtml.runtime.onset.contacts_from` plus the
 onset/detachment phases in the metadata (where in its frame a contact starts and ends,
 fitted on training labels).
 """
@@ -49,10 +58,9 @@ from wtml.decoders.domain import RESOLUTION
 from wtml.decoders.layers import ZmFromEI
 
 LEVEL_SCALE = 0.001
-"""The reach levels' loss is log cosh of their error in units of this fraction of the
-whisking amplitude (13 nm at the defaults: quadratic below, linear above). The onset level
-must land in a bracket of 0.11-0.19 µm, often within ~10 nm of its edge, so the loss stays
-steep down to that scale."""
+"""The detachment level's loss is log cosh of its error in units of this fraction of the
+whisking amplitude (13 nm at the defaults: quadratic below, linear above), so the loss stays
+steep down to the scale of its brackets' edges."""
 
 
 def frame_basis(period: int) -> np.ndarray:
@@ -139,46 +147,49 @@ class CausalConv(nn.Module):
 
 
 class OnsetNet(nn.Module):
-    """Frames -> (gap m, sigma m, contact probability per frame, onset and detachment margins
-    per frame m); see the module docstring.
+    """Frames -> (gap m, sigma m, contact probability per frame, detachment margin per frame
+    m); see the module docstring.
 
     Args:
         frames: the feature layer.
         scale: ``(mean, std)`` of the 5 frame features over the training data, ``(2, 5)``.
+        zm_step: the scale of Zm's frame-to-frame step (Re, Im; N·s/m), ``(2,)``: its median
+            over the training frames, nearly all of free whisking.
+        touch_step: the size of Zm's step (N·s/m) that marks a touch (:func:`touch_threshold`).
         amp: the whisking amplitude, m (the offsets' unit).
         reach_per_volt: the calibrated free tip's probe amplitude per probe volt,
             ``1/(ωH |t12|)``, m/V.
-        onset_phase: where in its frame a contact starts, from the frame's centre, in
-            frames (the onset reach is moved there along u_L's last step).
         channels, dilations, kernel: the temporal convolution.
     """
 
-    HEADS = 8
-    """Per frame: contact logit; vote, estimate, log std of g; vote, estimate of the onset
-    level; vote, estimate of the detachment level."""
+    HEADS = 6
+    """Per frame: contact logit; vote, estimate, log std of g; vote, estimate of the
+    detachment level."""
 
-    def __init__(self, frames: ProbeFrames, scale: torch.Tensor, amp: float,
-                 reach_per_volt: float, onset_phase: float, channels: int,
+    def __init__(self, frames: ProbeFrames, scale: torch.Tensor, zm_step: torch.Tensor,
+                 touch_step: float, amp: float, reach_per_volt: float, channels: int,
                  dilations: tuple[int, ...], kernel: int = 3) -> None:
         super().__init__()
         self.frames = frames
         self.register_buffer("mean", scale[0].float().clone())
         self.register_buffer("std", scale[1].float().clone())
+        self.register_buffer("zm_step", zm_step.float().clone())
+        self.register_buffer("touch_step", torch.tensor(float(touch_step)))
         self.amp = float(amp)
         self.reach_per_volt = float(reach_per_volt)
-        self.register_buffer("onset_phase", torch.tensor(float(onset_phase)))
-        layers, c_in = [], 6
+        layers, c_in = [], 8
         for d in dilations:
             layers += [CausalConv(c_in, channels, kernel, d), nn.GELU()]
             c_in = channels
         self.body = nn.Sequential(*layers)
         self.head = nn.Conv1d(channels, self.HEADS, 1)
 
-    def steps(self, f: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
-        """u_L's step from the frame before (m), ``(batch, n)``, given the u_L of the frame
-        before the first, ``(batch, 1)``."""
-        u = torch.cat([previous, f[..., 0]], 1)
-        return u[:, 1:] - u[:, :-1]
+    @staticmethod
+    def steps(f: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
+        """The step of (u_L m, Re Zm, Im Zm N·s/m) from the frame before, ``(batch, n, 3)``,
+        given those of the frame before the first, ``(batch, 1, 3)``."""
+        x = torch.cat([previous, f[..., :3]], 1)
+        return x[:, 1:] - x[:, :-1]
 
     def reach(self, f: torch.Tensor) -> torch.Tensor:
         """The free tip's reach on the probe peaks, ``u_L + |u_H|`` (m), ``(batch, n)``."""
@@ -186,61 +197,61 @@ class OnsetNet(nn.Module):
 
     def per_frame(self, e: torch.Tensor, i: torch.Tensor) -> dict[str, torch.Tensor]:
         """Per frame, each ``(batch, n_frames)``: ``contact`` logit, ``vote``/``est``/
-        ``log_sd`` of g (m), ``vote_on``/``est_on`` and ``vote_off``/``est_off`` of the reach
-        levels (m), ``reach`` (m) and ``reach_on`` (on the probe peak where contacts start)."""
+        ``log_sd`` of g (m), ``vote_off``/``est_off`` of the detachment level (m),
+        ``reach`` (m) and ``touch`` (Zm's step over :attr:`touch_step`: >= 1 on a touch)."""
         f = self.frames(e, i)
-        return self.split(f, self.steps(f, f[:, :1, 0]))
+        return self.split(f, self.steps(f, f[:, :1, :3]))
 
-    def split(self, f: torch.Tensor, du: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The heads of frames ``f`` ``(batch, n, 5)`` with u_L's steps ``du`` (m)."""
-        return self.outputs(self.head(self.body(self.inputs(f, du))), f, du)
+    def split(self, f: torch.Tensor, step: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The heads of frames ``f`` ``(batch, n, 5)`` with their steps (:meth:`steps`)."""
+        return self.outputs(self.head(self.body(self.inputs(f, step))), f, step)
 
-    def inputs(self, f: torch.Tensor, du: torch.Tensor) -> torch.Tensor:
-        """The convolution's input ``(batch, 6, n)``: normalised frames and u_L's step."""
+    def inputs(self, f: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
+        """The convolution's input ``(batch, 8, n)``: normalised frames, u_L's step, and
+        Zm's step as ``asinh(step / zm_step)`` (a first touch's step is ~1e3 zm_step)."""
         x = (f - self.mean) / self.std
-        return torch.cat([x, (du / self.std[0])[..., None] * 10.0], -1).transpose(1, 2)
+        du = step[..., :1] / self.std[0] * 10.0
+        return torch.cat([x, du, torch.asinh(step[..., 1:] / self.zm_step)], -1).transpose(1, 2)
 
-    def reaches(self, f: torch.Tensor, du: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The reach at each frame's centre and on the probe peak where contacts start
-        (moved along u_L's last step), m, each ``(batch, n)``."""
-        reach = self.reach(f)
-        return reach, reach + self.onset_phase * du
-
-    def outputs(self, h: torch.Tensor, f: torch.Tensor, du: torch.Tensor
+    def outputs(self, h: torch.Tensor, f: torch.Tensor, step: torch.Tensor
                 ) -> dict[str, torch.Tensor]:
-        """The per-frame quantities (see :meth:`per_frame`) from the heads ``(batch, 8, n)``."""
+        """The per-frame quantities (see :meth:`per_frame`) from the heads ``(batch, 6, n)``,
+        the frames and their steps."""
         u = f[..., 0]
-        reach, reach_on = self.reaches(f, du)
+        zm = step[..., 1:]
         return {"contact": h[:, 0], "vote": h[:, 1], "est": u + self.amp * h[:, 2],
-                "log_sd": h[:, 3], "vote_on": h[:, 4], "est_on": u + self.amp * h[:, 5],
-                "vote_off": h[:, 6], "est_off": u + self.amp * h[:, 7], "reach": reach,
-                "reach_on": reach_on}
+                "log_sd": h[:, 3], "vote_off": h[:, 4], "est_off": u + self.amp * h[:, 5],
+                "reach": self.reach(f),
+                "touch": torch.sqrt((zm * zm).sum(-1)) / self.touch_step}
 
     def pooled(self, p: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
-        """``(g, sd, onset level, detachment level)``, m, each ``(batch,)``."""
+        """``(g, sd, detachment level)``, m, each ``(batch,)``."""
         w = torch.softmax(p["vote"], -1)
         g = (w * p["est"]).sum(-1)
         var = (w * torch.exp(2 * p["log_sd"])).sum(-1) * self.amp**2
-        on = (torch.softmax(p["vote_on"], -1) * p["est_on"]).sum(-1)
         off = (torch.softmax(p["vote_off"], -1) * p["est_off"]).sum(-1)
-        return g, torch.sqrt(var), on, off
+        return g, torch.sqrt(var), off
 
     def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
         p = self.per_frame(e, i)
-        g, sd, on, off = self.pooled(p)
+        g, sd, off = self.pooled(p)
         prob = torch.sigmoid(p["contact"])
-        gap, sd, on_margin, off_margin = answer(g, sd, prob.amax(-1) > 0.5, p, on, off)
-        return gap, sd, prob, on_margin, off_margin
+        gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
+        return gap, sd, prob, off_margin, p["touch"]
 
 
-def answer(g, sd, touched, p: dict, on, off) -> tuple[torch.Tensor, ...]:
-    """The location and margins from the pooled quantities (``(batch,)``, m), whether the
-    record has a frame in contact (bool ``(batch,)``) and the per-frame reaches ``p["reach_on"]``
-    and ``p["reach"]`` (m, ``(batch, n)``): ``(gap, sigma, onset_margin, detach_margin)``; a
-    record without contact gets gap NaN and margins -1 m."""
-    never = torch.full_like(p["reach"], -1.0)
-    return (torch.where(touched, g, torch.full_like(g, float("nan"))), sd,
-            torch.where(touched[:, None], p["reach_on"] - on[:, None], never),
+def answer(g, sd, top, p: dict, off) -> tuple[torch.Tensor, ...]:
+    """The location and detachment margin from the pooled quantities (``(batch,)``, m), the
+    record's highest contact probability ``top`` ``(batch,)`` and the per-frame reach
+    ``p["reach"]`` (m, ``(batch, n)``): ``(gap, sigma, detach_margin)``.
+
+    One decision gives the wall and the contacts: a record touches a wall where a frame's
+    contact probability passes 0.5, and a contact starts on each such run of frames
+    (:func:`wtml.runtime.onset.contacts_from`); only then are g and σ reported. Otherwise gap
+    and σ are NaN ("no wall": free whisking) and the margins -1 m (no interval)."""
+    touched = top > 0.5
+    nan, never = torch.full_like(g, float("nan")), torch.full_like(p["reach"], -1.0)
+    return (torch.where(touched, g, nan), torch.where(touched, sd, nan),
             torch.where(touched[:, None], p["reach"] - off[:, None], never))
 
 
@@ -256,40 +267,49 @@ def frame_labels(targets: torch.Tensor, n_frames: int, frame_s: float, max_conta
     return hit.any(1).float()
 
 
-def level_brackets(targets: torch.Tensor, reach_on: torch.Tensor, reach: torch.Tensor,
-                   frame_s: float, max_contacts: int
-                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Where the onset and detachment levels must lie for the timing rule to pick each true
-    contact's frames: ``(low, high)`` of the onset level (on ``reach_on``), then of the
-    detachment level (on ``reach``), each ``(batch, max_contacts)`` m, NaN where a record has
-    fewer contacts.
-
-    A contact starting in frame k needs ``reach_on[k-1] < level <= reach_on[k]``; one ending
-    in frame j needs ``reach[j+1] < level <= reach[j]``.
-    """
-    n = reach.shape[1]
-
-    def at(r: torch.Tensor, times: torch.Tensor, shift: int) -> torch.Tensor:
-        k = torch.floor(torch.nan_to_num(times) / frame_s).long() + shift
-        v = r.gather(1, k.clamp(0, n - 1))
-        return torch.where(torch.isfinite(times), v, torch.full_like(v, float("nan")))
-
+def onset_frames(targets: torch.Tensor, n_frames: int, frame_s: float, max_contacts: int
+                 ) -> torch.Tensor:
+    """The frame that holds each true onset and the frame before it (the decision's edge),
+    ``(batch, n_frames)`` float 0/1, from targets as :func:`frame_labels`."""
     on = targets[:, 1:1 + max_contacts]
+    k = torch.floor(torch.nan_to_num(on, -1.0) / frame_s).long()
+    out = torch.zeros(len(targets), n_frames + 1, dtype=targets.dtype)
+    for shift in (0, -1):
+        at = torch.where(torch.isfinite(on), (k + shift).clamp(0, n_frames - 1), n_frames)
+        out.scatter_(1, at, 1.0)
+    return out[:, :n_frames]
+
+
+def touch_threshold(step: np.ndarray, targets: np.ndarray, frame_s: float, max_contacts: int,
+                    before: int = 40, factor: float = 2.0) -> float:
+    """The size of Zm's frame-to-frame step (N·s/m) that marks a first touch: ``factor``
+    times the largest step over free whisking, the ``before`` frames ahead of each training
+    onset. (A first touch steps Zm by 1e-6 N·s/m and more in 97 % of the scene's records,
+    where free whisking's largest step is ~2.5e-7; placing the threshold from the free side
+    keeps it clear of the grazes, some of which step Zm no more than free whisking.)
+    ``step`` ``(n, n_frames)`` the steps' size, targets as :func:`frame_labels`; 1.0
+    without an onset."""
+    on = targets[:, 1:1 + max_contacts]
+    free = [step[r, j - before:j].max()
+            for r, k in zip(*np.nonzero(np.isfinite(on)), strict=True)
+            for j in [int(on[r, k] // frame_s)] if before <= j < step.shape[1]]
+    return factor * float(max(free)) if free else 1.0
+
+
+def detach_brackets(targets: torch.Tensor, reach: torch.Tensor, frame_s: float,
+                    max_contacts: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Where the detachment level must lie for the timing rule to end each true contact in
+    its frame: ``(low, high)``, each ``(batch, max_contacts)`` m, NaN where a record has fewer
+    contacts. A contact ending in frame j needs ``reach[j+1] < level <= reach[j]``."""
+    n = reach.shape[1]
     off = targets[:, 1 + max_contacts:1 + 2 * max_contacts]
-    return at(reach_on, on, -1), at(reach_on, on, 0), at(reach, off, 1), at(reach, off, 0)
 
+    def at(shift: int) -> torch.Tensor:
+        k = torch.floor(torch.nan_to_num(off) / frame_s).long() + shift
+        v = reach.gather(1, k.clamp(0, n - 1))
+        return torch.where(torch.isfinite(off), v, torch.full_like(v, float("nan")))
 
-def onset_bias(level: np.ndarray, low: np.ndarray, high: np.ndarray,
-               span: float = 0.1e-6) -> float:
-    """The bias c (m) for which ``level - c`` falls inside the most onset brackets
-    ``(low, high]`` (each ``(n, max_contacts)``; ``level`` ``(n, 1)``: g/s per record),
-    searched over ±``span`` in 1 nm steps; the middle of the best plateau."""
-    ok = np.isfinite(low) & np.isfinite(level)
-    c = np.arange(-span, span + 0.5e-9, 1e-9)
-    inside = [np.mean(((level - x > low) & (level - x <= high))[ok]) if ok.any() else 0.0
-              for x in c]
-    best = np.flatnonzero(np.isclose(inside, max(inside)))
-    return float(np.median(c[best]))
+    return at(1), at(0)
 
 
 def edge_offsets(targets: np.ndarray, frame_s: float, max_contacts: int) -> tuple[float, float]:
@@ -312,16 +332,17 @@ class OnsetDecoder(DecoderModule):
         contact_weight: weight of the frames' contact BCE (it sets how soon the streaming
             form sees a contact: the location's NLL, whose gradient grows as its std
             shrinks, otherwise starves it).
+        onset_weight: extra weight of the BCE on each contact's first frame and the frame
+            before it (:func:`onset_frames`): where the onset is decided.
         location_weight: weight of the location's Gaussian NLL.
-        timing_weight: weight of the reach levels' log-cosh loss (:data:`LEVEL_SCALE`): the
-            onset level towards g/s less :func:`onset_bias`, the detachment level towards the
-            middle of its brackets (:func:`level_brackets`).
+        timing_weight: weight of the detachment level's log-cosh loss (:data:`LEVEL_SCALE`),
+            towards the middle of its brackets (:func:`detach_brackets`).
         lr, weight_decay: as every decoder.
     """
 
     def __init__(self, channels: int = 32, dilations: list[int] | None = None,
-                 contact_weight: float = 30.0, location_weight: float = 1.0,
-                 timing_weight: float = 1.0, lr: float = 3e-3,
+                 contact_weight: float = 30.0, onset_weight: float = 10.0,
+                 location_weight: float = 1.0, timing_weight: float = 1.0, lr: float = 3e-3,
                  weight_decay: float = 1e-5) -> None:
         super().__init__(lr, weight_decay)
         dilations = [1, 2, 4, 8, 16] if dilations is None else list(dilations)
@@ -331,11 +352,12 @@ class OnsetDecoder(DecoderModule):
             raise ConfigError(f"model.dilations must be a non-empty list of values in "
                               f"[1, 4096], got {dilations!r}")
         check_positive("model.contact_weight", contact_weight, 1e6)
+        if not 0 <= onset_weight <= 1e6:
+            raise ConfigError(f"model.onset_weight must be in [0, 1e6], got {onset_weight!r}")
         check_positive("model.location_weight", location_weight, 1e6)
         check_positive("model.timing_weight", timing_weight, 1e6)
         self.save_hyperparameters()
         self.register_buffer("offsets", torch.zeros(2))
-        self.register_buffer("onset_bias", torch.zeros(()))  # m, :func:`onset_bias`
 
     @staticmethod
     def _probe_t(scene) -> np.ndarray:
@@ -349,11 +371,13 @@ class OnsetDecoder(DecoderModule):
     def domain_features(self, scene) -> tuple[nn.Module, int]:
         return RecordSummary(self._frames(scene)), 3
 
-    def _make(self, scene, scale: torch.Tensor, onset_phase: float = 0.0) -> OnsetNet:
+    def _make(self, scene, scale: torch.Tensor, zm_step: torch.Tensor | None = None,
+              touch_step: float = 1.0) -> OnsetNet:
         h = self.hparams
         reach = 1 / (2 * np.pi * scene.drive.probe_hz * abs(self._probe_t(scene)[0, 1]))
-        return OnsetNet(self._frames(scene), scale, scene.whisk_amplitude_m(), reach,
-                        onset_phase, h.channels, tuple(h.dilations))
+        return OnsetNet(self._frames(scene), scale,
+                        torch.ones(2) if zm_step is None else zm_step, touch_step,
+                        scene.whisk_amplitude_m(), reach, h.channels, tuple(h.dilations))
 
     def build_net(self, scene, e, i, targets) -> nn.Module:
         frames = self._frames(scene)
@@ -363,18 +387,15 @@ class OnsetDecoder(DecoderModule):
         # float32 resolves it, or rounding differences between graphs would drive the net
         floor = RESOLUTION * f.abs().amax((0, 1))
         scale = torch.stack([f.mean((0, 1)), torch.maximum(f.std((0, 1)), floor)])
+        step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:]
+        zm_step = torch.maximum(step.abs().flatten(0, 1).median(0).values, floor[1:3])
         frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
         self.offsets.copy_(torch.tensor(edge_offsets(targets.numpy(), frame_s,
                                                      scene.max_contacts)))
         self._frame_s, self._max_contacts = frame_s, scene.max_contacts
-        net = self._make(scene, scale, float(self.offsets[0]) / frame_s - 0.5)
-        with torch.no_grad():
-            reach, reach_on = net.reaches(f, net.steps(f, f[:, :1, 0]))
-            lo, hi, _, _ = level_brackets(targets, reach_on, reach, frame_s,
-                                          scene.max_contacts)
-        level = (targets[:, :1] / targets[:, -1:]).numpy()  # g/s
-        self.onset_bias.fill_(onset_bias(level, lo.numpy(), hi.numpy()))
-        return net
+        touch = touch_threshold(step.norm(dim=-1).double().numpy(), targets.numpy(), frame_s,
+                                scene.max_contacts)
+        return self._make(scene, scale, zm_step, max(touch, float(floor[1:3].max())))
 
     def net_shape(self) -> dict:
         return {}
@@ -390,11 +411,13 @@ class OnsetDecoder(DecoderModule):
     def loss(self, batch) -> torch.Tensor:
         e, i, targets = batch
         p = self.net.per_frame(e, i)
-        labels = frame_labels(targets, p["contact"].shape[1], self._frame_s,
-                              self._max_contacts)
+        n = p["contact"].shape[1]
+        labels = frame_labels(targets, n, self._frame_s, self._max_contacts)
+        weight = 1 + self.hparams.onset_weight * onset_frames(targets, n, self._frame_s,
+                                                              self._max_contacts)
         bce = self.hparams.contact_weight * fn.binary_cross_entropy_with_logits(
-            p["contact"], labels)
-        g, sd, on, off = self.net.pooled(p)
+            p["contact"], labels, weight=weight)
+        g, sd, off = self.net.pooled(p)
         has = torch.isfinite(targets[:, 0])
         if not has.any():
             return bce
@@ -402,15 +425,12 @@ class OnsetDecoder(DecoderModule):
         z = (g[has] - targets[has, 0]) / amp
         s = sd[has] / amp
         nll = (0.5 * (z / s) ** 2 + torch.log(s)).mean()
-        _, _, lo_off, hi_off = level_brackets(targets, p["reach_on"], p["reach"],
-                                              self._frame_s, self._max_contacts)
-        # the onset level: the wall as the calibrated model sees it, g/s, less the bias;
         # the detachment level: the middle of its brackets (the two whisks' overlap)
-        level_on = targets[:, 0] / targets[:, -1] - self.onset_bias
-        timing = torch.cat([on - level_on, off - torch.nanmean((lo_off + hi_off) / 2, 1)])
-        timing = timing / (LEVEL_SCALE * amp)
+        lo, hi = detach_brackets(targets, p["reach"], self._frame_s, self._max_contacts)
+        timing = (off - torch.nanmean((lo + hi) / 2, 1)) / (LEVEL_SCALE * amp)
         timing = timing[torch.isfinite(timing)].abs()
-        timing = (timing + torch.log1p(torch.exp(-2 * timing)) - np.log(2.0)).mean()  # log cosh
+        timing = (timing + torch.log1p(torch.exp(-2 * timing)) - np.log(2.0))  # log cosh
+        timing = timing.sum() / max(timing.numel(), 1)
         return bce + self.hparams.location_weight * nll + self.hparams.timing_weight * timing
 
 

@@ -4,19 +4,19 @@
 Everything the offline graph computes over a whole record is causal or a running sum:
 
 - the probe frames are per frame (a chunk holds whole probe periods);
-- u_L's step needs the previous frame's u_L;
+- u_L's and Zm's steps need the previous frame's u_L and Zm;
 - each causal convolution needs its last ``(kernel - 1) dilation`` inputs;
 - each softmax pooling is a running (max, Σ exp, Σ exp·x[, Σ exp·σ²]), merged chunk by chunk;
 - the domain gate's record summary is running sums, a maximum and a minimum.
 
 So after the last chunk of a record, the running ``gap``, ``sigma``, levels and domain score
 equal the offline graph's (to float32 rounding), and the per-frame contact probabilities of
-the chunks, concatenated, equal the offline ones. The per-frame margins use the levels known
-so far (the offline graph uses the record's final levels).
+the chunks, concatenated, equal the offline ones. The per-frame detachment margins use the
+level known so far (the offline graph uses the record's final level).
 
 The state is one flat float32 tensor per record (``(batch, state_size)``); a device keeps it
 between calls and starts each record from zeros (the frame count in it is 0 before the first
-chunk, which tells the running maxima and u_L's step that nothing came before).
+chunk, which tells the running maxima and the steps that nothing came before).
 """
 
 from __future__ import annotations
@@ -27,16 +27,15 @@ from torch import nn
 from wtml.decoders.domain import DomainGate
 from wtml.decoders.onset import CausalConv, OnsetNet, answer
 
-POOLS = (("vote", "est", "log_sd", 0), ("vote_on", "est_on", None, 4),
-         ("vote_off", "est_off", None, 7))
-"""The three softmax poolings: vote, estimate, (for g) the log std, and where their running
-sums start in the pooled state (16 values: the poolings' (max, Σ exp, Σ exp·x[, Σ exp·σ²]),
+POOLS = (("vote", "est", "log_sd", 0), ("vote_off", "est_off", None, 4))
+"""The two softmax poolings: vote, estimate, (for g) the log std, and where their running
+sums start in the pooled state (13 values: the poolings' (max, Σ exp, Σ exp·x[, Σ exp·σ²]),
 then the top contact probability, the frame count, Σ|E_H|, max u_L, min u_L, Σ|I_H|)."""
 
 
 class StreamingOnset(nn.Module):
-    """``(e, i, state) -> (contact, onset_margin, detach_margin, gap, sigma, next_state,
-    in_domain, domain_score)`` for chunks of ``chunk_frames`` probe periods.
+    """``(e, i, state) -> (contact, detach_margin, touch, gap, sigma, next_state, in_domain,
+    domain_score)`` for chunks of ``chunk_frames`` probe periods.
 
     Args:
         net: a trained onset net.
@@ -45,7 +44,7 @@ class StreamingOnset(nn.Module):
             samples of each channel).
 
     Shapes: ``e``, ``i`` ``(batch, chunk_samples)`` V and A; ``state`` ``(batch,
-    state_size)``; ``contact`` and the margins ``(batch, chunk_frames)``; the rest
+    state_size)``; ``contact``, the margin and ``touch`` ``(batch, chunk_frames)``; the rest
     ``(batch,)``.
     """
 
@@ -55,7 +54,7 @@ class StreamingOnset(nn.Module):
             raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
         self.net, self.gate, self.chunk_frames = net, gate, int(chunk_frames)
         self.convs = [m for m in net.body if isinstance(m, CausalConv)]
-        self.sizes = [1] + [m.conv.in_channels * m.pad for m in self.convs] + [16]
+        self.sizes = [3] + [m.conv.in_channels * m.pad for m in self.convs] + [13]
         self.state_size = sum(self.sizes)
 
     @property
@@ -72,14 +71,14 @@ class StreamingOnset(nn.Module):
         prev, buffers, pool = parts[0], parts[1:-1], parts[-1]
         net = self.net
         f = net.frames(e, i)  # (batch, chunk_frames, 5)
-        first = pool[:, 11] == 0  # no frame before this chunk
+        first = pool[:, 8] == 0  # no frame before this chunk
 
         def running(op, old, new):
             return torch.where(first, new, op(old, new))
 
-        prev = torch.where(first[:, None], f[:, :1, 0], prev)
-        du = net.steps(f, prev)
-        x = net.inputs(f, du)
+        prev = torch.where(first[:, None, None], f[:, :1, :3], prev[:, None])
+        step = net.steps(f, prev)
+        x = net.inputs(f, step)
         carried = []
         for layer in net.body:
             if isinstance(layer, CausalConv):
@@ -89,7 +88,7 @@ class StreamingOnset(nn.Module):
                 x = layer.conv(full)
             else:
                 x = layer(x)
-        p = net.outputs(net.head(x), f, du)
+        p = net.outputs(net.head(x), f, step)
         pooled, merged = [], []
         for vote, est, log_sd, at in POOLS:
             run = pool[:, at:at + (4 if log_sd else 3)]
@@ -108,19 +107,19 @@ class StreamingOnset(nn.Module):
                 pooled.append(mean)
             merged += sums
         prob = torch.sigmoid(p["contact"])
-        top = torch.maximum(pool[:, 10], prob.amax(-1))
-        count = pool[:, 11] + f.shape[1]
-        sum_e = pool[:, 12] + f[..., 3].sum(-1)
-        u_max = running(torch.maximum, pool[:, 13], f[..., 0].amax(-1))
-        u_min = running(torch.minimum, pool[:, 14], f[..., 0].amin(-1))
-        sum_i = pool[:, 15] + f[..., 4].sum(-1)
+        top = torch.maximum(pool[:, 7], prob.amax(-1))
+        count = pool[:, 8] + f.shape[1]
+        sum_e = pool[:, 9] + f[..., 3].sum(-1)
+        u_max = running(torch.maximum, pool[:, 10], f[..., 0].amax(-1))
+        u_min = running(torch.minimum, pool[:, 11], f[..., 0].amin(-1))
+        sum_i = pool[:, 12] + f[..., 4].sum(-1)
         summary = torch.stack([1e3 * sum_e / count, 1e6 * (u_max - u_min) / 2,
                                torch.log10(sum_i / count)], -1)
-        # this chunk's margins use the levels so far and contact seen so far
-        gap, sd, on_margin, off_margin = answer(*pooled[:2], top > 0.5, p, *pooled[2:])
+        # this chunk's margin uses the level so far and the contact seen so far
+        gap, sd, off_margin = answer(*pooled[:2], top, p, pooled[2])
         score = self.gate.score(summary)
         inside = (score <= 1.0) & self.gate.outputs_in_range((gap, sd))
         sd = torch.where(inside, sd, torch.full_like(sd, float("nan")))
         new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i], -1)
-        next_state = torch.cat([f[:, -1:, 0], *carried, new_pool], 1)
-        return prob, on_margin, off_margin, gap, sd, next_state, inside, score
+        next_state = torch.cat([f[:, -1, :3], *carried, new_pool], 1)
+        return prob, off_margin, p["touch"], gap, sd, next_state, inside, score

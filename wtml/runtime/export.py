@@ -128,7 +128,8 @@ def domain_metadata(scene, false_alarm: float, n_fresh: int) -> dict:
     outputs = {}
     for name, r in scene.output_ranges().items():
         outputs[name] = {"trained": [r.low, r.high], "in_domain": list(r.widened()),
-                         "physical": list(r.physical), "log": r.log}
+                         "physical": list(r.physical), "log": r.log,
+                         "absent_ok": r.absent_ok}
     return {"score": "the larger of the squared whitened distance of the input features from "
                      "the training mean over its training quantile, and the distance outside "
                      "the training features' box in units of 5 % of each span; <= 1 inside",

@@ -4,8 +4,9 @@ Both graphs (``model.onnx``: the decoder; ``classical.onnx``: the thesis's pipel
 ``e`` (V) and ``i`` (A), float32 ``(batch, n_samples)`` at the trained sampling rate, and
 return ``gap`` (m), ``sigma`` (m; NaN for the classical path and out of domain), ``contact``
 (``(batch, n_frames)``: a probability per probe frame for the decoder, a 0/1 state per sample
-for the classical path), the decoder also ``onset_margin`` and ``detach_margin`` (m per frame:
-the free tip's reach past its onset and detachment levels), then ``in_domain`` and
+for the classical path), the decoder also ``detach_margin`` (m per frame: the free tip's
+reach past its detachment level) and ``touch`` (per frame: Zm's step from the frame before
+over the size that marks a touch), then ``in_domain`` and
 ``domain_score``. The metadata says how frames map to time (``frame_s``, ``onset_offset_s``,
 ``detach_offset_s``, ``merge_s``), so every device turns these into intervals the same way
 (:func:`contacts_from`). A third graph, ``stream.onnx``, is the decoder's streaming form
@@ -33,9 +34,13 @@ from wtml.scenes.onset import intervals
 
 ONSET_INPUTS = ("e", "i")
 ONSET_OUTPUTS = ("gap", "sigma", "contact")
-DECODER_OUTPUTS = ONSET_OUTPUTS + ("onset_margin", "detach_margin")
+DECODER_OUTPUTS = ONSET_OUTPUTS + ("detach_margin", "touch")
 STREAM_INPUTS = ("e", "i", "state")
-STREAM_OUTPUTS = ("contact", "onset_margin", "detach_margin", "gap", "sigma", "next_state")
+STREAM_OUTPUTS = ("contact", "detach_margin", "touch", "gap", "sigma", "next_state")
+TOUCH_LOOKBACK = 4
+"""Frames ahead of a decoder's contact run in which its first touch is still looked for (the
+run starts where the reach passes the detachment level or the probability passes 0.5,
+either of which can come a frame or two after the first touch)."""
 STREAM_CHUNK_FRAMES = 1
 """Probe periods per chunk of the exported streaming graph (2.4 ms at the defaults)."""
 FRESH_RECORDS = 64
@@ -102,25 +107,34 @@ def contacts_from(pred: dict, metadata: dict) -> tuple[np.ndarray, np.ndarray]:
     """Onset and detachment times (s) of each record's contacts from a graph's outputs and
     its metadata; each ``(n, max_contacts)``, NaN-padded.
 
-    With margins (the decoder), a contact is a run of frames where either margin is >= 0; it
-    starts on the run's first frame with ``onset_margin >= 0`` and ends on its last with
-    ``detach_margin >= 0``. Without (the classical path), a run of ``contact > 0.5``.
+    With a margin (the decoder), a contact is a run of frames where the contact probability
+    passes 0.5 or ``detach_margin >= 0``; it starts on the first frame with ``touch >= 1``
+    from :data:`TOUCH_LOOKBACK` frames ahead of the run (not reaching back into the contact
+    before) up to the run's first frame with ``contact > 0.5`` (on that frame if none), and
+    ends on its last frame with ``detach_margin >= 0``. Without (the classical path), a run
+    of ``contact > 0.5``.
     Runs closer than ``merge_s`` are one contact.
     """
     frame_s = json.loads(metadata["frame_s"])
     max_count = json.loads(metadata["scene"]).get("max_contacts", 8)
     merge = json.loads(metadata["merge_s"])
-    if "onset_margin" not in pred:
+    if "detach_margin" not in pred:
         start, end = intervals(pred["contact"] > 0.5, 1 / frame_s, merge, max_count)
     else:
-        rise, fall = pred["onset_margin"] >= 0, pred["detach_margin"] >= 0
+        rise, fall = pred["contact"] > 0.5, pred["detach_margin"] >= 0
+        touch = pred["touch"] >= 1
         start, end = intervals(rise | fall, 1 / frame_s, merge, max_count)
         n_frames = rise.shape[1]
+        before = np.zeros(len(start), int)  # where the record's previous run ended
         for r, k in zip(*np.nonzero(np.isfinite(start)), strict=True):
             a = int(round(start[r, k] / frame_s))
             b = n_frames if np.isnan(end[r, k]) else int(round(end[r, k] / frame_s))
             on, off = np.flatnonzero(rise[r, a:b]), np.flatnonzero(fall[r, a:b])
-            start[r, k] = (a + (on[0] if len(on) else 0)) * frame_s
+            first = a + (on[0] if len(on) else 0)
+            lo = max(a - TOUCH_LOOKBACK, before[r])
+            hit = np.flatnonzero(touch[r, lo:first + 1])
+            start[r, k] = (lo + hit[0] if len(hit) else first) * frame_s
+            before[r] = b
             if np.isfinite(end[r, k]):
                 end[r, k] = (a + (off[-1] + 1 if len(off) else b - a)) * frame_s
     # intervals() gives frame boundaries; the contact starts/ends at a fixed phase in a frame

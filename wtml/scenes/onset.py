@@ -210,10 +210,11 @@ class OnsetScene:
 
     def output_ranges(self) -> dict[str, OutputRange]:
         """g over the scene's range, 2 % of its span beyond still in domain; physically
-        anywhere the tip can reach (± twice the whisking amplitude)."""
+        anywhere the tip can reach (± twice the whisking amplitude); NaN ("no wall": free
+        whisking) is a legitimate answer."""
         lo, hi = self.gap_range_m()
         amp = self.whisk_amplitude_m()
-        return {"gap": OutputRange(lo, hi, (-2 * amp, 2 * amp), margin=0.02)}
+        return {"gap": OutputRange(lo, hi, (-2 * amp, 2 * amp), margin=0.02, absent_ok=True)}
 
     def reference_stiffness(self) -> float:
         """Geometric mean of the contact-stiffness range, N/m (the classical threshold's)."""

@@ -119,7 +119,9 @@ def _bench_onset(args: argparse.Namespace) -> int:
     from wtml.bench.onset import run_bench
 
     print(run_bench(args.data, args.model, args.out, free_records=args.free_records,
-                    variant_records=args.variant_records, repeats=args.repeats))
+                    variant_records=args.variant_records, repeats=args.repeats,
+                    transfer_records=args.transfer_records,
+                    independent_records=args.independent_records))
     return 0
 
 
@@ -280,6 +282,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="records per untrained-drive variant for the domain flag")
     bo.add_argument("--repeats", type=int, default=3,
                     help="records per wall position of Figure 5.22 (15 positions)")
+    bo.add_argument("--transfer-records", type=int, default=32,
+                    help="fresh records per row of the transfer table (each contact law alone, "
+                         "the held-out one included; each acquisition effect alone)")
+    bo.add_argument("--independent-records", type=int, default=8,
+                    help="records of the independent simulator (its row of the transfer "
+                         "table; 0: none)")
     bo.set_defaults(func=_bench_onset)
 
     bt = be_sub.add_parser("texture", help="the texture slice", formatter_class=_Help,

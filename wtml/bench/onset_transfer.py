@@ -42,17 +42,19 @@ def independent_records(scene, n: int, rng: np.random.Generator) -> dict:
     return simulate_onset(scene, gaps, k, c, coupling, rng=rng)
 
 
-def onset_variants(scene, *, independent: bool = True) -> list[Variant]:
-    """The rows of the table: the scene as trained, each contact law alone, each acquisition
-    effect alone (and the base motion at :data:`BASE_LEVELS`), and (``independent``) the
-    independent simulator."""
+def onset_variants(scene) -> list[Variant]:
+    """The rows of the table made by the scene's own simulator: the scene as trained, each
+    contact law alone, each acquisition effect alone (and the base motion at
+    :data:`BASE_LEVELS`)."""
     rows = [Variant("the trained scene (in family)", "in family", scene.simulate)]
     rows += member_variants(scene, LAWS, scene.wall.law, _with_law, "contact law")
-    rows += acquisition_variants(scene, BASE_LEVELS)
-    if independent:
-        rows.append(Variant("independent simulator (linear wall, white noise)", "independent",
-                            lambda n, rng: independent_records(scene, n, rng)))
-    return rows
+    return rows + acquisition_variants(scene, BASE_LEVELS)
+
+
+def independent_variant(scene) -> Variant:
+    """The row of the independent simulator (:func:`independent_records`)."""
+    return Variant("independent simulator (linear wall, white noise)", "independent",
+                   lambda n, rng: independent_records(scene, n, rng))
 
 
 def location_scores(gap: np.ndarray, truth: np.ndarray, sigma: np.ndarray | None = None,
@@ -90,8 +92,8 @@ def scorer(methods: dict[str, Callable], events: Callable[[dict, np.ndarray, np.
         rows = []
         for name, run in methods.items():
             gap, on, off, out = run(records["e"], records["i"])
-            extra = (out["sigma"], out["in_domain"].astype(bool)) if out is not None and \
-                "in_domain" in out else ()
+            answers = out if out is not None and {"sigma", "in_domain"} <= set(out) else None
+            extra = (answers["sigma"], answers["in_domain"].astype(bool)) if answers else ()
             rows.append({"name": name, **location_scores(gap, records["gap"], *extra),
                          **events(records, on, off)})
         return rows

@@ -394,10 +394,13 @@ def _drive_at(t, drv):
 
 
 @njit(cache=True)
-def _root_power(x, c, n):
-    """δ ≥ 0 with ``δ + c δ^n = x`` (x > 0, c ≥ 0, n ≥ 1): Newton from an upper bound,
-    monotone (the left side is convex and increasing)."""
+def _root_power(x, c, n, start):
+    """δ ≥ 0 with ``δ + c δ^n = x`` (x > 0, c ≥ 0, n ≥ 1) by Newton from ``start`` where it is
+    > 0 (a nearby root), else from an upper bound: the left side is convex and increasing, so
+    the iterates stay positive and are monotone after the first."""
     d = x if c <= 0.0 else min(x, (x / c) ** (1.0 / n))
+    if start > 0.0:
+        d = min(d, start)
     for _ in range(100):
         step = (d + c * d**n - x) / (1.0 + c * n * d ** (n - 1.0))
         d -= step
@@ -430,16 +433,17 @@ def _closure(law, par, a_r, x, u1, v0, v1, af, theta):
                 break
         return kh * s**3
     n, gain = par[_N], par[_GAIN]
-    d = _root_power(x, (u1 + a_r) * gain, n)
+    d = _root_power(x, (u1 + a_r) * gain, n, 0.0)
     f = gain * d**n
     if law == 1:
         return f
-    for _ in range(100):  # Hunt–Crossley: K (1 + α δ') with δ' on the elastic branch
+    for _ in range(100):  # Hunt–Crossley: K (1 + α δ') with δ' on the elastic branch, by
+        # fixed point (the damping's share of F is ~α δ' ≈ 1e-4: it contracts at once)
         rate = (v0 - v1 * f) / (1.0 + a_r * n * f / d)
         k = gain * max(1.0 + par[_ALPHA] * rate, 0.0)
-        d = _root_power(x, (u1 + a_r) * k, n)
+        d = _root_power(x, (u1 + a_r) * k, n, d)
         new = k * d**n
-        if abs(new - f) <= 1e-15 * new or d == 0.0:
+        if abs(new - f) <= 1e-13 * new or d == 0.0:
             return new
         f = new
     return f
@@ -514,12 +518,19 @@ def _fixed_step(omega, zeta, tip, coupling, a_r, beta_r, law, pars, drv, t0, dt,
     """Every record (``pars`` (B, 9), :data:`_SCALE`...) from rest at t0 by TR-BDF2 at
     ``dt/substeps``, touch and release located inside the step (module docstring); writes
     the states ``[q, q', F]`` at the samples ``state`` (B, 2n+1, n_t), the regime there
-    ``engaged_out`` (B, n_t) and the events per record ``events`` (B,) (−1: it chatters)."""
+    ``engaged_out`` (B, n_t) and the events per record ``events`` (B,) (−1: it chatters).
+
+    Each step's trial (one call of :func:`_trbdf2`, of a fraction of what is left of the
+    step) goes by phases: the whole step; where it crosses an event just after another
+    (``fresh``: the start is on the event), halving the fraction until one ends inside (none
+    above 1e-12: the contact is undone); Illinois on the fraction between a trial inside
+    and one past; the step to the located crossing, where the regime switches."""
     n = len(omega)
     h = dt / substeps
     work = np.zeros((4, n))
     q, v, qn, vn = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
     cpl = np.zeros(n)
+    whole, halve, locate, cut = 0, 1, 2, 3
     for b in range(pars.shape[0]):
         par = pars[b]
         for i in range(n):
@@ -534,53 +545,53 @@ def _fixed_step(omega, zeta, tip, coupling, a_r, beta_r, law, pars, drv, t0, dt,
         count, fresh, g_prev = 0, False, -1.0
         for j in range((n_t - 1) * substeps):
             t, t_end = t0 + j * h, t0 + (j + 1) * h
-            while t_end - t > 1e-12 * h:
-                span = t_end - t
-                args = (omega, zeta, tip, cpl, a_r, br, law, par, drv, t)
-                sign = 1.0 if not engaged else -1.0  # the event function, oriented: > 0 past
-                f_new, g_hi = _trbdf2(*args, span, q, v, f, engaged, work, qn, vn)
-                g_hi *= sign
-                if g_hi <= 0.0:
+            phase, frac, span = whole, 1.0, t_end - t
+            lo, g_lo, hi, g_hi, side = 0.0, g_prev, 1.0, 0.0, 0
+            while True:
+                f_new, g = _trbdf2(omega, zeta, tip, cpl, a_r, br, law, par, drv, t,
+                                   frac * span, q, v, f, engaged, work, qn, vn)
+                g *= -1.0 if engaged else 1.0  # the event function, oriented: > 0 past
+                if phase == cut or (phase == whole and g <= 0.0):
                     q[:] = qn
                     v[:] = vn
-                    f, t, g_prev, fresh = f_new, t_end, g_hi, False
-                    break
-                lo, g_lo, hi = 0.0, g_prev, 1.0
-                inside = not fresh  # the last step ended inside (or on the event)
-                if fresh:  # just switched: find a point inside before the crossing, if any
-                    frac = 0.5
-                    while frac > 1e-12:
-                        g = sign * _trbdf2(*args, frac * span, q, v, f, engaged, work, qn,
-                                           vn)[1]
-                        if g < 0.0:
-                            lo, g_lo, inside = frac, g, True
-                            break
+                    t += frac * span
+                    if phase == whole:
+                        f, g_prev, fresh = f_new, g, False
+                        break
+                    phase = halve  # past the cut: switch, then take what is left
+                elif phase == whole:
+                    hi, g_hi = 1.0, g
+                    if fresh:
+                        phase, frac = halve, 0.5
+                        continue
+                    phase = locate
+                elif phase == halve:
+                    if g < 0.0:
+                        lo, g_lo, phase = frac, g, locate
+                    else:
+                        hi, g_hi, frac = frac, g, 0.5 * frac
+                        if frac > 1e-12:
+                            continue
+                else:
+                    if g >= 0.0:
                         hi, g_hi = frac, g
-                        frac *= 0.5
-                if inside:  # Illinois on the step's fraction
-                    side = 0
-                    for _ in range(200):
-                        mid = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
-                        if not lo < mid < hi:
-                            mid = 0.5 * (lo + hi)
-                        g = sign * _trbdf2(*args, mid * span, q, v, f, engaged, work, qn,
-                                           vn)[1]
-                        if g >= 0.0:
-                            hi, g_hi = mid, g
-                            if side == -1:
-                                g_lo *= 0.5
-                            side = -1
-                        else:
-                            lo, g_lo = mid, g
-                            if side == 1:
-                                g_hi *= 0.5
-                            side = 1
-                        if hi - lo <= 1e-13 or g == 0.0:
-                            break
-                    _trbdf2(*args, hi * span, q, v, f, engaged, work, qn, vn)
-                    q[:] = qn
-                    v[:] = vn
-                    t += hi * span
+                        if side == -1:
+                            g_lo *= 0.5
+                        side = -1
+                    else:
+                        lo, g_lo = frac, g
+                        if side == 1:
+                            g_hi *= 0.5
+                        side = 1
+                    if hi - lo <= 1e-13 or g == 0.0:
+                        phase, frac = cut, hi
+                        continue
+                if phase == locate:
+                    frac = (lo * g_hi - hi * g_lo) / (g_hi - g_lo)
+                    if not lo < frac < hi:
+                        frac = 0.5 * (lo + hi)
+                    continue
+                # a located crossing (or, from halve, none inside: undone where it starts)
                 f = 0.0  # the force is 0 at every touch and release
                 engaged = not engaged
                 fresh = True
@@ -588,6 +599,10 @@ def _fixed_step(omega, zeta, tip, coupling, a_r, beta_r, law, pars, drv, t0, dt,
                 if count > 4 * n_t:
                     events[b] = -1
                     return
+                if t_end - t <= 1e-12 * h:
+                    break
+                phase, frac, span = whole, 1.0, t_end - t
+                lo, g_lo, hi, side = 0.0, 0.0, 1.0, 0
             if (j + 1) % substeps == 0:
                 s = (j + 1) // substeps
                 state[b, :n, s] = q

@@ -25,10 +25,13 @@ from wtml.scenes import load_scene
 
 @pytest.fixture(scope="module")
 def nominal():
-    """The shipped onset scene without noise and without the acquisition's effects."""
+    """The shipped onset scene without noise and without the acquisition's effects, its wall
+    the linear one alone (the tests that compare another law say so)."""
     base = load_scene(ROOT / "configs/scenes/onset.yaml")
-    return dataclasses.replace(base, acquisition=dataclasses.replace(
-        base.acquisition, e_noise_v=0.0, i_noise_a=0.0, effects=base.acquisition.effects.only()))
+    return dataclasses.replace(
+        base, wall=dataclasses.replace(base.wall, law={"linear": 1.0}),
+        acquisition=dataclasses.replace(base.acquisition, e_noise_v=0.0, i_noise_a=0.0,
+                                        effects=base.acquisition.effects.only()))
 
 
 @pytest.fixture(scope="module")

@@ -28,7 +28,7 @@ from wtml.training import cli_main, duration
 TRANSFER_RECORDS = 4
 """Fresh records per row of the time-domain benches' transfer tables in the main job (a small
 version: their benches' defaults are the full tables)."""
-INDEPENDENT_RECORDS = 2
+INDEPENDENT_RECORDS = 4
 """Records of the independent simulator in the main job's onset transfer table."""
 
 

@@ -1,0 +1,79 @@
+"""The transfer tables' machinery: which family members a mixture holds out, that each row's
+records are made by what its name says, and the location scores' arithmetic."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tests.conftest import ROOT
+from wtml.bench.onset_transfer import BASE_LEVELS, location_scores, onset_variants
+from wtml.bench.texture_transfer import texture_variants
+from wtml.bench.transfer import mixture_members, run_variants
+from wtml.physics.contact import LAWS
+from wtml.physics.friction import LAWS as FRICTION_LAWS
+from wtml.scenes import load_scene
+
+
+def test_a_mixture_holds_out_the_members_it_does_not_draw():
+    trained, held = mixture_members({"linear": 0.25, "power": 0.4, "mount_hertz": 0.35,
+                                     "hunt_crossley": 0.0}, LAWS)
+    assert trained == ["linear", "power", "mount_hertz"] and held == ["hunt_crossley"]
+
+
+@pytest.fixture(scope="module")
+def short_onset():
+    scene = load_scene(ROOT / "configs/scenes/onset.yaml")
+    return dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, cycles=0.5,
+                                                                lead_s=0.05))
+
+
+def test_onset_rows_make_what_they_name(short_onset):
+    """Each law row draws only its law (the shipped mixture leaves Hunt–Crossley out: that
+    row is held out); each acquisition row has only its effect on; the base rows move the
+    object at their levels; every row is reproducible from the seed."""
+    rows = onset_variants(short_onset)
+    kinds = {v.name: v.kind for v in rows}
+    assert kinds["contact law hunt_crossley alone (held out)"] == "held out"
+    assert sum(k == "held out" for k in kinds.values()) == 1
+    assert len([n for n in kinds if n.startswith("object moving")]) == len(BASE_LEVELS)
+    for v in rows:
+        if v.name.startswith("contact law"):
+            law = v.name.split()[2]
+            rec = v.make(6, np.random.default_rng(0))
+            assert set(rec["law"].tolist()) == {LAWS.index(law)}, v.name
+    calls = []
+    out = run_variants(rows[:2], 3, 7, lambda r: calls.append(r["i"]) or [{"name": "x"}])
+    again = run_variants(rows[:2], 3, 7, lambda r: calls.append(r["i"]) or [{"name": "x"}])
+    assert [r["name"] for r in out] == [r["name"] for r in again]
+    np.testing.assert_array_equal(calls[0], calls[2])
+    assert not np.array_equal(calls[0], calls[1])
+
+
+def test_texture_rows_hold_out_lugre_and_step_it_finely_enough():
+    scene = load_scene(ROOT / "configs/scenes/texture.yaml")
+    rows = {v.name: v for v in texture_variants(scene)}
+    assert rows["friction law lugre alone (held out)"].kind == "held out"
+    assert {n for n in rows if n.startswith("friction law")} == {
+        f"friction law {law} alone" + (" (held out)" if law == "lugre" else "")
+        for law in FRICTION_LAWS}
+    acq = [n for n, v in rows.items() if v.kind == "acquisition"]
+    on = [n for n in scene.acquisition.effects.NAMES
+          if getattr(scene.acquisition.effects, n).enabled]
+    assert len(acq) == 1 + len(on)
+
+
+def test_location_scores_count_coverage_flags_and_misses():
+    truth = np.array([1.0, 2.0, 3.0, 4.0, np.nan]) * 1e-6
+    gap = np.array([1.1, 2.0, np.nan, 4.5, np.nan]) * 1e-6
+    sigma = np.full(5, 0.1e-6)
+    in_domain = np.array([True, True, True, False, True])
+    s = location_scores(gap, truth, sigma, in_domain)
+    assert s["missed"] == 1
+    np.testing.assert_allclose(s["rmse"], np.sqrt((0.1**2 + 0 + 0.5**2) / 3) * 1e-6)
+    np.testing.assert_allclose(s["max"], 0.5e-6)
+    assert s["flagged"] == 0.25  # of the four records with a wall
+    np.testing.assert_allclose(s["rmse_in_domain"], np.sqrt(0.1**2 / 2) * 1e-6)
+    assert s["within_2sigma"] == 1.0
+    assert location_scores(gap, truth)["missed"] == 1 and "flagged" not in location_scores(
+        gap, truth)

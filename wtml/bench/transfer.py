@@ -67,24 +67,27 @@ def member_variants(scene, family: tuple[str, ...], mixture: dict[str, float],
 
 
 def acquisition_variants(scene, extra: tuple[tuple[str, dict], ...] = ()) -> list[Variant]:
-    """The scene with an ideal acquisition (no effect), then with each effect the scene has on
-    alone at the scene's level, then each ``extra`` effect alone at the level given
-    (``(effect, {field: value})``, e.g. the base motion, which a scene may leave off in
-    training, at two levels)."""
+    """The scene with an ideal acquisition (no effect), then with each effect alone at the
+    scene's level (those the scene leaves off in training marked so; the base motion only
+    through ``extra``), then each ``extra`` effect alone at the level given (``(effect,
+    {field: value})``, e.g. the base motion at two levels)."""
     fx: AcquisitionEffects = scene.acquisition.effects
 
     def with_effects(new: AcquisitionEffects):
         return dataclasses.replace(scene, acquisition=dataclasses.replace(scene.acquisition,
                                                                            effects=new))
 
+    def alone(name: str, **fields) -> AcquisitionEffects:
+        only = fx.only(name)
+        return dataclasses.replace(only, **{name: dataclasses.replace(
+            getattr(only, name), **fields)}) if fields else only
+
     rows = [("ideal acquisition (no effect)", with_effects(fx.only()))]
-    rows += [(f"{EFFECT_NAMES[name]} alone", with_effects(fx.only(name)))
-             for name in fx.NAMES if getattr(fx, name).enabled]
-    for name, fields in extra:
-        alone = fx.only(name)
-        alone = dataclasses.replace(alone, **{name: dataclasses.replace(getattr(alone, name),
-                                                                        **fields)})
-        rows.append((f"{EFFECT_NAMES[name]} alone ({_level(fields)})", with_effects(alone)))
+    rows += [(f"{EFFECT_NAMES[name]} alone"
+              + ("" if getattr(fx, name).enabled else " (not in training)"),
+              with_effects(alone(name))) for name in fx.NAMES if name != "base"]
+    rows += [(f"{EFFECT_NAMES[name]} alone ({_level(fields)})", with_effects(alone(name, **fields)))
+             for name, fields in extra]
     return [Variant(label, "acquisition", lambda n, rng, s=s: s.simulate(n, rng))
             for label, s in rows]
 

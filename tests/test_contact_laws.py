@@ -288,7 +288,8 @@ def test_the_scene_draws_laws_from_its_mixture_and_refuses_unknown_ones(tmp_path
                   & (drawn["law_mount_fraction"][mount] <= w.mount_fraction[1]))
     assert np.all(np.isfinite(drawn["law_delta_ref"]))
     # the default mixture (the linear wall alone) draws nothing: its records are unchanged
-    default = load_scene("configs/scenes/onset.yaml")
+    path.write_text("task: onset\n")
+    default = load_scene(path)
     before = rng.bit_generator.state
     drawn = default.draw_laws(5, rng)
     assert rng.bit_generator.state == before and np.all(drawn["law"] == 0)

@@ -393,9 +393,18 @@ def test_the_main_jobs_onset_lines_state_free_whisking_and_f1_targets():
         "reference": [{"rows": [row | {"rmse": 1.4e-12}]}],
         "streaming": {"chunk_ms": 2.38, "delay_ms_p50": 3.0, "gap_max_diff_m": 1e-11},
         "domain_flag": {"whisk 7.5 V": 1.0}, "false_alarm_held_out": 0.0,
-        "simulator": [{"modes": 6, "threads": 1, "per_core": 1500.0}]}
+        "simulator": [{"modes": 6, "threads": 1, "per_core": 1500.0}],
+        "transfer": [{"name": name, "kind": kind, "records": 4, "methods": [
+            {"rmse": rmse, "within_2sigma": cover, "f1": 0.97}]} for name, kind, rmse, cover in (
+                ("the trained scene (in family)", "in family", 0.07e-6, 0.95),
+                ("contact law linear alone", "in family", 0.06e-6, 0.95),
+                ("contact law hunt_crossley alone (held out)", "held out", 0.12e-6, 0.80),
+                ("mains hum alone (not in training)", "acquisition", 0.4e-6, 0.2))]}
     text = "\n".join(_onset_lines(onset, Stages()))
     for needle in ("F1 at ±1 ms 0.970 (target in the main job ≥ 0.95: met",
+                   "hunt_crossley (held out) 0.120 µm (80 % in 2σ, F1 0.97)",
+                   "≥ 90 % within 2σ: MISSED); worst acquisition effect: mains hum alone (not "
+                   "in training) 0.400 µm",
                    "free whisking, 108 s: 0 walls and 1 contacts reported (target none: MISSED)",
                    "0 % flagged out of domain (target 0: met)"):
         assert needle in text, needle

@@ -403,9 +403,10 @@ def _report(results, reference, streaming, flags, held_in, conv, speed, scene, n
               "training mixture leaves out is held out), an ideal acquisition, each "
               "acquisition effect alone, the object moving with the base (never trained), and "
               "records of the independent simulator (wtml.bench.independent: its own modal "
-              "reduction and solve_ivp with touch and release events). The decoder's columns: "
-              "location over the records with a wall, F1 of onsets at ±1 ms, the share flagged "
-              "out of domain, the in-domain answers' RMSE and the share of them within 2σ.", ""]
+              "reduction, TR-BDF2 with touch and release located in the step). The decoder's "
+              "columns: location over the records with a wall, F1 of onsets at ±1 ms, the share "
+              "flagged out of domain, the in-domain answers' RMSE and the share of them within "
+              "2σ.", ""]
     lines += transfer_table(transfer)
     lines += ["", "Decoder's domain flag (fraction of records flagged out of domain): "
               f"held-out test {held_in:.3f}; free whisking {results[0]['free']['flagged']:.3f}; "

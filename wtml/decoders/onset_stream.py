@@ -30,7 +30,8 @@ from wtml.decoders.onset import CausalConv, OnsetNet, answer
 POOLS = (("vote", "est", "log_sd", 0), ("vote_off", "est_off", None, 4))
 """The two softmax poolings: vote, estimate, (for g) the log std, and where their running
 sums start in the pooled state (13 values: the poolings' (max, Σ exp, Σ exp·x[, Σ exp·σ²]),
-then the top contact probability, the frame count, Σ|E_H|, max u_L, min u_L, Σ|I_H|)."""
+then the top contact probability, the frame count, Σ(|E_H| − level), max u_L, min u_L,
+Σ(|I_H| − level), the levels the gate's training means)."""
 
 
 class StreamingOnset(nn.Module):
@@ -56,6 +57,11 @@ class StreamingOnset(nn.Module):
         self.convs = [m for m in net.body if isinstance(m, CausalConv)]
         self.sizes = [3] + [m.conv.in_channels * m.pad for m in self.convs] + [13]
         self.state_size = sum(self.sizes)
+        # the running sums of |E_H| and |I_H| add each frame's deviation from the training
+        # records' mean level, so float32 rounding scales with the deviations, not the level
+        # (whitened by the gate, the level's rounding over a record was ~2e-3 of the score)
+        self.register_buffer("level_e", gate.mean[0].detach().clone() / 1e3)
+        self.register_buffer("level_i", 10 ** gate.mean[2].detach().clone())
 
     @property
     def chunk_samples(self) -> int:
@@ -109,12 +115,12 @@ class StreamingOnset(nn.Module):
         prob = torch.sigmoid(p["contact"])
         top = torch.maximum(pool[:, 7], prob.amax(-1))
         count = pool[:, 8] + f.shape[1]
-        sum_e = pool[:, 9] + f[..., 3].sum(-1)
+        sum_e = pool[:, 9] + (f[..., 3] - self.level_e).sum(-1)
         u_max = running(torch.maximum, pool[:, 10], f[..., 0].amax(-1))
         u_min = running(torch.minimum, pool[:, 11], f[..., 0].amin(-1))
-        sum_i = pool[:, 12] + f[..., 4].sum(-1)
-        summary = torch.stack([1e3 * sum_e / count, 1e6 * (u_max - u_min) / 2,
-                               torch.log10(sum_i / count)], -1)
+        sum_i = pool[:, 12] + (f[..., 4] - self.level_i).sum(-1)
+        summary = torch.stack([1e3 * (self.level_e + sum_e / count), 1e6 * (u_max - u_min) / 2,
+                               torch.log10(self.level_i + sum_i / count)], -1)
         # this chunk's margin uses the level so far and the contact seen so far
         gap, sd, off_margin = answer(*pooled[:2], top, p, pooled[2])
         score = self.gate.score(summary)

@@ -72,8 +72,8 @@ def test_split_by_shard_and_datamodule(tmp_path):
         split_shards(2, 1, 1)
     generate(SCENE, tmp_path, progress=False)
     dm = ShardDataModule(str(tmp_path), batch_size=32)
-    ze_re, ze_im, y = dm.train_tensors()
-    assert ze_re.shape == (200, 31) and y.shape == (200, 2)
+    ze_re, ze_im, t_re, t_im, y = dm.train_tensors()
+    assert ze_re.shape == (200, 31) and y.shape == (200, 2) and t_im.shape == (200, 31, 4)
     np.testing.assert_allclose(10 ** y[:, 0].double().numpy(),
                                load_shards(tmp_path, [0, 1])["eta"], rtol=1e-6)
     assert len(dm.test_dataloader().dataset) == 100

@@ -1,7 +1,7 @@
 """Export-safe building blocks: complex algebra written out in real arithmetic.
 
-ONNX has no complex tensors, so a T on the grid is held as real and imaginary buffers and
-Eq. 3.15 is evaluated by hand.
+ONNX has no complex tensors, so a T on the grid is held as real and imaginary parts (buffers,
+or the graph's inputs where the user's calibration is one) and Eq. 3.15 is evaluated by hand.
 """
 
 from __future__ import annotations
@@ -11,36 +11,45 @@ import torch
 from torch import nn
 
 
+def _mul(a: tuple, b: tuple) -> tuple:
+    """Complex product of ``(re, im)`` pairs."""
+    return a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0]
+
+
+def _div(a: tuple, b: tuple) -> tuple:
+    """Complex quotient of ``(re, im)`` pairs."""
+    mag2 = b[0] * b[0] + b[1] * b[1]
+    return (a[0] * b[0] + a[1] * b[1]) / mag2, (a[1] * b[0] - a[0] * b[1]) / mag2
+
+
+def t_elements(t_re: torch.Tensor, t_im: torch.Tensor) -> tuple[tuple, ...]:
+    """``(t11, t12, t21, t22)`` as ``(re, im)`` pairs, each ``(batch, n_freq)``, from the
+    flattened T ``(batch, n_freq, 4)`` (the order of ``T.reshape(..., 4)``)."""
+    return tuple((t_re[..., k], t_im[..., k]) for k in range(4))
+
+
 class ZmFromZe(nn.Module):
-    """Calibrated T -> load impedance, in float32 real arithmetic.
+    """The user's calibrated T -> load impedance, in float32 real arithmetic, one T per sample.
 
-    Eq. 3.15 as a Möbius map in its cheapest form: with ``c = t11/t21`` (the clamped Ze),
-    ``A = -t22/t21`` and ``B = -det T / t21²``, ``Zm = A + B / (Ze - c)``. The three constants
-    are computed once in float64; per sample it is one complex division and one complex
-    multiply-add (about half the operations of the quotient form, which matters on devices).
+    Eq. 3.15 as a Möbius map: with ``c = t11/t21`` (the clamped Ze), ``A = -t22/t21`` and
+    ``B = -det T / t21²``, ``Zm = A + B / (Ze - c)`` (the 2×2 algebra written out: no complex
+    tensors and no linear solve, which do not export).
 
-    Args:
-        t: complex T, shape ``(n_freq, 2, 2)`` (numpy).
-
-    Forward: ``ze_re, ze_im`` of shape ``(batch, n_freq)`` in Ω -> ``zm_re, zm_im`` in N·s/m.
+    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` in Ω and ``t_re, t_im`` ``(batch, n_freq,
+    4)`` (:func:`t_elements`) -> ``zm_re, zm_im`` ``(batch, n_freq)`` in N·s/m.
     """
 
-    def __init__(self, t: np.ndarray) -> None:
-        super().__init__()
-        t = np.asarray(t, dtype=complex)
-        t11, t12, t21, t22 = t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1]
-        consts = {"c": t11 / t21, "a": -t22 / t21, "b": -(t11 * t22 - t12 * t21) / t21**2}
-        for name, value in consts.items():
-            self.register_buffer(f"{name}_re", torch.tensor(value.real, dtype=torch.float32))
-            self.register_buffer(f"{name}_im", torch.tensor(value.imag, dtype=torch.float32))
-
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor]:
-        d_re, d_im = ze_re - self.c_re, ze_im - self.c_im
-        mag2 = d_re * d_re + d_im * d_im
-        inv_re, inv_im = d_re / mag2, -d_im / mag2  # 1 / (Ze - c)
-        return (self.a_re + self.b_re * inv_re - self.b_im * inv_im,
-                self.a_im + self.b_re * inv_im + self.b_im * inv_re)
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        t11, t12, t21, t22 = t_elements(t_re, t_im)
+        c = _div(t11, t21)
+        a = _div(t22, t21)
+        p, q = _mul(t11, t22), _mul(t12, t21)
+        b = _div((p[0] - q[0], p[1] - q[1]), _mul(t21, t21))
+        inv = _div((torch.ones_like(ze_re), torch.zeros_like(ze_re)),
+                   (ze_re - c[0], ze_im - c[1]))  # 1 / (Ze - c)
+        bi = _mul(b, inv)
+        return -a[0] - bi[0], -a[1] - bi[1]
 
 
 class ZmFromEI(nn.Module):
@@ -79,24 +88,45 @@ class ZmFromEI(nn.Module):
 
 
 class SignedLogZm(nn.Module):
-    """Zm through the calibrated T as ``sign(x) log(1 + |x|)``, ``x = Zm / z_scale``, for Re
-    and Im side by side: linear below ``z_scale``, logarithmic above (loads that span decades).
-    Written with Abs/Log/Sign, which onnxruntime vectorises (its Asinh cost as much as an MLP).
+    """Zm through the user's calibrated T as ``sign(x) log(1 + |x|)``, ``x = Zm / z_scale``,
+    for Re and Im side by side (linear below ``z_scale``, logarithmic above: loads that span
+    decades), then the device's own features (:meth:`device`): what the domain gate needs to
+    tell a device outside the trained spread. Written with Abs/Log/Sign, which onnxruntime
+    vectorises (its Asinh cost as much as an MLP).
 
     Args:
-        t: complex T, ``(n_freq, 2, 2)`` (numpy); z_scale: the knee, N·s/m.
+        z_scale: the knee, N·s/m.
 
-    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` in Ω -> ``(batch, 2 n_freq)``.
+    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` in Ω, ``t_re, t_im`` ``(batch, n_freq, 4)``
+    -> ``(batch, 2 n_freq + N_DEVICE)``.
     """
 
-    def __init__(self, t: np.ndarray, z_scale: float) -> None:
+    N_DEVICE = 6
+    """The device features (:meth:`device`)."""
+
+    def __init__(self, z_scale: float) -> None:
         super().__init__()
-        self.zm = ZmFromZe(t)
+        self.zm = ZmFromZe()
         self.register_buffer("z_scale", torch.tensor(float(z_scale)))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
-        x = torch.cat(self.zm(ze_re, ze_im), -1) / self.z_scale
-        return torch.sign(x) * torch.log1p(torch.abs(x))
+    @staticmethod
+    def device(t_re: torch.Tensor, t_im: torch.Tensor) -> torch.Tensor:
+        """The lumped device as T shows it (physics.md §3: ``t11 = 1/φ``, ``t12/t11 = Zt``,
+        ``t21/t11 = jω C0 (1 - j tanδ)``): ``log|t11|``, Re Zt at the first frequency (the
+        damping), Im Zt at the first and last (mass and stiffness), Re and Im of ``t21/t11``
+        at the middle one (C0 tanδ and C0), ``(batch, N_DEVICE)``."""
+        t11, t12, t21, _ = t_elements(t_re, t_im)
+        zt, y = _div(t12, t11), _div(t21, t11)
+        mid = t_re.shape[1] // 2
+        log_t11 = 0.5 * torch.log(t11[0][:, 0] ** 2 + t11[1][:, 0] ** 2)
+        return torch.stack([log_t11, zt[0][:, 0], zt[1][:, 0], zt[1][:, -1], y[0][:, mid],
+                            y[1][:, mid]], -1)
+
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor) -> torch.Tensor:
+        x = torch.cat(self.zm(ze_re, ze_im, t_re, t_im), -1) / self.z_scale
+        return torch.cat([torch.sign(x) * torch.log1p(torch.abs(x)), self.device(t_re, t_im)],
+                         -1)
 
 
 class StandardPolynomial(nn.Module):

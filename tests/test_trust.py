@@ -457,7 +457,16 @@ def test_the_main_job_summary_states_targets_times_and_places():
              "closed_form": {"eta_median": 0.327, "rho_median": 0.0113},
              "crlb": {"eta_median": 0.029, "rho_median": 0.006},
              "decoder_onnx_latency_s": 30e-6, "decoder_onnx_throughput": 1.1e6,
-             "false_alarm": 0.001, "n_test": 3000}
+             "false_alarm": 0.001, "n_test": 3000, "device_records": 300}
+
+    def device(eta, rho):
+        return {"methods": [{"name": "decoder ONNX", "eta_median": eta, "rho_median": rho,
+                             "flagged": 0.02}]}
+
+    fluid["device_spread"] = [device(0.028, 0.004) | {"device": "nominal device"},
+                              device(0.029, 0.0045) | {"device": "trained spread"},
+                              device(0.03, 0.005) | {"device": "k ±3 % only"},
+                              device(0.03, 0.007) | {"device": "c0 ±3 % only"}]
     row = {"rmse": 0.4e-6, "ratio": 1.02, "max": 4e-6, "range": "all"}
     radial = {"ours_onnx": row, "inversion": row | {"rmse": 0.397e-6},
               "best_polynomial_rmse": 3.42e-6, "ours_onnx_latency_s": 60e-6,
@@ -467,7 +476,10 @@ def test_the_main_job_summary_states_targets_times_and_places():
     for needle in ("1.13× the Bayes", "target ≤ 1 %: MISSED", "target ≤ 0.5 %: met",
                    "1.02× the CRLB", "8.6× below the best polynomial",
                    "runs/fluid/bench/report.md", "runs/radial/bench/error_vs_d.png",
-                   "train fluid 1 min 10 s", "total:"):
+                   "train fluid 1 min 10 s", "total:",
+                   "devices of the trained spread (300 records): η median 2.90 % (target ≤ 3 %: "
+                   "met), ρ 0.450 % (target ≤ 0.6 %: met), flagged 2.0 %",
+                   "limited by c0 ±3 %: η 3.00 %, ρ 0.700 % alone"):
         assert needle in text, needle
 
 

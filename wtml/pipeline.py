@@ -194,7 +194,9 @@ def _device_lines(fluid: dict) -> list[str]:
     rows = {r["device"]: {m["name"]: m for m in r["methods"]} for r in fluid["device_spread"]}
     dec = rows["trained spread"]["decoder ONNX"]
     alone = {k: v["decoder ONNX"] for k, v in rows.items() if k.endswith("only")}
-    worst = max(alone, key=lambda k: alone[k]["rho_median"])
+    # the parameter whose spread alone costs most against the targets (η 3 %, ρ 0.6 %)
+    worst = max(alone, key=lambda k: max(alone[k]["eta_median"] / 0.03,
+                                         alone[k]["rho_median"] / 0.006))
     return [
         f"  devices of the trained spread ({fluid['device_records']} records): η median "
         f"{100 * dec['eta_median']:.2f} % (target ≤ 3 %: {_met(dec['eta_median'] <= 0.03)}), "

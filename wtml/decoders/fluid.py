@@ -48,12 +48,8 @@ class FluidNet(nn.Module):
 
     def head(self, x: torch.Tensor) -> torch.Tensor:
         """Features (:class:`SignedLogZm`'s) -> standardised (log10 η, ρ) ``(batch, 2)``: the
-        MLP sees the Zm part."""
+        MLP sees the Zm part (what the loss sees, on features computed once per sample)."""
         return self.mlp((x[:, :2 * self.n_freq] - self.feature_mean) / self.feature_std)
-
-    def forward_normalized(self, *inputs: torch.Tensor) -> torch.Tensor:
-        """Standardised (log10 η, ρ), shape ``(batch, 2)``: what the loss sees."""
-        return self.head(self.features(*inputs))
 
     def from_features(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """η, ρ ``(batch,)`` from features already computed (shared with the domain gate)."""
@@ -110,10 +106,18 @@ class FluidDecoder(DecoderModule):
     def build_from_checkpoint(self, shape: dict) -> None:
         self.net = FluidNet(shape["n_freq"], 1.0, self.hidden)
 
+    def setup(self, stage: str) -> None:
+        """The net as :class:`DecoderModule` builds it; then the data module hands the
+        batches as the net's features (its feature layer has no parameters: Zm through each
+        record's T is computed once per sample, not in every step)."""
+        super().setup(stage)
+        self.trainer.datamodule.map_inputs(self.net.features)
+
     def loss(self, batch) -> torch.Tensor:
-        *inputs, target = batch
+        """On batches ``(features, targets)`` (:meth:`setup`)."""
+        x, target = batch
         y = (target - self.net.target_mean) / self.net.target_std
-        return nn.functional.mse_loss(self.net.forward_normalized(*inputs), y)
+        return nn.functional.mse_loss(self.net.head(x), y)
 
 
 def load_fluid_net(checkpoint: str) -> tuple[FluidNet, dict]:

@@ -210,8 +210,9 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
         "", *format_device_spread(spread_rows, device_records), "",
         "Each record carries its own device's calibrated T (the user's calibration, with the "
         "sphere mounted); the sphere's radius is not measured: it enters only the Stokes law, "
-        "where a radius R(1 + ε) reads as η(1 + ε) and ρ(1 + ε)³ (physics.md §5), beyond any "
-        "estimator's reach. The Bayes reference integrates it out over the spread (grid "
+        "where a radius R(1 + ε) is exactly a fluid with η(1 + ε) and ρ(1 + ε)³ (physics.md "
+        "§5): the classical path reads that; only the fluid's prior (glycerol-water) tells part "
+        "of it apart. The Bayes reference integrates the radius out over the spread (grid "
         f"{BAYES_GRID['n_fraction']}×{BAYES_GRID['n_temperature']}).",
         "", "## By viscosity decade", ""]
     for r in results:

@@ -72,8 +72,8 @@ def test_split_by_shard_and_datamodule(tmp_path):
         split_shards(2, 1, 1)
     generate(SCENE, tmp_path, progress=False)
     dm = ShardDataModule(str(tmp_path), batch_size=32)
-    ze_re, ze_im, y = dm.train_tensors()
-    assert ze_re.shape == (200, 31) and y.shape == (200, 2)
+    ze_re, ze_im, t_re, t_im, y = dm.train_tensors()
+    assert ze_re.shape == (200, 31) and y.shape == (200, 2) and t_im.shape == (200, 31, 4)
     np.testing.assert_allclose(10 ** y[:, 0].double().numpy(),
                                load_shards(tmp_path, [0, 1])["eta"], rtol=1e-6)
     assert len(dm.test_dataloader().dataset) == 100
@@ -97,3 +97,25 @@ def test_loaders_give_the_batches_of_a_per_sample_loader(tmp_path):
         assert len(ours) == len(theirs) == -(-len(dm._dataset(reference)) // batch)
         for a, b in zip(ours, theirs, strict=True):
             assert all(torch.equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+def test_mapped_inputs_are_the_map_of_each_batch(tmp_path):
+    """After ``map_inputs`` the loaders hand ``(fn(*inputs), targets)``: under the same seed,
+    the batches of the unmapped loader with ``fn`` applied to each, bit for bit (the fluid
+    net's feature layer, computed once per sample instead of in every step)."""
+    import torch
+
+    from wtml.decoders.layers import SignedLogZm
+
+    generate(SCENE, tmp_path, progress=False)
+    dm = ShardDataModule(str(tmp_path), batch_size=48)
+    fn = SignedLogZm(0.01 * SCENE.reference_zm())
+    torch.manual_seed(3)
+    raw = list(dm.train_dataloader())
+    dm.map_inputs(fn)
+    assert dm.train_tensors()[0].shape == (200, 2 * 31 + SignedLogZm.N_DEVICE)
+    torch.manual_seed(3)
+    mapped = list(dm.train_dataloader())
+    assert len(mapped) == len(raw) == 5
+    for (x, y), (*inputs, y_raw) in zip(mapped, raw, strict=True):
+        assert torch.equal(y, y_raw) and torch.equal(x, fn(*inputs))

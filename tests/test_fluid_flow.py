@@ -2,6 +2,7 @@
 export, ONNX parity with torch and numpy, and ``wtml predict`` on every input format."""
 
 import csv
+import json
 import os
 import re
 from pathlib import Path
@@ -21,16 +22,103 @@ from wtml.decoders.checkpoint import load_decoder, read_checkpoint
 from wtml.decoders.domain import Gated
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
 from wtml.decoders.layers import ZmFromZe
-from wtml.physics import zm_from_ze
+from wtml.physics import ze_from_zm, zm_from_ze
+from wtml.physics.fluids import glycerol_water
+from wtml.physics.loads import stokes_sphere
+from wtml.physics.twoport import flat_parts
 from wtml.runtime.export import ClassicalFluidNet
 from wtml.runtime.predict import InputError, OnnxModel, predict_file
-from wtml.scenes import FluidScene
-from wtml.scenes.config import build
-from wtml.signals import sample_times, tone
+from wtml.scenes import FluidScene, to_dict
+from wtml.scenes.config import SceneError, build
+from wtml.signals import complex_noise, sample_times, tone
 from wtml.training import cli_main
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = FLUID_SMALL  # the flow fixture's scene (conftest.py)
+SPREAD = build(FluidScene, {"device": {"k": 0.03, "m": 0.01, "c": 0.25, "phi": 0.03,
+                                       "c0": 0.03, "tan_delta": 0.25, "sphere_radius": 0.01}})
+
+
+def _tensors(*arrays):
+    return tuple(torch.tensor(np.asarray(a), dtype=torch.float32) for a in arrays)
+
+
+def test_zero_spread_reproduces_the_preset_records_bit_for_bit():
+    """Without a spread the scene draws nothing more: today's algorithm (one T for every
+    record), written out here, gives the same records bit for bit, and each record's ``t`` is
+    the preset's T."""
+    n, scene = 500, build(FluidScene, {})
+    got = scene.simulate(n, np.random.default_rng(7))
+    rng = np.random.default_rng(7)
+    cv, temp = rng.uniform(0.0, 1.0, n), rng.uniform(15.0, 40.0, n)
+    eta, rho = glycerol_water(cv, temp)
+    s = 0.01 / np.sqrt(2)
+    alpha = s * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
+    beta = s * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
+    zm = stokes_sphere(eta[:, None], rho[:, None], scene.sphere.radius, scene.excitation.omega)
+    zm = (1 + alpha[:, None]) * zm + beta[:, None] * scene.reference_zm()
+    ze = complex_noise(ze_from_zm(scene.calibrated_t(), zm), 1e-4, rng)
+    for key, ref in (("ze", ze), ("eta", eta), ("rho", rho), ("cal_gain", alpha)):
+        assert np.array_equal(got[key], ref), key
+    assert np.array_equal(got["t"], np.broadcast_to(scene.calibrated_t(), got["t"].shape))
+
+
+def test_device_spread_draws_each_device_within_its_stated_bounds():
+    """Each record has its own device: its T maps its Ze back to its own sphere's Stokes load
+    exactly (no noise, no calibration error), the radius stays in ±1 %, and the lumped
+    parameters seen in T (t11 = 1/φ, t21/t11 = jω C0 (1 - j tanδ)) in their half-widths."""
+    clean = build(FluidScene, {"device": to_dict(SPREAD.device), "noise": {"ze_relative": 0.0},
+                               "nuisance": {"calibration_error": 0.0}})
+    d = clean.simulate(400, np.random.default_rng(3))
+    omega = clean.excitation.omega
+    zm = stokes_sphere(d["eta"][:, None], d["rho"][:, None], d["sphere_radius"][:, None], omega)
+    np.testing.assert_allclose(zm_from_ze(d["t"], d["ze"]), zm, rtol=1e-7)
+    ratio = d["sphere_radius"] / clean.sphere.radius - 1
+    assert np.abs(ratio).max() <= 0.01 and np.abs(ratio).max() > 0.009
+    base = clean.transducer.build()
+    phi = 1 / d["t"][:, 0, 0, 0].real
+    assert np.abs(phi / base.phi - 1).max() <= 0.03 and np.std(phi / base.phi) > 0.01
+    c0 = (d["t"][:, :, 1, 0] / d["t"][:, :, 0, 0]).imag / omega
+    assert np.abs(c0 / base.c0 - 1).max() <= 0.03 + 1e-12
+    with pytest.raises(SceneError, match=r"device.sphere_radius: must be in \[0, 0.2\]"):
+        build(FluidScene, {"device": {"sphere_radius": 0.5}})
+
+
+def test_an_unmeasured_radius_is_a_fluid_with_scaled_properties():
+    """The Stokes load depends on R only through ηR, R² sqrt(ηρ) and R³ρ, so a sphere of
+    radius R(1 + ε) in (η, ρ) is exactly a sphere of radius R in (η(1 + ε), ρ(1 + ε)³): the
+    classical path with the nominal radius reads those on clean records, to rounding. (Only a
+    prior over (η, ρ) can tell the radius's share apart: the bench's device-spread table.)"""
+    clean = build(FluidScene, {"device": {"sphere_radius": 0.01}, "noise": {"ze_relative": 0.0},
+                               "nuisance": {"calibration_error": 0.0}})
+    d = clean.simulate(300, np.random.default_rng(11))
+    eps = d["sphere_radius"] / clean.sphere.radius - 1
+    assert np.abs(eps).max() > 0.009
+    pred = ClassicalFluid(clean.excitation.omega, clean.sphere.radius).predict(d["ze"], d["t"])
+    np.testing.assert_allclose(pred["eta"], d["eta"] * (1 + eps), rtol=1e-7)
+    np.testing.assert_allclose(pred["rho"], d["rho"] * (1 + eps) ** 3, rtol=1e-7)
+
+
+def test_zm_layer_with_the_nominal_t_reproduces_the_constant_t_graph():
+    """Parity with the graph before T was an input: there the constants of the Möbius map
+    (c = t11/t21, A = -t22/t21, B = -det T/t21²) were computed once in float64 and stored in
+    float32; here the quotient form takes the float32 T. The two agree to what the old graph
+    loses to float32 (2e-6 of the largest |Zm|, 1/50 of the noise)."""
+    t = SCENE.calibrated_t()
+    ze = SCENE.simulate(256, np.random.default_rng(0))["ze"]
+    t11, t12, t21, t22 = t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1]
+    c, a, b = (np.complex64(v)
+               for v in (t11 / t21, -t22 / t21, -(t11 * t22 - t12 * t21) / t21**2))
+    old = a + b / (ze.astype(np.complex64) - c)  # the constant-T graph, float32
+    every = np.broadcast_to(t, (256, *t.shape))
+    zr, zi = ZmFromZe()(*_tensors(ze.real, ze.imag, *flat_parts(every)))
+    new = zr.numpy() + 1j * zi.numpy()
+    ref = zm_from_ze(t, ze)  # float64
+    lost = np.abs(old - ref).max()  # what the old float32 graph loses (2.1e-6 of max |Zm|)
+    assert lost <= 1e-5 * np.abs(ref).max()
+    # the T input itself is rounded to float32: the new graph loses 1.7x as much (measured
+    # 3.5e-6 against 2.1e-6 of the largest |Zm|), both far below the noise
+    assert np.abs(new - old).max() <= 3 * lost and np.abs(new - ref).max() <= 3 * lost
 
 
 # resuming into the run's own checkpoint folder is the point here; lightning remarks on it
@@ -70,18 +158,25 @@ def test_decoder_onnx_matches_torch(flow):
     graph = Gated(module.net, module.gate).eval()
     assert graph.shared and module.gate.features is module.net.features
     net, _ = load_fluid_net(str(ckpt))
-    ze = load_shards(tmp / "data", [3])["ze"]
-    torch_pred = TorchFluid(net).predict(ze)
-    onnx_pred = OnnxModel(tmp / "export/model.onnx").predict(ze)
+    shard = load_shards(tmp / "data", [3])
+    ze, t = shard["ze"], shard["t"]
+    torch_pred = TorchFluid(net).predict(ze, t)
+    onnx_pred = OnnxModel(tmp / "export/model.onnx").predict(ze, t)
     for k in ("eta", "rho"):
         np.testing.assert_allclose(onnx_pred[k], torch_pred[k], rtol=1e-5)
     with torch.no_grad():
-        score = module.gate(torch.tensor(ze.real, dtype=torch.float32),
-                            torch.tensor(ze.imag, dtype=torch.float32)).numpy()
+        score = module.gate(*_tensors(ze.real, ze.imag, *flat_parts(t))).numpy()
     # a float32 quadratic form of standardised features: kernel differences reach 1.6e-4
     np.testing.assert_allclose(onnx_pred["domain_score"], score, rtol=1e-3)
-    one = OnnxModel(tmp / "export/model.onnx").predict(ze[:1])
+    one = OnnxModel(tmp / "export/model.onnx").predict(ze[:1], t[:1])
     np.testing.assert_allclose(one["eta"], torch_pred["eta"][:1], rtol=1e-5)
+    # devices of the spread (each its own T, which this zero-spread export flags)
+    other = SPREAD.simulate(64, np.random.default_rng(1))
+    torch_pred = TorchFluid(net).predict(other["ze"], other["t"])
+    onnx_pred = OnnxModel(tmp / "export/model.onnx").predict(other["ze"], other["t"])
+    for k in ("eta", "rho"):
+        np.testing.assert_allclose(onnx_pred[k], torch_pred[k], rtol=1e-5)
+    assert onnx_pred["in_domain"].mean() < 0.05
 
 
 def test_classical_onnx_float32_matches_numpy_float64(flow):
@@ -90,39 +185,38 @@ def test_classical_onnx_float32_matches_numpy_float64(flow):
     |Δη| <= Σ_k |P_ηk| |ΔZm_k| (P its pseudo-inverse), plus the float32 rounding of that
     sum. The ONNX graph and the same graph in torch agree to float32 kernel differences."""
     tmp, _ = flow
-    ze = load_shards(tmp / "data", [3])["ze"]
-    numpy_path = ClassicalFluid(SCENE.calibrated_t(), SCENE.excitation.omega, SCENE.sphere.radius)
-    ref = numpy_path.predict(ze)
-    net = ClassicalFluidNet(SCENE.calibrated_t(), SCENE.excitation.omega, SCENE.sphere.radius)
-    ze_re = torch.tensor(ze.real, dtype=torch.float32)
-    ze_im = torch.tensor(ze.imag, dtype=torch.float32)
-    zr, zi = net.zm(ze_re, ze_im)
-    zm64 = numpy_path.zm(ze)
+    shard = load_shards(tmp / "data", [3])
+    ze, t = shard["ze"], shard["t"]
+    numpy_path = ClassicalFluid(SCENE.excitation.omega, SCENE.sphere.radius)
+    ref = numpy_path.predict(ze, t)
+    net = ClassicalFluidNet(SCENE.excitation.omega, SCENE.sphere.radius)
+    inputs = _tensors(ze.real, ze.imag, *flat_parts(t))
+    zr, zi = net.zm(*inputs)
+    zm64 = numpy_path.zm(ze, t)
     dzm = np.concatenate([np.abs(zr.double().numpy() - zm64.real),
                           np.abs(zi.double().numpy() - zm64.imag)], -1)
     x = np.concatenate([np.abs(zm64.real), np.abs(zm64.imag)], -1)
     eps32 = float(np.finfo(np.float32).eps)
-    got = dict(zip(("eta", "rho"), (v.double().numpy() for v in net(ze_re, ze_im)), strict=True))
+    got = dict(zip(("eta", "rho"), (v.double().numpy() for v in net(*inputs)), strict=True))
     for row, key in enumerate(("eta", "rho")):
         p = np.abs(numpy_path.pinv[row])
         bound = 1.5 * (dzm @ p) + 64 * eps32 * (x @ p)
         assert np.all(np.abs(got[key] - ref[key]) <= bound), key
-    onnx_pred = OnnxModel(tmp / "export/classical.onnx").predict(ze)
+    onnx_pred = OnnxModel(tmp / "export/classical.onnx").predict(ze, t)
     for key in ("eta", "rho"):
         scale = np.abs(ref[key]).max()
         np.testing.assert_allclose(onnx_pred[key], got[key], rtol=1e-5, atol=1e-6 * scale)
 
 
 def test_zm_layer_matches_numpy():
-    t = SCENE.calibrated_t()
-    ze = SCENE.simulate(64, np.random.default_rng(0))["ze"]
-    zr, zi = ZmFromZe(t)(torch.tensor(ze.real, dtype=torch.float32),
-                         torch.tensor(ze.imag, dtype=torch.float32))
+    d = SPREAD.simulate(64, np.random.default_rng(0))
+    ze, t = d["ze"], d["t"]
+    zr, zi = ZmFromZe()(*_tensors(ze.real, ze.imag, *flat_parts(t)))
     ref = zm_from_ze(t, ze)
     np.testing.assert_allclose(zr.numpy() + 1j * zi.numpy(), ref, rtol=2e-5 * 10,
                                atol=1e-5 * np.abs(ref).max())
-    eta, rho = ClassicalFluidNet(t, SCENE.excitation.omega, SCENE.sphere.radius)(
-        torch.tensor(ze.real, dtype=torch.float32), torch.tensor(ze.imag, dtype=torch.float32))
+    eta, rho = ClassicalFluidNet(SCENE.excitation.omega, SCENE.sphere.radius)(
+        *_tensors(ze.real, ze.imag, *flat_parts(t)))
     assert eta.shape == rho.shape == (64,)
 
 
@@ -139,6 +233,8 @@ def test_predict_every_input_format_agrees(flow, tmp_path, capsys):
     tmp, _ = flow
     freq = SCENE.excitation.frequency_hz
     ze = load_shards(tmp / "data", [3])["ze"][:2]
+    cal = tmp_path / "cal.npz"
+    np.savez(cal, frequency_hz=freq, t=SCENE.calibrated_t())
     _write_csv(tmp_path / "m.csv", freq, ze)
     np.savez(tmp_path / "m.npz", frequency_hz=freq, ze=ze)
     # raw signals: a stepped sine, 40 periods per step at 20 kHz, E = 3 V, I = E/Ze
@@ -148,7 +244,7 @@ def test_predict_every_input_format_agrees(flow, tmp_path, capsys):
     i = np.stack([[tone(t, f, abs(3.0 / z), np.angle(3.0 / z))
                    for f, z in zip(freq, row, strict=True)] for row in ze])
     np.savez(tmp_path / "raw.npz", frequency_hz=freq, e=e, i=i, sample_rate_hz=fs)
-    rows = {name: predict_file(tmp / "export", tmp_path / name)
+    rows = {name: predict_file(tmp / "export", tmp_path / name, calibration=cal)
             for name in ("m.csv", "m.npz", "raw.npz")}
     for name in ("m.npz", "raw.npz"):
         for a, b in zip(rows["m.csv"], rows[name], strict=True):
@@ -159,29 +255,64 @@ def test_predict_every_input_format_agrees(flow, tmp_path, capsys):
                 else:  # sample, in_domain, flags
                     assert a[key] == b[key], (name, key)
     model = str(tmp / "export")
-    assert main(["predict", "--model", model, "--input", str(tmp_path / "m.csv")]) == 0
+    assert main(["predict", "--model", model, "--input", str(tmp_path / "m.csv"),
+                 "--calibration", str(cal)]) == 0
     assert "eta_decoder (Pa*s)" in capsys.readouterr().out
+    # one T per measurement gives the same rows as one T for all
+    np.savez(tmp_path / "cal2.npz", frequency_hz=freq,
+             t=np.stack([SCENE.calibrated_t()] * 2))
+    assert predict_file(tmp / "export", tmp_path / "m.csv", calibration=tmp_path / "cal2.npz") \
+        == rows["m.csv"]
+
+
+def test_predict_needs_the_calibration(flow, tmp_path, capsys):
+    """A fluid export without --calibration, or with a wrong one, is a clear error, never a
+    silent default; the export says what it needs."""
+    tmp, _ = flow
+    freq = SCENE.excitation.frequency_hz
+    np.savez(tmp_path / "m.npz", frequency_hz=freq, ze=load_shards(tmp / "data", [3])["ze"][:2])
+    with pytest.raises(InputError, match=r"this fluid export needs --calibration: the device's "
+                                         r"calibrated T at 90, 91, 92, \.\.\. 120 Hz"):
+        predict_file(tmp / "export", tmp_path / "m.npz")
+    assert main(["predict", "--model", str(tmp / "export"), "--input",
+                 str(tmp_path / "m.npz")]) == 2
+    assert "--calibration" in capsys.readouterr().err
+    np.savez(tmp_path / "grid.npz", frequency_hz=freq + 1, t=SCENE.calibrated_t())
+    with pytest.raises(InputError, match="calibration grid 91-121 Hz"):
+        predict_file(tmp / "export", tmp_path / "m.npz", calibration=tmp_path / "grid.npz")
+    np.savez(tmp_path / "shape.npz", frequency_hz=freq, t=SCENE.calibrated_t()[:, 0])
+    with pytest.raises(InputError, match=r"t must have shape \(n_freq=31, 2, 2\)"):
+        predict_file(tmp / "export", tmp_path / "m.npz", calibration=tmp_path / "shape.npz")
+    np.savez(tmp_path / "keys.npz", frequency_hz=freq, T=SCENE.calibrated_t())
+    with pytest.raises(InputError, match="needs 'frequency_hz' and 't'"):
+        predict_file(tmp / "export", tmp_path / "m.npz", calibration=tmp_path / "keys.npz")
+    for name in ("model.onnx", "classical.onnx"):
+        meta = {p.key: p.value for p in onnx.load(str(tmp / "export" / name)).metadata_props}
+        assert "calibration" in json.loads(meta["references"])
+        assert json.loads(meta["inputs"]) == ["ze_re", "ze_im", "t_re", "t_im"]
 
 
 def test_predict_refuses_bad_input(flow, tmp_path):
     tmp, _ = flow
     freq = SCENE.excitation.frequency_hz
     ze = load_shards(tmp / "data", [3])["ze"][:1]
+    cal = tmp_path / "cal.npz"
+    np.savez(cal, frequency_hz=freq, t=SCENE.calibrated_t())
     np.savez(tmp_path / "grid.npz", frequency_hz=freq + 1.0, ze=ze)
     with pytest.raises(InputError, match=r"frequency grid 91-121 Hz \(31 points\) is not the "
                                          r"model's 90-120 Hz"):
-        predict_file(tmp / "export", tmp_path / "grid.npz")
+        predict_file(tmp / "export", tmp_path / "grid.npz", calibration=cal)
     bad = ze.copy()
     bad[0, 4] = np.nan
     np.savez(tmp_path / "nan.npz", frequency_hz=freq, ze=bad)
     with pytest.raises(InputError, match=r"NaN or inf at sample 0, 94 Hz"):
-        predict_file(tmp / "export", tmp_path / "nan.npz")
+        predict_file(tmp / "export", tmp_path / "nan.npz", calibration=cal)
     np.savez(tmp_path / "shape.npz", frequency_hz=freq, ze=ze[:, :30])
     with pytest.raises(InputError, match=r"shape \(n, n_freq=31\)"):
-        predict_file(tmp / "export", tmp_path / "shape.npz")
+        predict_file(tmp / "export", tmp_path / "shape.npz", calibration=cal)
     np.savez(tmp_path / "keys.npz", frequency_hz=freq, z=ze)
     with pytest.raises(InputError, match="needs 'ze'"):
-        predict_file(tmp / "export", tmp_path / "keys.npz")
+        predict_file(tmp / "export", tmp_path / "keys.npz", calibration=cal)
     (tmp_path / "x.txt").write_text("1")
     model = str(tmp / "export")
     assert main(["predict", "--model", model, "--input", str(tmp_path / "x.txt")]) == 2
@@ -190,13 +321,26 @@ def test_predict_refuses_bad_input(flow, tmp_path):
 def test_bench_reports_every_method(flow, tmp_path):
     tmp, ckpt = flow
     report = run_bench(tmp / "data", ckpt, tmp / "export", tmp_path, latency_repeats=5,
-                       throughput_repeats=1)
+                       throughput_repeats=1, device_records=40)
     for name in ("thesis closed form numpy", "thesis closed form ONNX", "decoder torch",
                  "decoder ONNX", "Bayes posterior mean", "Cramér–Rao bound (no prior)"):
         assert f"| {name}" in report
     exact = re.search(r"max relative error η (\S+), ρ (\S+)\.\s", report)
     assert float(exact[1].rstrip(",")) <= 1e-9 and float(exact[2]) <= 1e-9
     assert (tmp_path / "report.md").read_text() == report
+    for row in ("nominal device", "trained spread", "issue 21 spread", "k ±3 % only",
+                "sphere_radius ±1 % only"):
+        assert f"| {row} |" in report
+    rows = {r["device"]: r for r in json.loads((tmp_path / "summary.json").read_text())[
+        "device_spread"]}
+    assert len(rows) == 3 + 7  # nominal, trained, issue 21's, and each parameter alone
+    for r in rows.values():
+        names = [m["name"] for m in r["methods"]]
+        assert names == ["decoder ONNX", "thesis closed form ONNX", "Bayes posterior mean"]
+        for m in r["methods"]:  # (this decoder: 3 epochs of a 32-wide net, far off)
+            assert 0 < m["eta_median"] < np.inf and 0 < m["rho_median"] < np.inf
+        assert all(0 <= m["flagged"] <= 1 for m in r["methods"][:2])
+        assert r["methods"][2]["flagged"] is None
     assert (tmp_path / "error_vs_latency.png").stat().st_size > 10_000
 
 

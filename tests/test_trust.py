@@ -32,6 +32,7 @@ from wtml.decoders.fluid import FluidDecoder, load_fluid_net
 from wtml.decoders.radial import RadialDecoder
 from wtml.physics import ze_from_zm, zm_from_ze
 from wtml.physics.loads import stokes_sphere
+from wtml.physics.twoport import flat_parts
 from wtml.pipeline import Stages, checkpoint_matches, summary
 from wtml.runtime.predict import OnnxModel, predict_file
 from wtml.scenes import load_scene
@@ -92,16 +93,20 @@ def test_nothing_is_loaded_with_pickle_anywhere():
 # ---------------------------------------------------------------- 2. the trained domain
 
 
+def _inputs(ze: np.ndarray, t: np.ndarray | None = None) -> tuple[torch.Tensor, ...]:
+    """A graph's inputs: Ze, and for fluid each record's calibrated T."""
+    parts = (ze.real, ze.imag) + (() if t is None else flat_parts(t))
+    return tuple(torch.tensor(np.asarray(x), dtype=torch.float32) for x in parts)
+
+
 def _gate(decoder, scene, n_train: int, seed: int) -> DomainGate:
-    train = scene.simulate(n_train, np.random.default_rng(seed))["ze"]
-    return decoder.make_gate(scene).fit(torch.tensor(train.real, dtype=torch.float32),
-                                        torch.tensor(train.imag, dtype=torch.float32))
+    train = scene.simulate(n_train, np.random.default_rng(seed))
+    return decoder.make_gate(scene).fit(*_inputs(train["ze"], train.get("t")))
 
 
-def _score(gate: DomainGate, ze: np.ndarray) -> np.ndarray:
+def _score(gate: DomainGate, ze: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
     with torch.no_grad():
-        return gate(torch.tensor(ze.real, dtype=torch.float32),
-                    torch.tensor(ze.imag, dtype=torch.float32)).numpy()
+        return gate(*_inputs(ze, t)).numpy()
 
 
 @pytest.fixture(scope="module")
@@ -125,10 +130,11 @@ def _out_of_domain_variants(ze: np.ndarray) -> dict[str, np.ndarray]:
 def _check_held_out_and_variants(scene, gate: DomainGate, n: int) -> None:
     """At most 0.3 % of ``n`` held-out in-domain inputs flagged; every variant of 500 of
     them from :func:`_out_of_domain_variants` flagged."""
-    held = scene.simulate(n, np.random.default_rng(2))["ze"]
-    assert np.mean(_score(gate, held) > 1) <= 0.003
+    data = scene.simulate(n, np.random.default_rng(2))
+    held, t = data["ze"], data.get("t")
+    assert np.mean(_score(gate, held, t) > 1) <= 0.003
     for name, ze in _out_of_domain_variants(held[:500]).items():
-        assert np.all(_score(gate, ze) > 1), name
+        assert np.all(_score(gate, ze, None if t is None else t[:500]) > 1), name
 
 
 def test_fluid_domain_false_alarms_and_detections(fluid_domain):
@@ -137,15 +143,26 @@ def test_fluid_domain_false_alarms_and_detections(fluid_domain):
     viscosity of the decade above the trained range (η 5-23 Pa·s, at glycerol's density) and
     of the decade below it (η 6.5e-5 to 2e-4 Pa·s, at water's density at 40 °C): flagged.
     The lower decade is an extrapolation along the data's manifold (Zm moves by 8 stds of
-    the calibration offset, the way it moves inside the range), which the box catches."""
+    the calibration offset, the way it moves inside the range), which the box catches.
+    A device outside the trained spread (its coupling or its clamped capacitance 10 % off,
+    the spread ±3 %; its damping 1.6× the preset's, the spread ±25 %) is flagged too, though
+    the Zm it reports is right: the decoder was not trained on it."""
     scene, gate = fluid_domain
     _check_held_out_and_variants(scene, gate, 3000)
     rng = np.random.default_rng(3)
+    t = scene.calibrated_t()
     for eta, rho in ((np.geomspace(5.0, 23.0, 300), 1260.0),
                      (np.geomspace(6.5e-5, 2e-4, 300), 992.0)):
         zm = stokes_sphere(eta[:, None], rho, scene.sphere.radius, scene.excitation.omega)
-        ze = complex_noise(ze_from_zm(scene.calibrated_t(), zm), scene.noise.ze_relative, rng)
-        assert np.all(_score(gate, ze) > 1), eta[0]
+        ze = complex_noise(ze_from_zm(t, zm), scene.noise.ze_relative, rng)
+        assert np.all(_score(gate, ze, np.broadcast_to(t, (300, *t.shape))) > 1), eta[0]
+    assert scene.device.phi == scene.device.c0 == 0.03 and scene.device.c == 0.25
+    fluid = scene.simulate(300, rng)
+    for name, factor in (("phi", 1.1), ("phi", 0.9), ("c0", 1.1), ("c", 1.6)):
+        factors = {f: np.ones(300) for f in scene.device.FIELDS} | {name: np.full(300, factor)}
+        other = scene.device_t(factors)
+        zm = zm_from_ze(fluid["t"], fluid["ze"])  # the same loads, seen by the other device
+        assert np.all(_score(gate, ze_from_zm(other, zm), other) > 1), (name, factor)
 
 
 def test_radial_domain_false_alarms_and_detections(radial_domain):
@@ -195,17 +212,17 @@ def test_exported_graphs_carry_the_domain_and_agree_with_torch(flow, radial_flow
                          (radial_flow / "export/radial",
                           radial_flow / "runs/radial/checkpoints/last.ckpt")):
         module = load_decoder(ckpt)
-        data = load_shards(folder.parent.parent / "data" if "radial" in str(folder)
-                           else flow[0] / "data", [3])["ze"][:200]
+        shard = load_shards(folder.parent.parent / "data" if "radial" in str(folder)
+                            else flow[0] / "data", [3])
+        data = shard["ze"][:200]
         # scaled by decades: outside any scene's domain (a negated component can be a
         # plausible measurement of a one-frequency scene, whose Im Ze changes sign)
         ze = np.concatenate([data, data * 1e6, data * 1e-3])
+        t = np.concatenate([shard["t"][:200]] * 3) if "t" in shard else None
         uncertain = (1,) if module.scene["task"] == "radial" else ()
         with torch.no_grad():
-            ref = Gated(module.net, module.gate, uncertain)(
-                torch.tensor(ze.real, dtype=torch.float32),
-                torch.tensor(ze.imag, dtype=torch.float32))
-        got = OnnxModel(folder / "model.onnx").predict(ze)
+            ref = Gated(module.net, module.gate, uncertain)(*_inputs(ze, t))
+        got = OnnxModel(folder / "model.onnx").predict(ze, t)
         # float32 kernels differ, and the whitening (eigenvalues down to 1e-9 of the largest)
         # amplifies their rounding: scores agree to 1e-3, flags wherever that cannot matter
         np.testing.assert_allclose(got["domain_score"], ref[-1].numpy(), rtol=1e-3)
@@ -215,7 +232,7 @@ def test_exported_graphs_carry_the_domain_and_agree_with_torch(flow, radial_flow
         meta = {p.key: p.value for p in onnx.load(str(folder / "classical.onnx")).metadata_props}
         domain = json.loads(meta["domain"])
         assert domain["quantile"] == QUANTILE and 0 <= domain["false_alarm_fresh"] < 1
-        classical = OnnxModel(folder / "classical.onnx").predict(ze)
+        classical = OnnxModel(folder / "classical.onnx").predict(ze, t)
         assert not classical["in_domain"][200:].any()
         if uncertain:
             assert np.all(np.isnan(got["sigma"][~got["in_domain"]]))
@@ -225,20 +242,22 @@ def test_exported_graphs_carry_the_domain_and_agree_with_torch(flow, radial_flow
 def test_predict_flags_out_of_domain_rows_and_impossible_answers(flow, tmp_path, capsys):
     tmp, _ = flow
     data = load_shards(tmp / "data", [3])
-    classical = ClassicalFluid(FLUID_SMALL.calibrated_t(), FLUID_SMALL.excitation.omega,
-                               FLUID_SMALL.sphere.radius).predict(data["ze"])
+    classical = ClassicalFluid(FLUID_SMALL.excitation.omega,
+                               FLUID_SMALL.sphere.radius).predict(data["ze"], data["t"])
     negative = np.flatnonzero(classical["eta"] < 0)[:2]
     assert len(negative) == 2  # the closed form gives negative viscosities in domain
     ze = np.concatenate([data["ze"][negative], data["ze"][:2] * 1e6])
-    np.savez(tmp_path / "m.npz", frequency_hz=FLUID_SMALL.excitation.frequency_hz, ze=ze)
-    rows = predict_file(tmp / "export", tmp_path / "m.npz")
+    freq = FLUID_SMALL.excitation.frequency_hz
+    np.savez(tmp_path / "m.npz", frequency_hz=freq, ze=ze)
+    np.savez(tmp_path / "cal.npz", frequency_hz=freq, t=FLUID_SMALL.calibrated_t())
+    rows = predict_file(tmp / "export", tmp_path / "m.npz", calibration=tmp_path / "cal.npz")
     for row in rows[:2]:
         assert "classical eta physically impossible" in row["flags"]
     for row in rows[2:]:
         assert row["in_domain"] is False and row["domain_score"] > 1
         assert "outside the trained domain" in row["flags"]
     assert main(["predict", "--model", str(tmp / "export"), "--input", str(tmp_path / "m.npz"),
-                 "--out", str(tmp_path / "p.csv")]) == 0
+                 "--calibration", str(tmp_path / "cal.npz"), "--out", str(tmp_path / "p.csv")]) == 0
     err = capsys.readouterr().err
     assert err.count("warning") == 1 and "of 4 rows outside the trained domain" in err
     header = (tmp_path / "p.csv").read_text().splitlines()[0].split(",")
@@ -438,7 +457,16 @@ def test_the_main_job_summary_states_targets_times_and_places():
              "closed_form": {"eta_median": 0.327, "rho_median": 0.0113},
              "crlb": {"eta_median": 0.029, "rho_median": 0.006},
              "decoder_onnx_latency_s": 30e-6, "decoder_onnx_throughput": 1.1e6,
-             "false_alarm": 0.001, "n_test": 3000}
+             "false_alarm": 0.001, "n_test": 3000, "device_records": 300}
+
+    def device(eta, rho):
+        return {"methods": [{"name": "decoder ONNX", "eta_median": eta, "rho_median": rho,
+                             "flagged": 0.02}]}
+
+    fluid["device_spread"] = [device(0.028, 0.004) | {"device": "nominal device"},
+                              device(0.029, 0.0045) | {"device": "trained spread"},
+                              device(0.03, 0.005) | {"device": "k ±3 % only"},
+                              device(0.03, 0.007) | {"device": "c0 ±3 % only"}]
     row = {"rmse": 0.4e-6, "ratio": 1.02, "max": 4e-6, "range": "all"}
     radial = {"ours_onnx": row, "inversion": row | {"rmse": 0.397e-6},
               "best_polynomial_rmse": 3.42e-6, "ours_onnx_latency_s": 60e-6,
@@ -448,7 +476,10 @@ def test_the_main_job_summary_states_targets_times_and_places():
     for needle in ("1.13× the Bayes", "target ≤ 1 %: MISSED", "target ≤ 0.5 %: met",
                    "1.02× the CRLB", "8.6× below the best polynomial",
                    "runs/fluid/bench/report.md", "runs/radial/bench/error_vs_d.png",
-                   "train fluid 1 min 10 s", "total:"):
+                   "train fluid 1 min 10 s", "total:",
+                   "devices of the trained spread (300 records): η median 2.90 % (target ≤ 3 %: "
+                   "met), ρ 0.450 % (target ≤ 0.6 %: met), flagged 2.0 %",
+                   "limited by c0 ±3 %: η 3.00 %, ρ 0.700 % alone"):
         assert needle in text, needle
 
 
@@ -483,13 +514,15 @@ def test_bayes_likelihood_is_the_dense_gaussian():
             "temperature_c": [temp - 1.0, temp + 1.0]}})
         bayes = BayesFluid(scene, n_fraction=8, n_temperature=3)
         ze = data["ze"][n:n + 1]
-        fast = bayes.log_likelihood(ze)[0]
-        z, d = zm_from_ze(bayes.t, ze[0]), 1 / bayes._noise_weights(ze[0])
+        t = data["t"][n]
+        fast = bayes.log_likelihood(ze, t[None])[0]
+        z, d = zm_from_ze(t, ze[0]), 1 / bayes._noise_weights(ze[0], t)
+        grid = bayes.zm_t[0].T
         dense = []
         for g in range(len(bayes.eta)):
-            b = np.stack([bayes.zm[g], np.full_like(bayes.zm[g], bayes.zref)], -1)
+            b = np.stack([grid[g], np.full_like(grid[g], bayes.zref)], -1)
             cov = np.diag(d) + c2 * b @ b.conj().T
-            r = z - bayes.zm[g]
+            r = z - grid[g]
             dense.append(-(r.conj() @ np.linalg.solve(cov, r)).real - np.linalg.slogdet(cov)[1])
         dense = np.array(dense)
         assert np.ptp(dense) > 1  # the likelihood varies across the grid
@@ -501,7 +534,7 @@ def test_bayes_recovers_the_truth_when_the_data_are_exact():
     scene = build(type(FLUID_SMALL), {"noise": {"ze_relative": 1e-7},
                                       "nuisance": {"calibration_error": 1e-6}})
     data = scene.simulate(40, np.random.default_rng(4))
-    pred = BayesFluid(scene, n_fraction=800, n_temperature=200).predict(data["ze"])
+    pred = BayesFluid(scene, n_fraction=800, n_temperature=200).predict(data["ze"], data["t"])
     assert np.max(np.abs(pred["rho"] / data["rho"] - 1)) < 2e-3
     assert np.median(np.abs(pred["eta"] / data["eta"] - 1)) < 1e-2
 

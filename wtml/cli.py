@@ -83,7 +83,7 @@ def _predict(args: argparse.Namespace) -> int:
 
         rows = texture_records(args.model, args.input)
     else:
-        rows = predict_file(args.model, args.input)
+        rows = predict_file(args.model, args.input, calibration=args.calibration)
     if args.out:
         with open(args.out, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
@@ -102,7 +102,8 @@ def _predict(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> int:
     from wtml.bench.fluid import run_bench
 
-    print(run_bench(args.data, args.checkpoint, args.model, args.out, threads=args.threads))
+    print(run_bench(args.data, args.checkpoint, args.model, args.out, threads=args.threads,
+                    device_records=args.device_records))
     return 0
 
 
@@ -240,6 +241,8 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--model", required=True, help="an export folder (model.onnx and "
                                                    "classical.onnx), e.g. export/fluid")
     pr.add_argument("--input", required=True, help=".csv or .npz (formats below)")
+    pr.add_argument("--calibration", default=None,
+                    help="fluid: the device's calibrated T, .npz with frequency_hz and t")
     pr.add_argument("--out", default=None,
                     help="write the rows as CSV here (default: print a table)")
     pr.set_defaults(func=_predict)
@@ -249,8 +252,12 @@ def build_parser() -> argparse.ArgumentParser:
     bf = be_sub.add_parser("fluid", help="the fluid slice", formatter_class=_Help,
                            description="Every fluid method on the test shard: accuracy by "
                                        "viscosity decade, the Bayes posterior mean and the "
-                                       "Cramér-Rao bound, latency and throughput.")
+                                       "Cramér-Rao bound, latency and throughput; the "
+                                       "device-spread table (nominal device, the whole spread, "
+                                       "each parameter alone).")
     _bench_options(bf, "fluid")
+    bf.add_argument("--device-records", type=int, default=1000,
+                    help="fresh records per row of the device-spread table")
     bf.set_defaults(func=_bench)
 
     br = be_sub.add_parser("radial", help="the radial slice", formatter_class=_Help,

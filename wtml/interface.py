@@ -10,12 +10,13 @@ import numpy as np
 
 
 class FluidPredictor(Protocol):
-    """Fluid properties from measured electrical impedances."""
+    """Fluid properties from measured electrical impedances and the device's calibration."""
 
     name: str
 
-    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
-        """Args: ze, complex Ω, shape ``(n, n_freq)`` on the predictor's grid.
+    def predict(self, ze: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+        """Args: ze, complex Ω, shape ``(n, n_freq)`` on the predictor's grid; t, the device's
+        calibrated T there, complex ``(n, n_freq, 2, 2)``.
 
         Returns: ``{"eta": (n,) Pa·s, "rho": (n,) kg/m³}``.
         """

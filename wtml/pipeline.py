@@ -82,8 +82,10 @@ def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
     return all(hparams.get(key) == value for key, value in wanted.items())
 
 
-def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> None:
-    """A few test-shard measurements as a CSV that ``wtml predict`` reads."""
+def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> Path | None:
+    """A few test-shard measurements as a CSV that ``wtml predict`` reads; for fluid, also
+    their devices' calibrated T as ``calibration.npz`` beside it (``--calibration``), whose
+    path it returns (else None)."""
     manifest = read_manifest(data_dir)
     data = load_shards(data_dir, split_shards(manifest["n_shards"], 1, 1)["test"])
     scene = dataset_scene(data_dir)
@@ -99,6 +101,11 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> None:
             for f, z in zip(freq, data["ze"][s], strict=True):
                 w.writerow([s, repr(float(f)), repr(float(z.real)), repr(float(z.imag))]
                            + [repr(float(data[k][s])) for k in truth])
+    if scene.task != "fluid":
+        return None
+    calibration = path.with_name("calibration.npz")
+    np.savez(calibration, frequency_hz=freq, t=data["t"][:n])
+    return calibration
 
 
 def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
@@ -132,9 +139,10 @@ def _export_and_predict(stages: Stages, slice_: str, ckpt: Path, model: Path,
     for kind, path in export_model(ckpt, model).items():
         print(f"{kind}: {path}")
     sample = model / "sample_input.csv"
-    write_sample_csv(data, sample)
-    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}")
-    rows = predict_file(model, sample)
+    calibration = write_sample_csv(data, sample)
+    flag = f" --calibration {calibration}" if calibration else ""
+    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}{flag}")
+    rows = predict_file(model, sample, calibration=calibration)
     print(format_predictions(rows))
     warning = domain_warning(rows)
     if warning:
@@ -150,8 +158,8 @@ def run_fluid(stages: Stages, *, max_epochs: int | None = None) -> dict:
     ckpt = _train(stages, "fluid", "configs/fluid.yaml", data, manifest["scene_hash"],
                   max_epochs)
     _export_and_predict(stages, "fluid", ckpt, model, data)
-    stages.begin("fluid", "bench", f"wtml bench fluid --out {bench}")
-    report = run_bench(data, ckpt, model, bench)
+    stages.begin("fluid", "bench", f"wtml bench fluid --out {bench} --device-records 300")
+    report = run_bench(data, ckpt, model, bench, device_records=300)
     print(report.split("\n## By viscosity decade")[0])
     stages.end()
     return json.loads((bench / "summary.json").read_text())
@@ -186,6 +194,24 @@ def _met(ok: bool) -> str:
     return "met" if ok else "MISSED"
 
 
+def _device_lines(fluid: dict) -> list[str]:
+    """The device-spread table in two lines: the decoder over the whole spread against the
+    targets, and the parameter that limits it."""
+    rows = {r["device"]: {m["name"]: m for m in r["methods"]} for r in fluid["device_spread"]}
+    dec = rows["trained spread"]["decoder ONNX"]
+    alone = {k: v["decoder ONNX"] for k, v in rows.items() if k.endswith("only")}
+    # the parameter whose spread alone costs most against the targets (η 3 %, ρ 0.6 %)
+    worst = max(alone, key=lambda k: max(alone[k]["eta_median"] / 0.03,
+                                         alone[k]["rho_median"] / 0.006))
+    return [
+        f"  devices of the trained spread ({fluid['device_records']} records): η median "
+        f"{100 * dec['eta_median']:.2f} % (target ≤ 3 %: {_met(dec['eta_median'] <= 0.03)}), "
+        f"ρ {100 * dec['rho_median']:.3f} % (target ≤ 0.6 %: "
+        f"{_met(dec['rho_median'] <= 0.006)}), flagged {100 * dec['flagged']:.1f} %",
+        f"  limited by {worst.removesuffix(' only')}: η {100 * alone[worst]['eta_median']:.2f} %, "
+        f"ρ {100 * alone[worst]['rho_median']:.3f} % alone"]
+
+
 def summary(results: dict[str, dict], stages: Stages) -> str:
     """The closing summary: each slice's key numbers against its targets, where the reports
     and plots are, the stage timings and the total time."""
@@ -209,6 +235,7 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
             f"  {1e6 * fast[0]:.0f} µs at batch 1, {fast[1]:.3g}/s at batch 4096 (targets "
             f"≤ 50 µs, ≥ 1e6/s: {_met(fast[0] <= 50e-6)}, {_met(fast[1] >= 1e6)}); in-domain "
             f"test rows flagged: {100 * fluid['false_alarm']:.2f} %",
+            *_device_lines(fluid),
             "  report runs/fluid/bench/report.md, plot runs/fluid/bench/error_vs_latency.png",
             f"  time: {stages.line('fluid')}"]
     radial = results.get("radial")

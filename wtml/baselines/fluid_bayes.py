@@ -14,7 +14,11 @@ linear-Gaussian in (α, β), so they integrate out exactly:
 
 whose log-likelihood needs one 2×2 Hermitian system per (measurement, θ) (Woodbury). The
 posterior over a grid of θ (uniform prior, the scene's ranges) gives the posterior means of η
-and ρ. Cost: ``n_grid`` × n_freq complex multiply-adds per measurement, about 1 ms each on
+and ρ. Each measurement comes with its device's calibrated T (the scene's ``t``); the sphere's
+radius, which the device spread draws uniformly in ``R0 (1 ± s)`` and nobody measures, is
+integrated out by Gauss–Legendre quadrature over that interval (``n_radius`` nodes).
+Cost: ``n_grid`` × n_freq complex multiply-adds per measurement (× ``n_radius`` with a radius
+spread), about 1 ms each on
 2 cores at the default grid; this is a reference, not a device method.
 """
 
@@ -33,42 +37,50 @@ class BayesFluid:
     Args:
         scene: a ``FluidScene``.
         n_fraction, n_temperature: grid points over the scene's ranges (uniform prior).
+        n_radius: quadrature nodes over the sphere's radius (one, the nominal, without its
+            spread).
         chunk: measurements per vectorised block (memory ~ chunk × grid × 80 bytes).
     """
 
     name = "Bayes posterior mean"
 
     def __init__(self, scene, n_fraction: int = 400, n_temperature: int = 100,
-                 chunk: int = 64) -> None:
+                 n_radius: int = 5, chunk: int = 64) -> None:
         cv, temp = np.meshgrid(np.linspace(*scene.fluid.volume_fraction, n_fraction),
                                np.linspace(*scene.fluid.temperature_c, n_temperature))
         self.eta, self.rho = glycerol_water(cv.ravel(), temp.ravel())  # (n_grid,)
         omega = scene.excitation.omega
-        self.zm = stokes_sphere(self.eta[:, None], self.rho[:, None], scene.sphere.radius,
-                                omega)  # (n_grid, n_freq)
-        self.zm_t = np.ascontiguousarray(self.zm.T)
-        self.zm2_t = np.ascontiguousarray((np.abs(self.zm) ** 2).T)
-        self.t = scene.calibrated_t()
+        spread = scene.device.sphere_radius
+        nodes, weights = (np.polynomial.legendre.leggauss(n_radius) if spread > 0
+                          else (np.zeros(1), np.full(1, 2.0)))
+        self.log_w = np.log(weights / 2)  # the uniform prior's quadrature weights
+        self.zm_t, self.zm2_t = [], []
+        for u in nodes:
+            zm = stokes_sphere(self.eta[:, None], self.rho[:, None],
+                               scene.sphere.radius * (1 + spread * u), omega)  # (n_grid, n_freq)
+            self.zm_t.append(np.ascontiguousarray(zm.T))
+            self.zm2_t.append(np.ascontiguousarray((np.abs(zm) ** 2).T))
         self.zref = scene.reference_zm()
         self.sigma = max(scene.noise.ze_relative, 1e-12)
         self.inv_p = 1.0 / max(scene.nuisance.calibration_error, 1e-12) ** 2
         self.chunk = chunk
 
-    def _noise_weights(self, ze: np.ndarray) -> np.ndarray:
+    def _noise_weights(self, ze: np.ndarray, t: np.ndarray) -> np.ndarray:
         """``1 / d_k`` (module docstring), shape of ``ze``."""
-        t11, t12, t21, t22 = (self.t[:, i, j] for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)))
+        t11, t12, t21, t22 = (t[..., i, j] for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)))
         det = np.abs(t11 * t22 - t12 * t21)
         return np.abs(t11 - t21 * ze) ** 4 / (self.sigma * np.abs(ze) * det) ** 2
 
-    def log_likelihood(self, ze: np.ndarray) -> np.ndarray:
-        """``log p(Ze | θ)`` up to a constant per measurement, shape ``(n, n_grid)``."""
-        z, w = zm_from_ze(self.t, ze), self._noise_weights(ze)
+    def log_likelihood(self, ze: np.ndarray, t: np.ndarray, node: int = 0) -> np.ndarray:
+        """``log p(Ze | θ, R)`` up to a constant per measurement, shape ``(n, n_grid)``, at the
+        radius quadrature node ``node``; ``t`` each measurement's calibrated T."""
+        z, w = zm_from_ze(t, ze), self._noise_weights(ze, t)
         s_zz = np.sum(w * np.abs(z) ** 2, -1)[:, None]
         s_z = np.sum(w * z, -1)[:, None]
         s_1 = np.sum(w, -1)[:, None]
-        s_zm = (w * np.conj(z)) @ self.zm_t  # Σ w z̄ Zm
-        s_mm = w @ self.zm2_t  # Σ w |Zm|²
-        s_m = w @ self.zm_t  # Σ w Zm
+        s_zm = (w * np.conj(z)) @ self.zm_t[node]  # Σ w z̄ Zm
+        s_mm = w @ self.zm2_t[node]  # Σ w |Zm|²
+        s_m = w @ self.zm_t[node]  # Σ w Zm
         q1 = s_zz - 2 * s_zm.real + s_mm
         b1, b2 = np.conj(s_zm) - s_mm, self.zref * (s_z - s_m)
         m11, m22, m12 = self.inv_p + s_mm, self.inv_p + self.zref**2 * s_1, self.zref * np.conj(s_m)
@@ -77,12 +89,14 @@ class BayesFluid:
                 + m11 * np.abs(b2) ** 2) / det
         return -(q1 - quad) - np.log(det)
 
-    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
+    def predict(self, ze: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
         ze = np.atleast_2d(np.asarray(ze, dtype=complex))
+        t = np.broadcast_to(t, (*ze.shape, 2, 2))
         eta, rho = np.empty(len(ze)), np.empty(len(ze))
         for s in range(0, len(ze), self.chunk):
-            logl = self.log_likelihood(ze[s:s + self.chunk])
-            post = np.exp(logl - logl.max(-1, keepdims=True))
+            logl = np.stack([self.log_likelihood(ze[s:s + self.chunk], t[s:s + self.chunk], k)
+                             + self.log_w[k] for k in range(len(self.log_w))])
+            post = np.exp(logl - logl.max((0, -1), keepdims=True)).sum(0)  # R integrated out
             post /= post.sum(-1, keepdims=True)
             eta[s:s + self.chunk], rho[s:s + self.chunk] = post @ self.eta, post @ self.rho
         return {"eta": eta, "rho": rho}

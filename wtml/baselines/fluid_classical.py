@@ -37,27 +37,28 @@ def band_pseudo_inverse(omega: np.ndarray, radius: float) -> np.ndarray:
 
 
 class ClassicalFluid:
-    """Baseline predictor (``wtml.interface.FluidPredictor``) in float64 numpy.
+    """Baseline predictor (``wtml.interface.FluidPredictor``) in float64 numpy: Ze through the
+    user's calibrated T, then the band least squares with the nominal sphere radius.
 
     Args:
-        t_cal: the calibrated T of whisker and sphere, shape ``(n_freq, 2, 2)``.
         omega: the grid in rad/s, shape ``(n_freq,)``.
         radius: sphere radius in m.
     """
 
     name = "thesis closed form numpy"
 
-    def __init__(self, t_cal: np.ndarray, omega: np.ndarray, radius: float) -> None:
-        self.t_cal = np.asarray(t_cal, dtype=complex)
+    def __init__(self, omega: np.ndarray, radius: float) -> None:
         self.omega = np.asarray(omega, dtype=float)
         self.radius = float(radius)
         self.pinv = band_pseudo_inverse(self.omega, self.radius)
 
-    def zm(self, ze: np.ndarray) -> np.ndarray:
-        """Fluid load in N·s/m through the calibrated T, shape of ``ze``."""
-        return zm_from_ze(self.t_cal, ze)
+    @staticmethod
+    def zm(ze: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Fluid load in N·s/m through the calibrated T ``(..., n_freq, 2, 2)``, shape of
+        ``ze``."""
+        return zm_from_ze(t, ze)
 
-    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
-        zm = self.zm(np.asarray(ze))
+    def predict(self, ze: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+        zm = self.zm(np.asarray(ze), t)
         u = np.concatenate([zm.real, zm.imag], axis=-1) @ self.pinv.T
         return {"eta": u[..., 0], "rho": u[..., 1]}

@@ -34,9 +34,9 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path) -> str:
 
         net, _ = load_fluid_net(str(checkpoint))
         parts = []
-        for p in (TorchFluid(net), ClassicalFluid(scene.calibrated_t(), scene.excitation.omega,
+        for p in (TorchFluid(net), ClassicalFluid(scene.excitation.omega,
                                                   scene.sphere.radius)):
-            err = relative_errors(p.predict(test["ze"]), test["eta"], test["rho"])
+            err = relative_errors(p.predict(test["ze"], test["t"]), test["eta"], test["rho"])
             parts.append(format_decades(f"{p.name} on {where}", by_decade(err, test["eta"])))
         return "\n\n".join(parts)
     from wtml.baselines.radial import PolynomialRadial

@@ -5,8 +5,15 @@ ONNX, and the best achievable estimate (the Bayes posterior mean under the scene
 ``wtml.baselines.fluid_bayes``): accuracy by viscosity decade, p50 latency at batch 1 and
 throughput, beside the Cramér–Rao bound (its rows made like the methods'). Also the exactness
 check of the closed form on noise-free data with a perfect calibration, and the domain gate's
-false alarms on the test set. Writes a markdown report, ``summary.json`` and a PNG of error
-against latency.
+false alarms on the test set. Every method gets each record's calibrated T (the user's
+calibration of their own device).
+
+The device-spread table: the decoder (ONNX), the classical path (ONNX) and the Bayes reference
+on fresh records of the nominal device, of devices drawn from the trained spread (the scene's
+``device`` block), from issue 21's spread (:data:`REFERENCE_SPREAD`, the sphere's radius
+included) and from each of its parameters alone: median η and ρ errors and the share flagged
+out of domain, so the report says which parameter limits the task. Writes a markdown report,
+``summary.json`` and a PNG of error against latency.
 """
 
 from __future__ import annotations
@@ -30,10 +37,67 @@ from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.domain import QUANTILE
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
 from wtml.runtime.predict import OnnxModel
-from wtml.scenes.fluid import NoiseSpec, NuisanceSpec
+from wtml.scenes.fluid import DeviceSpread, NoiseSpec, NuisanceSpec
 
 BOUND_DRAWS = 200
 """Errors drawn from each sample's Cramér–Rao bound for the bound's rows."""
+REFERENCE_SPREAD = DeviceSpread(k=0.03, m=0.01, c=0.25, phi=0.03, c0=0.03, tan_delta=0.25,
+                                sphere_radius=0.01)
+"""Issue 21's manufacturing spread (uniform half-widths), an unmeasured ±1 % sphere
+included."""
+BAYES_GRID = {"n_fraction": 200, "n_temperature": 50}
+"""The Bayes reference's grid in the device-spread table (a quarter of the main table's; its
+medians move by less than the rows' sampling error)."""
+
+
+class Calibrated:
+    """A fluid predictor with its records' calibrated T bound, behind ``predict(ze)`` (for the
+    timing helpers): the first ``len(ze)`` rows of ``t``."""
+
+    def __init__(self, predictor, t: np.ndarray) -> None:
+        self.predictor, self.t, self.name = predictor, t, predictor.name
+
+    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
+        return self.predictor.predict(ze, self.t[:len(ze)])
+
+
+def device_spread(scene, decoder: OnnxModel, classical: OnnxModel, n: int,
+                  seed: int = 2024) -> list[dict]:
+    """The device-spread table's rows (module docstring): per device set, ``{"device",
+    "methods": [{"name", "eta_median", "rho_median", "flagged"}]}`` on ``n`` fresh records."""
+    spread = REFERENCE_SPREAD
+    sets = [("nominal device", DeviceSpread()), ("trained spread", scene.device),
+            ("issue 21 spread", spread)]
+    sets += [(f"{name} ±{100 * getattr(spread, name):g} % only",
+              DeviceSpread(**{name: getattr(spread, name)}))
+             for name in DeviceSpread.FIELDS if getattr(spread, name) > 0]
+    rows = []
+    for k, (label, device) in enumerate(sets):
+        variant = replace(scene, device=device)
+        data = variant.simulate(n, np.random.default_rng([seed, k]))
+        methods = []
+        for p in (decoder, classical, BayesFluid(variant, **BAYES_GRID)):
+            pred = p.predict(data["ze"], data["t"])
+            err = relative_errors(pred, data["eta"], data["rho"])
+            flagged = float(1 - pred["in_domain"].mean()) if "in_domain" in pred else None
+            methods.append({"name": p.name, "eta_median": float(np.median(err["eta"])),
+                            "rho_median": float(np.median(err["rho"])), "flagged": flagged})
+        rows.append({"device": label, "methods": methods})
+    return rows
+
+
+def format_device_spread(rows: list[dict], n: int) -> list[str]:
+    """The device-spread table as markdown lines."""
+    names = [m["name"] for m in rows[0]["methods"]]
+    head = " | ".join(f"{name} η, ρ median, flagged" for name in names)
+    lines = [f"## Device spread ({n} fresh records per row; parameters uniform in ±half-width)",
+             "", f"| device | {head} |", "|---|" + "---|" * len(names)]
+    for r in rows:
+        cells = [f"{100 * m['eta_median']:.2f} %, {100 * m['rho_median']:.3f} %"
+                 + ("" if m["flagged"] is None else f", {100 * m['flagged']:.1f} %")
+                 for m in r["methods"]]
+        lines.append(f"| {r['device']} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def classical_exactness(scene, n: int = 2000) -> dict[str, float]:
@@ -41,17 +105,18 @@ def classical_exactness(scene, n: int = 2000) -> dict[str, float]:
     clean = replace(scene, noise=NoiseSpec(ze_relative=0.0),
                     nuisance=NuisanceSpec(calibration_error=0.0))
     data = clean.simulate(n, np.random.default_rng(12345))
-    pred = ClassicalFluid(clean.calibrated_t(), clean.excitation.omega,
-                          clean.sphere.radius).predict(data["ze"])
+    pred = ClassicalFluid(clean.excitation.omega, clean.sphere.radius).predict(data["ze"],
+                                                                               data["t"])
     err = relative_errors(pred, data["eta"], data["rho"])
     return {k: float(v.max()) for k, v in err.items()}
 
 
 def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Path,
               out: str | Path, *, threads: int = 2, latency_repeats: int = 2000,
-              throughput_repeats: int = 30) -> str:
+              throughput_repeats: int = 30, device_records: int = 1000) -> str:
     """Run the benchmark; writes ``report.md``, ``summary.json`` (the key numbers) and
-    ``error_vs_latency.png`` under ``out`` and returns the report text."""
+    ``error_vs_latency.png`` under ``out`` and returns the report text.
+    ``device_records``: fresh records per row of the device-spread table."""
     torch.set_num_threads(threads)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -59,32 +124,36 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
     scene = dataset_scene(data_dir)
     test = split_shards(manifest["n_shards"], 1, 1)["test"]
     data = load_shards(data_dir, test)
-    ze, eta, rho = data["ze"], data["eta"], data["rho"]
+    ze, t, eta, rho = data["ze"], data["t"], data["eta"], data["rho"]
     net, _ = load_fluid_net(str(checkpoint))
     decoder_onnx = OnnxModel(Path(model_dir) / "model.onnx", threads=threads)
+    classical_onnx = OnnxModel(Path(model_dir) / "classical.onnx", threads=threads)
     predictors = [
-        ClassicalFluid(scene.calibrated_t(), scene.excitation.omega, scene.sphere.radius),
-        OnnxModel(Path(model_dir) / "classical.onnx", threads=threads),
+        ClassicalFluid(scene.excitation.omega, scene.sphere.radius),
+        classical_onnx,
         TorchFluid(net),
         decoder_onnx,
     ]
     big = np.resize(ze, (4096, ze.shape[1]))
+    big_t = np.resize(t, (4096, *t.shape[1:]))
     results = []
     for p in predictors:
-        pred = p.predict(ze)
+        pred = p.predict(ze, t)
         if p is decoder_onnx:  # its graph's domain gate, on this in-domain test set
             false_alarm = float(1 - pred["in_domain"].mean())
         err = relative_errors(pred, eta, rho)
         results.append({"name": p.name, "rows": by_decade(err, eta),
-                        "latency": latency_p50(p, ze[:1], latency_repeats),
-                        "throughput": throughput(p, big, throughput_repeats)})
+                        "latency": latency_p50(Calibrated(p, t), ze[:1], latency_repeats),
+                        "throughput": throughput(Calibrated(p, big_t), big,
+                                                 throughput_repeats)})
     bayes = BayesFluid(scene)
     start = time.perf_counter()
-    best = bayes.predict(ze)
+    best = bayes.predict(ze, t)
     bayes_rate = len(ze) / (time.perf_counter() - start)  # its accuracy pass, batch = all
     results.append({"name": bayes.name, "rows": by_decade(relative_errors(best, eta, rho), eta),
-                    "latency": latency_p50(bayes, ze[:1], latency_repeats),
+                    "latency": latency_p50(Calibrated(bayes, t), ze[:1], latency_repeats),
                     "throughput": bayes_rate})
+    spread_rows = device_spread(scene, decoder_onnx, classical_onnx, device_records)
     exact = classical_exactness(scene)
     bound = fluid_crlb(scene, eta, rho)
     crlb_rows = by_decade(*sampled_errors(bound, eta, draws=BOUND_DRAWS))
@@ -138,6 +207,13 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
         f"domain by decoder ONNX (stated rate {100 * (1 - QUANTILE):.1f} %).",
         "The Bayes row is the posterior mean, which minimises the mean squared error; a method "
         "can have a lower median relative error in some rows below.",
+        "", *format_device_spread(spread_rows, device_records), "",
+        "Each record carries its own device's calibrated T (the user's calibration, with the "
+        "sphere mounted); the sphere's radius is not measured: it enters only the Stokes law, "
+        "where a radius R(1 + ε) is exactly a fluid with η(1 + ε) and ρ(1 + ε)³ (physics.md "
+        "§5): the classical path reads that; only the fluid's prior (glycerol-water) tells part "
+        "of it apart. The Bayes reference integrates the radius out over the spread (grid "
+        f"{BAYES_GRID['n_fraction']}×{BAYES_GRID['n_temperature']}).",
         "", "## By viscosity decade", ""]
     for r in results:
         lines += [format_decades(r["name"], r["rows"]), ""]
@@ -151,7 +227,8 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
                "crlb": {k: c[k] for k in ("eta_median", "rho_median")},
                "decoder_onnx_latency_s": results[3]["latency"],
                "decoder_onnx_throughput": results[3]["throughput"],
-               "false_alarm": false_alarm, "n_test": len(ze)}
+               "false_alarm": false_alarm, "n_test": len(ze),
+               "device_spread": spread_rows, "device_records": device_records}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     _plot(results, out / "error_vs_latency.png")
     return report

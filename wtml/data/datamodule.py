@@ -41,11 +41,19 @@ TARGETS = {
 
 
 def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor, ...]:
-    """The two input tensors and the targets, float32: ``(ze_re, ze_im, targets)`` for the
-    phasor tasks, ``(e, i, targets)`` (V, A; NaN-padded targets: gap m, onsets s,
-    detachments s) for the time-domain ones; targets as in ``TARGETS``."""
+    """The input tensors and the targets, float32: ``(ze_re, ze_im, targets)`` for radial,
+    ``(ze_re, ze_im, t_re, t_im, targets)`` for fluid (each record's calibrated T, ``(n,
+    n_freq, 4)`` flattened as t11, t12, t21, t22), ``(e, i, targets)`` (V, A; NaN-padded
+    targets: gap m, onsets s, detachments s) for the time-domain ones; targets as in
+    ``TARGETS``."""
     if task in ("onset", "texture"):
         inputs = (arrays["e"], arrays["i"])
+    elif task == "fluid":
+        if "t" not in arrays:
+            raise DatasetError("a fluid dataset without each record's calibrated T ('t'): made "
+                               "by an older wtml; generate it again")
+        t = arrays["t"].reshape(*arrays["t"].shape[:-2], 4)
+        inputs = (arrays["ze"].real, arrays["ze"].imag, t.real, t.imag)
     else:
         inputs = (arrays["ze"].real, arrays["ze"].imag)
     return tuple(torch.tensor(a, dtype=torch.float32) for a in (*inputs, TARGETS[task](arrays)))
@@ -79,17 +87,33 @@ class ShardDataModule(L.LightningDataModule):
         self.scene = dataset_scene(data_dir)
         self.scene_dict = to_dict(self.scene)
         self._data: dict[str, TensorDataset] = {}
+        self._input_map = None
         records = self.scene.task in ("onset", "texture")
         self.eval_batch = 64 if records else 4096  # records vs phasors
 
     def _dataset(self, split: str) -> TensorDataset:
         if split not in self._data:
-            self._data[split] = TensorDataset(
-                *task_tensors(load_shards(self.data_dir, self.split[split]), self.scene.task))
+            *inputs, targets = task_tensors(load_shards(self.data_dir, self.split[split]),
+                                            self.scene.task)
+            if self._input_map is not None:
+                with torch.no_grad():
+                    inputs = [torch.cat([self._input_map(*(x[s:s + 65536] for x in inputs))
+                                         for s in range(0, len(targets), 65536)])]
+            self._data[split] = TensorDataset(*inputs, targets)
         return self._data[split]
 
+    def map_inputs(self, fn) -> None:
+        """Hand every split's batches as ``(fn(*inputs), targets)`` from now on, ``fn`` computed
+        once per sample (in chunks, without gradients): for a net whose first layer is fixed
+        (the fluid net's Zm through each record's T), which then costs nothing per step.
+        Splits already loaded are mapped again from their shards."""
+        if fn is not self._input_map:
+            self._input_map = fn
+            self._data.clear()
+
     def train_tensors(self) -> tuple[torch.Tensor, ...]:
-        """The whole training split, for normalisation statistics."""
+        """The whole training split, for normalisation statistics (the inputs as the batches
+        hold them: see :meth:`map_inputs`)."""
         return self._dataset("train").tensors
 
     def _loader(self, split: str, batch_size: int, shuffle: bool) -> DataLoader:

@@ -49,9 +49,9 @@ class DecoderModule(L.LightningModule, ABC):
         self.scene: dict | None = None
 
     @abstractmethod
-    def build_net(self, scene, ze_re: torch.Tensor, ze_im: torch.Tensor,
-                  targets: torch.Tensor) -> torch.nn.Module:
-        """The net for ``scene``, its normalisation fitted to the training tensors."""
+    def build_net(self, scene, *tensors: torch.Tensor) -> torch.nn.Module:
+        """The net for ``scene``, its normalisation fitted to the training tensors (the
+        inputs, then the targets)."""
 
     @abstractmethod
     def domain_features(self, scene) -> tuple[torch.nn.Module, int]:
@@ -59,7 +59,8 @@ class DecoderModule(L.LightningModule, ABC):
 
     @abstractmethod
     def loss(self, batch) -> torch.Tensor:
-        """The training loss of a batch ``(ze_re, ze_im, targets)``."""
+        """The training loss of a batch ``(*inputs, targets)`` (``ze_re, ze_im`` and the task's
+        references, or ``e, i``)."""
 
     @abstractmethod
     def net_shape(self) -> dict:
@@ -84,15 +85,15 @@ class DecoderModule(L.LightningModule, ABC):
         if self.net is not None:
             return
         dm = self.trainer.datamodule
-        ze_re, ze_im, targets = dm.train_tensors()
-        self.net = self.build_net(dm.scene, ze_re, ze_im, targets)
+        *inputs, targets = dm.train_tensors()
+        self.net = self.build_net(dm.scene, *inputs, targets)
         self.scene = dm.scene_dict
-        self.gate = self.make_gate(dm.scene).fit(*self.gate_inputs(ze_re, ze_im))
+        self.gate = self.make_gate(dm.scene).fit(*self.gate_inputs(*inputs))
 
-    def gate_inputs(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def gate_inputs(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """The training inputs the domain gate is fitted on (after :meth:`build_net`): the
         training tensors themselves, unless a task feeds its net pieces of them."""
-        return x, y
+        return inputs
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["wtml"] = {"scene": self.scene, "shape": self.net_shape(),

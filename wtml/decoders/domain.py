@@ -46,13 +46,14 @@ class DomainGate(nn.Module):
     """Whitened distance of input features from the training data, and output ranges.
 
     Args:
-        features: ``(ze_re, ze_im) -> (batch, n_feat)`` float32 (part of the exported graph).
+        features: ``(*inputs) -> (batch, n_feat)`` float32 (part of the exported graph); the
+            inputs are the graph's (``ze_re, ze_im`` and any reference the task takes).
         n_feat: number of features.
         ranges: trained range of each output that is checked, by output index.
         absent: indices of checked outputs for which NaN is a legitimate answer ("nothing to
             locate": a record without a wall) and passes the range check.
 
-    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` -> ``score (batch,)`` (``<= 1`` inside).
+    Forward: the inputs, each ``(batch, ...)`` -> ``score (batch,)`` (``<= 1`` inside).
     """
 
     def __init__(self, features: nn.Module, n_feat: int,
@@ -76,8 +77,8 @@ class DomainGate(nn.Module):
         self.register_buffer("low", torch.tensor(lo, dtype=torch.float32))
         self.register_buffer("high", torch.tensor(hi, dtype=torch.float32))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
-        return self.score(self.features(ze_re, ze_im))
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        return self.score(self.features(*inputs))
 
     def score(self, x: torch.Tensor) -> torch.Tensor:
         """The score of features already computed, ``(batch, n_feat)`` -> ``(batch,)``."""
@@ -107,9 +108,10 @@ class DomainGate(nn.Module):
         return gate
 
     @torch.no_grad()
-    def fit(self, ze_re: torch.Tensor, ze_im: torch.Tensor, quantile: float = QUANTILE,
-            floor: float = 1e-9) -> DomainGate:
-        """Fit the whitening (float64) and the box to training inputs, then set the threshold
+    def fit(self, *inputs: torch.Tensor, quantile: float = QUANTILE, floor: float = 1e-9
+            ) -> DomainGate:
+        """Fit the whitening (float64) and the box to training ``inputs`` (the graph's, each
+        ``(n, ...)``), then set the threshold
         at ``quantile`` of their scores as this float32 gate computes them.
 
         Whitening: the standardised features' covariance eigenvectors, each scaled by
@@ -119,8 +121,8 @@ class DomainGate(nn.Module):
         the covariance holds that much independent noise on each feature."""
         if not 0.5 <= quantile < 1:
             raise ValueError(f"quantile must be in [0.5, 1), got {quantile}")
-        x = torch.cat([self.features(ze_re[s:s + 65536], ze_im[s:s + 65536])
-                       for s in range(0, len(ze_re), 65536)]).double()
+        chunks = [tuple(x[s:s + 65536] for x in inputs) for s in range(0, len(inputs[0]), 65536)]
+        x = torch.cat([self.features(*chunk) for chunk in chunks]).double()
         size = x.abs().amax(0)
         mean, scale = x.mean(0), torch.maximum(x.std(0), RESOLUTION * size).clamp_min(1e-30)
         # rounding at RESOLUTION is independent noise on each feature: the covariance holds
@@ -135,15 +137,14 @@ class DomainGate(nn.Module):
         self.box_b.copy_((-low / margin - 10).float())
         self.mean.copy_(mean.float())
         self.whiten.copy_(whiten.float())
-        scores = torch.cat([self(ze_re[s:s + 65536], ze_im[s:s + 65536])
-                            for s in range(0, len(ze_re), 65536)])
+        scores = torch.cat([self(*chunk) for chunk in chunks])
         threshold = float(torch.quantile(scores.double(), quantile))
         self.whiten.copy_((whiten / threshold**0.5).float())  # score 1 at the quantile
         return self
 
 
 class Gated(nn.Module):
-    """A net with its domain: ``(ze_re, ze_im) -> (*outputs, in_domain, domain_score)``.
+    """A net with its domain: ``(*inputs) -> (*outputs, in_domain, domain_score)``.
 
     ``in_domain`` is ``domain_score <= 1`` and, for the outputs the gate checks, the answer
     inside its trained range; the outputs at ``uncertain`` (indices) become NaN where it is
@@ -165,12 +166,12 @@ class Gated(nn.Module):
         self.shared = (getattr(net, "features", None) is gate.features
                        and hasattr(net, "from_features"))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         if self.shared:
-            x = self.gate.features(ze_re, ze_im)
+            x = self.gate.features(*inputs)
             outputs, score = tuple(self.net.from_features(x)), self.gate.score(x)
         else:
-            outputs, score = tuple(self.net(ze_re, ze_im)), self.gate(ze_re, ze_im)
+            outputs, score = tuple(self.net(*inputs)), self.gate(*inputs)
         inside = (score <= 1.0) & self.gate.outputs_in_range(outputs)
         nan = torch.full_like(outputs[0], float("nan"))
         outputs = tuple(torch.where(inside, y, nan) if k in self.uncertain else y

@@ -1,7 +1,7 @@
 """Export-safe building blocks: complex algebra written out in real arithmetic.
 
-ONNX has no complex tensors, so a T on the grid is held as real and imaginary buffers and
-Eq. 3.15 is evaluated by hand.
+ONNX has no complex tensors, so a T on the grid is held as real and imaginary parts (buffers,
+or the graph's inputs where the user's calibration is one) and Eq. 3.15 is evaluated by hand.
 """
 
 from __future__ import annotations
@@ -11,36 +11,35 @@ import torch
 from torch import nn
 
 
+def t_elements(t_re: torch.Tensor, t_im: torch.Tensor) -> tuple[tuple, ...]:
+    """``(t11, t12, t21, t22)`` as ``(re, im)`` pairs, each ``(batch, n_freq)``, from the
+    flattened T ``(batch, n_freq, 4)`` (the order of ``T.reshape(..., 4)``)."""
+    return tuple(zip(t_re.unbind(-1), t_im.unbind(-1), strict=True))
+
+
 class ZmFromZe(nn.Module):
-    """Calibrated T -> load impedance, in float32 real arithmetic.
+    """The user's calibrated T -> load impedance, in float32 real arithmetic, one T per sample.
 
-    Eq. 3.15 as a Möbius map in its cheapest form: with ``c = t11/t21`` (the clamped Ze),
-    ``A = -t22/t21`` and ``B = -det T / t21²``, ``Zm = A + B / (Ze - c)``. The three constants
-    are computed once in float64; per sample it is one complex division and one complex
-    multiply-add (about half the operations of the quotient form, which matters on devices).
+    Eq. 3.15 in quotient form, ``Zm = (t22 Ze - t12) / (t11 - t21 Ze)``: two complex
+    multiply-adds and one division per sample and frequency, 27 graph operations (the Möbius
+    form ``A + B/(Ze - c)``, cheapest with a constant T, needs its constants from each sample's
+    T: three divisions more). In float32 both lose the same (the inputs' rounding: 7e-6 and
+    6e-6 of the largest |Zm| on the shipped scene's devices, the noise is 1e-4). No complex
+    tensors and no linear solve, which do not export.
 
-    Args:
-        t: complex T, shape ``(n_freq, 2, 2)`` (numpy).
-
-    Forward: ``ze_re, ze_im`` of shape ``(batch, n_freq)`` in Ω -> ``zm_re, zm_im`` in N·s/m.
+    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` in Ω and ``t_re, t_im`` ``(batch, n_freq,
+    4)`` (:func:`t_elements`) -> ``zm_re, zm_im`` ``(batch, n_freq)`` in N·s/m.
     """
 
-    def __init__(self, t: np.ndarray) -> None:
-        super().__init__()
-        t = np.asarray(t, dtype=complex)
-        t11, t12, t21, t22 = t[:, 0, 0], t[:, 0, 1], t[:, 1, 0], t[:, 1, 1]
-        consts = {"c": t11 / t21, "a": -t22 / t21, "b": -(t11 * t22 - t12 * t21) / t21**2}
-        for name, value in consts.items():
-            self.register_buffer(f"{name}_re", torch.tensor(value.real, dtype=torch.float32))
-            self.register_buffer(f"{name}_im", torch.tensor(value.imag, dtype=torch.float32))
-
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor]:
-        d_re, d_im = ze_re - self.c_re, ze_im - self.c_im
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        (a11, b11), (a12, b12), (a21, b21), (a22, b22) = t_elements(t_re, t_im)
+        n_re = a22 * ze_re - b22 * ze_im - a12  # t22 Ze - t12
+        n_im = a22 * ze_im + b22 * ze_re - b12
+        d_re = a11 - (a21 * ze_re - b21 * ze_im)  # t11 - t21 Ze
+        d_im = b11 - (a21 * ze_im + b21 * ze_re)
         mag2 = d_re * d_re + d_im * d_im
-        inv_re, inv_im = d_re / mag2, -d_im / mag2  # 1 / (Ze - c)
-        return (self.a_re + self.b_re * inv_re - self.b_im * inv_im,
-                self.a_im + self.b_re * inv_im + self.b_im * inv_re)
+        return (n_re * d_re + n_im * d_im) / mag2, (n_im * d_re - n_re * d_im) / mag2
 
 
 class ZmFromEI(nn.Module):
@@ -79,24 +78,48 @@ class ZmFromEI(nn.Module):
 
 
 class SignedLogZm(nn.Module):
-    """Zm through the calibrated T as ``sign(x) log(1 + |x|)``, ``x = Zm / z_scale``, for Re
-    and Im side by side: linear below ``z_scale``, logarithmic above (loads that span decades).
-    Written with Abs/Log/Sign, which onnxruntime vectorises (its Asinh cost as much as an MLP).
+    """Zm through the user's calibrated T as ``sign(x) log(1 + |x|)``, ``x = Zm / z_scale``,
+    for Re and Im side by side (linear below ``z_scale``, logarithmic above: loads that span
+    decades), then the device's own features (:meth:`device`): what the domain gate needs to
+    tell a device outside the trained spread. Written with Abs/Log/Sign, which onnxruntime
+    vectorises (its Asinh cost as much as an MLP).
 
     Args:
-        t: complex T, ``(n_freq, 2, 2)`` (numpy); z_scale: the knee, N·s/m.
+        z_scale: the knee, N·s/m.
 
-    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` in Ω -> ``(batch, 2 n_freq)``.
+    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` in Ω, ``t_re, t_im`` ``(batch, n_freq, 4)``
+    -> ``(batch, 2 n_freq + N_DEVICE)``.
     """
 
-    def __init__(self, t: np.ndarray, z_scale: float) -> None:
+    N_DEVICE = 6
+    """The device features (:meth:`device`)."""
+
+    def __init__(self, z_scale: float) -> None:
         super().__init__()
-        self.zm = ZmFromZe(t)
+        self.zm = ZmFromZe()
         self.register_buffer("z_scale", torch.tensor(float(z_scale)))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
-        x = torch.cat(self.zm(ze_re, ze_im), -1) / self.z_scale
-        return torch.sign(x) * torch.log1p(torch.abs(x))
+    @staticmethod
+    def device(t_re: torch.Tensor, t_im: torch.Tensor) -> torch.Tensor:
+        """The lumped device as T shows it (physics.md §3: ``t11 = 1/φ``, ``t12 = Zt/φ`` with
+        the sphere's mass in Zt, ``t21 = jω C0 (1 - j tanδ)/φ``), elements of T as they are
+        (the gate whitens them; over a few % of spread they are near linear in the
+        parameters): Re t11 at the first frequency (the coupling), Re and Im t12 there
+        (damping; mass against stiffness), Im t12 at the last (stiffness against mass), Re
+        and Im t21 at the middle one (C0 tanδ and C0), ``(batch, N_DEVICE)``. Only elements
+        that the spread moves: one that is zero in every training record (Im t11) would flag
+        any measured T."""
+        last, mid = 4 * (t_re.shape[1] - 1), 4 * (t_re.shape[1] // 2)  # flat offsets
+        flat = torch.cat([t_re.flatten(1), t_im.flatten(1)], -1)
+        n = t_re.shape[1] * 4  # where the imaginary parts begin
+        at = torch.tensor([0, 1, mid + 2, n + 1, n + last + 1, n + mid + 2])
+        return flat.index_select(1, at)
+
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor) -> torch.Tensor:
+        x = torch.cat(self.zm(ze_re, ze_im, t_re, t_im), -1) / self.z_scale
+        return torch.cat([torch.sign(x) * torch.log1p(torch.abs(x)), self.device(t_re, t_im)],
+                         -1)
 
 
 class StandardPolynomial(nn.Module):

@@ -27,6 +27,7 @@ __all__ = [
     "drive_velocity",
     "drive_voltage",
     "efficiency",
+    "flat_parts",
     "electrical_from_mechanical",
     "electrical_power",
     "elements",
@@ -47,6 +48,16 @@ def elements(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     if t.shape[-2:] != (2, 2):
         raise ValueError(f"T must have shape (..., 2, 2), got {t.shape}")
     return t[..., 0, 0], t[..., 0, 1], t[..., 1, 0], t[..., 1, 1]
+
+
+def flat_parts(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """T of shape ``(..., 2, 2)`` as the exported graphs take it: real and imaginary parts,
+    float32, each ``(..., 4)`` in the order (t11, t12, t21, t22)."""
+    flat = np.asarray(t, dtype=complex)
+    if flat.shape[-2:] != (2, 2):
+        raise ValueError(f"T must have shape (..., 2, 2), got {flat.shape}")
+    flat = flat.reshape(*flat.shape[:-2], 4)
+    return flat.real.astype(np.float32), flat.imag.astype(np.float32)
 
 
 def _bilinear(a, b, c, d, z) -> np.ndarray:

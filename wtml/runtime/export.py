@@ -1,6 +1,8 @@
 """Checkpoint -> ONNX: the decoder and, beside it, the classical path as its own graph.
 
-Both graphs take ``ze_re, ze_im`` (float32, ``(batch, n_freq)``, Ω, dynamic batch) and return
+Both graphs take ``ze_re, ze_im`` (float32, ``(batch, n_freq)``, Ω, dynamic batch; fluid: also
+the user's calibrated T as ``t_re, t_im``, ``(batch, n_freq, 4)``, named in the metadata's
+``references``) and return
 the task's outputs (``scene.OUTPUTS``), each ``(batch,)``: fluid ``eta`` (Pa·s) and ``rho``
 (kg/m³); radial ``distance`` (m from the tip) and ``sigma`` (m, the decoder's own
 uncertainty; 0 where it has none), then ``in_domain`` (bool) and ``domain_score`` (float,
@@ -32,9 +34,16 @@ from wtml.baselines.fluid_classical import band_pseudo_inverse
 from wtml.decoders.checkpoint import load_decoder
 from wtml.decoders.domain import QUANTILE, Gated
 from wtml.decoders.layers import StandardPolynomial, ZmFromZe
+from wtml.physics.twoport import flat_parts
 from wtml.scenes import config_hash, scene_from_dict
 
 INPUTS = ("ze_re", "ze_im")
+FLUID_INPUTS = (*INPUTS, "t_re", "t_im")
+"""The fluid graphs' inputs: Ze and the user's calibrated T, ``(batch, n_freq, 4)`` flattened
+as (t11, t12, t21, t22)."""
+FLUID_REFERENCES = {"calibration": "the device's calibrated T (whisker with its sphere) at the "
+                                   "sweep frequencies, measured with the calibration loads of "
+                                   "physics.md §4: inputs t_re, t_im"}
 GATE_OUTPUTS = ("in_domain", "domain_score")
 FRESH_SAMPLES = 20000
 """Fresh samples of the scene (not the training data) on which the exported decoder's
@@ -42,21 +51,25 @@ false-alarm rate is measured and stated in its metadata."""
 
 
 class ClassicalFluidNet(nn.Module):
-    """The classical path in float32 real arithmetic: calibrated T -> Zm -> band LS (η, ρ).
+    """The classical path in float32 real arithmetic: the user's calibrated T -> Zm -> band LS
+    (η, ρ) with the nominal sphere radius.
 
     Args:
-        t_cal: complex ``(n_freq, 2, 2)``; omega: ``(n_freq,)`` rad/s; radius: m.
+        omega: ``(n_freq,)`` rad/s; radius: m.
+
+    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` Ω, ``t_re, t_im`` ``(batch, n_freq, 4)`` ->
+    ``eta, rho`` ``(batch,)``.
     """
 
-    def __init__(self, t_cal: np.ndarray, omega: np.ndarray, radius: float) -> None:
+    def __init__(self, omega: np.ndarray, radius: float) -> None:
         super().__init__()
-        self.zm = ZmFromZe(t_cal)
+        self.zm = ZmFromZe()
         pinv = band_pseudo_inverse(np.asarray(omega, float), radius)[:2]  # rows η, ρ
         self.register_buffer("pinv", torch.tensor(pinv.T, dtype=torch.float32))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor]:
-        zm_re, zm_im = self.zm(ze_re, ze_im)
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        zm_re, zm_im = self.zm(ze_re, ze_im, t_re, t_im)
         u = torch.cat([zm_re, zm_im], -1) @ self.pinv
         return u[:, 0], u[:, 1]
 
@@ -76,13 +89,16 @@ class PolynomialNet(nn.Module):
 
 
 def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str],
-            inputs: tuple[str, ...] = INPUTS, widths: tuple[int, ...] | None = None,
+            inputs: tuple[str, ...] = INPUTS,
+            widths: tuple[int | tuple[int, ...], ...] | None = None,
             optimize: bool = True) -> None:
     """Write ``module`` (inputs ``inputs``, each ``(batch, n_freq)`` float32, or
-    ``(batch, widths[k])`` where given; dynamic batch) to ``path`` with ``metadata``, and
-    check the file. ``optimize=False`` skips the exporter's graph optimisation (for graphs of
-    thousands of small nodes, where it takes minutes and gains little)."""
-    example = tuple(torch.ones(2, w) for w in (widths or (n_freq,) * len(inputs)))
+    ``(batch, widths[k])`` where given, ``(batch, *widths[k])`` for a tuple; dynamic batch)
+    to ``path`` with ``metadata``, and check the file. ``optimize=False`` skips the exporter's
+    graph optimisation (for graphs of thousands of small nodes, where it takes minutes and
+    gains little)."""
+    example = tuple(torch.ones(2, *np.atleast_1d(w).tolist())
+                    for w in (widths or (n_freq,) * len(inputs)))
     batch = torch.export.Dim("batch", min=1)
     names = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
     registry = logging.getLogger("torch.onnx._internal.exporter._registration")
@@ -97,7 +113,7 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
         torch.onnx.export(module.eval(), example, str(path), input_names=list(inputs),
                           output_names=names, dynamo=True, external_data=False,
                           optimize=optimize,
-                          dynamic_shapes={name: {0: batch} for name in module_inputs(module)},
+                          dynamic_shapes=batch_dims(module, len(example), batch),
                           verbose=False)
     registry.setLevel(level)
     model = onnx.load(str(path))
@@ -107,19 +123,22 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
     onnx.save(model, str(path))
 
 
-def module_inputs(module: nn.Module) -> tuple[str, ...]:
-    """The names of ``module.forward``'s tensor arguments (the exporter keys shapes by them)."""
+def batch_dims(module: nn.Module, n_inputs: int, batch) -> dict | tuple:
+    """The exporter's ``dynamic_shapes``: dimension 0 of each of ``module.forward``'s
+    ``n_inputs`` tensor arguments is ``batch`` (keyed by name, or one tuple for ``*inputs``)."""
     import inspect
 
-    return tuple(inspect.signature(module.forward).parameters)
+    params = inspect.signature(module.forward).parameters.values()
+    if any(p.kind is p.VAR_POSITIONAL for p in params):
+        return (tuple({0: batch} for _ in range(n_inputs)),)
+    return {p.name: {0: batch} for p in params}
 
 
 @torch.no_grad()
-def false_alarm_rate(model: Gated, ze: np.ndarray) -> float:
-    """The fraction of in-domain measurements ``ze`` (complex ``(n, n_freq)``) that
-    ``model`` flags as out of domain."""
-    out = model(torch.tensor(ze.real, dtype=torch.float32),
-                torch.tensor(ze.imag, dtype=torch.float32))
+def false_alarm_rate(model: Gated, *inputs: np.ndarray) -> float:
+    """The fraction of in-domain measurements (the graph's ``inputs``, e.g. ``Re Ze, Im Ze``
+    each ``(n, n_freq)``) that ``model`` flags as out of domain."""
+    out = model(*(torch.tensor(np.asarray(x), dtype=torch.float32) for x in inputs))
     return float(1.0 - out[-2].float().mean())
 
 
@@ -165,8 +184,7 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     uncertain = tuple(k for k, name in enumerate(scene.OUTPUTS) if name == "sigma")
     decoder = Gated(module.net, module.gate, uncertain).eval()
     if task == "fluid":
-        classical = ClassicalFluidNet(scene.calibrated_t(), scene.excitation.omega,
-                                      scene.sphere.radius)
+        classical = ClassicalFluidNet(scene.excitation.omega, scene.sphere.radius)
         label = "thesis closed form"
     else:
         from wtml.baselines.radial import PolynomialRadial
@@ -174,12 +192,18 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
         train = scene.simulate(20000, np.random.default_rng([scene.seed, 10**6]))
         classical = PolynomialNet(PolynomialRadial("imag").fit(train["ze"], train["distance"]))
         label = "polynomial 9 in Im Ze"  # fitted on 20000 fresh samples of the scene
-    fresh = scene.simulate(FRESH_SAMPLES, np.random.default_rng([scene.seed, 10**6 + 1]))["ze"]
-    domain = domain_metadata(scene, false_alarm_rate(decoder, fresh), FRESH_SAMPLES)
+    fresh = scene.simulate(FRESH_SAMPLES, np.random.default_rng([scene.seed, 10**6 + 1]))
+    inputs, widths = INPUTS, None
+    if task == "fluid":
+        inputs, widths = FLUID_INPUTS, (len(freq),) * 2 + ((len(freq), 4),) * 2
+        fresh_inputs = (fresh["ze"].real, fresh["ze"].imag, *flat_parts(fresh["t"]))
+    else:
+        fresh_inputs = (fresh["ze"].real, fresh["ze"].imag)
+    domain = domain_metadata(scene, false_alarm_rate(decoder, *fresh_inputs), FRESH_SAMPLES)
     meta = {
         "wtml_version": __version__,
         "task": task,
-        "inputs": json.dumps(list(INPUTS)),
+        "inputs": json.dumps(list(inputs)),
         "outputs": json.dumps(list(scene.OUTPUTS)),
         "units": json.dumps(scene.UNITS | {"ze_re": "ohm", "ze_im": "ohm"}),
         "frequency_hz": json.dumps(freq.tolist()),
@@ -187,9 +211,12 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
         "scene_hash": config_hash(scene),
         "domain": json.dumps(domain),
     }
+    if task == "fluid":
+        meta["references"] = json.dumps(FLUID_REFERENCES)
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
     n_freq = len(freq)
-    _export(decoder, n_freq, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"})
+    _export(decoder, n_freq, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"},
+            inputs, widths)
     _export(Gated(classical, module.gate.inputs_only()).eval(), n_freq, paths["classical"],
-            meta | {"kind": "classical", "label": label})
+            meta | {"kind": "classical", "label": label}, inputs, widths)
     return paths

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
+from wtml.physics.twoport import flat_parts
 from wtml.signals import phasor_lsq
 
 INPUT_FORMATS = """\
@@ -33,6 +34,9 @@ model's metadata; another grid is refused, never interpolated):
         (phasors are fitted by least squares at each grid frequency).
 Fluid models return eta (Pa*s) and rho (kg/m^3); radial models distance (m from the tip)
 and sigma (m, the decoder's std; NaN out of domain).
+Fluid models also need the device's calibration (--calibration): .npz with frequency_hz
+(n_freq,) on the model's grid and t, the calibrated T (complex, (n_freq, 2, 2) for every
+measurement, or (n, n_freq, 2, 2) one per measurement).
 Onset models take a recording instead: .npz with e (V) and i (A), each (n_samples,) or
 (n_records, n_samples), and sample_rate_hz (another rate than trained is resampled when the
 ratio is one of whole numbers, else refused); they return one row per contact: onset and
@@ -83,6 +87,8 @@ class OnnxModel:
         self.outputs = json.loads(self.metadata["outputs"])
         self.units = json.loads(self.metadata["units"])
         self.domain = json.loads(self.metadata["domain"])
+        self.references = json.loads(self.metadata.get("references", "{}"))
+        """What the graph needs besides the measurement, ``{name: description}``."""
         self.name = f"{self.metadata.get('label', self.metadata['kind'])} ONNX"
 
     def run(self, *inputs: np.ndarray) -> dict[str, np.ndarray]:
@@ -96,9 +102,11 @@ class OnnxModel:
         out["domain_score"] = values[-1].astype(float)
         return out
 
-    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
+    def predict(self, ze: np.ndarray, t: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """On Ze (complex ``(n, n_freq)``) and, for a model that needs a calibration, the
+        calibrated T (complex ``(n, n_freq, 2, 2)``)."""
         ze = np.asarray(ze)
-        return self.run(ze.real, ze.imag)
+        return self.run(ze.real, ze.imag, *(() if t is None else flat_parts(t)))
 
 
 def _npz_signals(path: Path, data, freq: np.ndarray) -> np.ndarray:
@@ -203,6 +211,43 @@ def read_input(path: str | Path, frequency_hz: np.ndarray) -> np.ndarray:
     return ze
 
 
+def read_calibration(path: str | Path | None, frequency_hz: np.ndarray, n: int) -> np.ndarray:
+    """The device's calibrated T as complex ``(n, n_freq, 2, 2)`` on ``frequency_hz`` (one T
+    in the file is every measurement's), checked.
+
+    Raises:
+        InputError: no calibration given, or a missing or unreadable file, another grid, a
+            wrong shape, NaN or inf.
+    """
+    grid = ", ".join(f"{f:g}" for f in frequency_hz[:3]) + f", ... {frequency_hz[-1]:g} Hz"
+    if path is None:
+        raise InputError(f"this fluid export needs --calibration: the device's calibrated T at "
+                         f"{grid} (npz with frequency_hz and t, complex (n_freq, 2, 2))")
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such calibration file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if not {"frequency_hz", "t"} <= set(data.files):
+                raise InputError(f"{path}: a calibration needs 'frequency_hz' and 't'; has "
+                                 f"{sorted(data.files)}")
+            freq, t = data["frequency_hz"].astype(float), data["t"].astype(complex)
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
+        raise InputError(f"{path}: not a readable .npz of numeric arrays "
+                         f"({type(err).__name__}); write it with numpy.savez") from None
+    if freq.shape != frequency_hz.shape or not np.allclose(freq, frequency_hz, rtol=1e-9):
+        raise InputError(f"{path}: calibration grid {freq.min():g}-{freq.max():g} Hz "
+                         f"({freq.size} points) is not the model's {grid}")
+    if t.shape not in ((freq.size, 2, 2), (n, freq.size, 2, 2)):
+        raise InputError(f"{path}: t must have shape (n_freq={freq.size}, 2, 2) or "
+                         f"(n={n}, n_freq, 2, 2), got {t.shape}")
+    if not np.all(np.isfinite(t)):
+        raise InputError(f"{path}: t is NaN or inf")
+    return np.broadcast_to(t, (n, freq.size, 2, 2))
+
+
 def load_export(model_dir: str | Path) -> tuple[OnnxModel, OnnxModel]:
     """The decoder and the classical model of an export folder, checked to belong together."""
     model_dir = Path(model_dir)
@@ -229,16 +274,20 @@ def impossible(model: OnnxModel, predictions: dict[str, np.ndarray]) -> dict[str
             for lo, hi in [spec["physical"]]}
 
 
-def predict_file(model_dir: str | Path, input_path: str | Path) -> list[dict]:
+def predict_file(model_dir: str | Path, input_path: str | Path, *,
+                 calibration: str | Path | None = None) -> list[dict]:
     """Decoder and classical predictions side by side, one row per measurement: ``sample``,
     ``in_domain``, ``domain_score``, ``{output}_{decoder|classical} ({unit})`` and ``flags``
-    (module docstring)."""
+    (module docstring). ``calibration``: the device's calibrated T (npz, see
+    :data:`INPUT_FORMATS`), which a fluid export needs (:class:`InputError` without it)."""
     decoder, classical = load_export(model_dir)
     ze = read_input(input_path, decoder.frequency_hz)
+    t = (read_calibration(calibration, decoder.frequency_hz, len(ze))
+         if "calibration" in decoder.references else None)
     rows: list[dict] = [{"sample": k} for k in range(len(ze))]
     flags: list[list[str]] = [[] for _ in rows]
     for label, model in (("decoder", decoder), ("classical", classical)):
-        pred = model.predict(ze)
+        pred = model.predict(ze, t)
         if label == "decoder":
             for k, row in enumerate(rows):
                 row["in_domain"] = bool(pred["in_domain"][k])

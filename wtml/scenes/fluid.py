@@ -12,6 +12,14 @@ magnitude of water's load at the band centre. This is an error two-port on the m
 (Zm within 1.28 %). The simulated measurement is ``Ze = ze_from_zm(T_cal, (1+α) Zm + β Zref)``,
 so the calibrated classical path sees exactly that error, and the decoder sees the same Ze.
 Noise: complex Gaussian on Ze with relative std ``noise.ze_relative``.
+
+Manufacturing spread (``device``): each record's device is drawn around the preset, each
+lumped parameter and the sphere's radius scaled by ``1 + u``, ``u`` uniform in ``±spread``
+(:class:`DeviceSpread`). The user calibrates their own device with the sphere mounted (the
+calibration loads of physics.md §4), so each record's calibrated T is its own device's
+whisker-and-sphere T (sphere mass included), returned as ``t`` beside Ze: the decoder's input.
+The sphere's radius is not measured: it enters the Stokes law (physics.md §5) and is nuisance.
+All spreads zero (the dataclass default) draws nothing: the records are today's, bit for bit.
 """
 
 from __future__ import annotations
@@ -122,6 +130,43 @@ class NuisanceSpec:
 
 
 @dataclass(frozen=True)
+class DeviceSpread:
+    """Relative manufacturing spread of the device, each a uniform half-width around the
+    preset (0.01: the parameter is drawn in ±1 %), one device per record.
+
+    Attributes:
+        k: modal stiffness (the bimorph's modulus and thickness³/length³): moduli ±3 %.
+        m: modal mass (the bimorph's and whisker's dimensions): lengths and thicknesses ±1 %.
+        c: modal damping (the structural loss factor): loss factors ±25 %.
+        phi: electromechanical coupling (d31 and the electrodes): piezo coupling ±3 %.
+        c0: clamped capacitance (permittivity over the layers' thickness): ±3 %.
+        tan_delta: dielectric loss tangent: ±25 %.
+        sphere_radius: the glass sphere's radius (its mass ∝ R³ moves with it): ±1 %.
+    """
+
+    k: float = bounded(0.0, 0.5, default=0.0)
+    m: float = bounded(0.0, 0.5, default=0.0)
+    c: float = bounded(0.0, 0.5, default=0.0)
+    phi: float = bounded(0.0, 0.5, default=0.0)
+    c0: float = bounded(0.0, 0.5, default=0.0)
+    tan_delta: float = bounded(0.0, 0.5, default=0.0)
+    sphere_radius: float = bounded(0.0, 0.2, default=0.0)
+
+    FIELDS: ClassVar[tuple[str, ...]] = ("k", "m", "c", "phi", "c0", "tan_delta",
+                                         "sphere_radius")
+
+    def any(self) -> bool:
+        """Whether any parameter spreads."""
+        return any(getattr(self, f) > 0 for f in self.FIELDS)
+
+    def draw(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """Relative factors ``1 + u``, each ``(n,)``, ``u`` uniform in ``±spread``; a field
+        with no spread is exactly 1 and draws nothing from ``rng``."""
+        return {f: (1 + getattr(self, f) * rng.uniform(-1.0, 1.0, n)
+                    if getattr(self, f) > 0 else np.ones(n)) for f in self.FIELDS}
+
+
+@dataclass(frozen=True)
 class FluidScene:
     """A fluid-property scene (``configs/scenes/fluid.yaml``)."""
 
@@ -140,6 +185,7 @@ class FluidScene:
     fluid: FluidRange = field(default_factory=FluidRange)
     noise: NoiseSpec = field(default_factory=NoiseSpec)
     nuisance: NuisanceSpec = field(default_factory=NuisanceSpec)
+    device: DeviceSpread = field(default_factory=DeviceSpread)
 
     def check(self, path: str) -> None:
         if self.shards > self.samples:
@@ -162,6 +208,16 @@ class FluidScene:
         t_w = self.transducer.build().transduction_matrix(omega)
         return cascade(t_w, tip_mass(omega, self.sphere.mass))
 
+    def device_t(self, factors: dict[str, np.ndarray]) -> np.ndarray:
+        """Each device's calibrated T on the grid (whisker and its sphere), complex
+        ``(n, n_freq, 2, 2)``, from the relative factors of :meth:`DeviceSpread.draw`."""
+        base = self.transducer.build()
+        params = {k: getattr(base, k) * factors[k][:, None] for k in _LUMPED_FIELDS}
+        omega = np.broadcast_to(self.excitation.omega, (len(factors["k"]), self.excitation.n_freq))
+        mass = self.sphere.mass * factors["sphere_radius"][:, None] ** 3
+        return cascade(LumpedTransducer(**params).transduction_matrix(omega),
+                       tip_mass(omega, mass))
+
     def reference_zm(self) -> float:
         """``Zref``: |Zm| of water at 25 °C at the band centre, in N·s/m."""
         omega = self.excitation.omega
@@ -172,20 +228,27 @@ class FluidScene:
         """``n`` samples.
 
         Returns:
-            ``ze`` (n, n_freq) complex128 in Ω; targets ``eta`` (n,) Pa·s, ``rho`` (n,)
-            kg/m³; nuisance ``volume_fraction``, ``temperature_c`` (n,), ``cal_gain``,
-            ``cal_offset`` (n,) complex (α and β).
+            ``ze`` (n, n_freq) complex128 in Ω and ``t`` (n, n_freq, 2, 2) complex128, each
+            record's calibrated T (the user's measurement of their device); targets ``eta``
+            (n,) Pa·s, ``rho`` (n,) kg/m³; nuisance ``volume_fraction``, ``temperature_c``
+            (n,), ``cal_gain``, ``cal_offset`` (n,) complex (α and β), ``sphere_radius`` (n,)
+            m.
         """
-        t_cal = self.calibrated_t()  # once per frequency for every sample
         omega = self.excitation.omega
         cv = rng.uniform(*self.fluid.volume_fraction, n)
         temp = rng.uniform(*self.fluid.temperature_c, n)
         eta, rho = glycerol_water(cv, temp)
-        zm = stokes_sphere(eta[:, None], rho[:, None], self.sphere.radius, omega)
         sigma = self.nuisance.calibration_error / np.sqrt(2)
         alpha = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
         beta = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
+        factors = self.device.draw(n, rng)  # all ones, nothing drawn, without a spread
+        # the preset: one T for every sample
+        t_cal = self.device_t(factors) if self.device.any() else self.calibrated_t()
+        radius = self.sphere.radius * factors["sphere_radius"]
+        zm = stokes_sphere(eta[:, None], rho[:, None], radius[:, None], omega)
         zm_seen = (1 + alpha[:, None]) * zm + beta[:, None] * self.reference_zm()
         ze = complex_noise(ze_from_zm(t_cal, zm_seen), self.noise.ze_relative, rng)
-        return {"ze": ze, "eta": eta, "rho": rho, "volume_fraction": cv,
-                "temperature_c": temp, "cal_gain": alpha, "cal_offset": beta}
+        t = np.array(np.broadcast_to(t_cal, (n, *t_cal.shape[-3:])))
+        return {"ze": ze, "t": t, "eta": eta, "rho": rho, "volume_fraction": cv,
+                "temperature_c": temp, "cal_gain": alpha, "cal_offset": beta,
+                "sphere_radius": radius}

@@ -71,9 +71,17 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from wtml.runtime.predict import domain_warning, format_predictions, predict_file, task_of
+    from wtml.runtime.predict import (
+        InputError,
+        domain_warning,
+        format_predictions,
+        predict_file,
+        task_of,
+    )
 
     task = task_of(args.model)
+    if args.reference is not None and task in ("onset", "texture"):
+        raise InputError(f"--reference {args.reference}: this {task} export takes no reference")
     if task == "onset":
         from wtml.runtime.onset import predict_records
 
@@ -83,7 +91,7 @@ def _predict(args: argparse.Namespace) -> int:
 
         rows = texture_records(args.model, args.input)
     else:
-        rows = predict_file(args.model, args.input)
+        rows = predict_file(args.model, args.input, reference=args.reference)
     if args.out:
         with open(args.out, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
@@ -237,6 +245,8 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--model", required=True, help="an export folder (model.onnx and "
                                                    "classical.onnx), e.g. export/fluid")
     pr.add_argument("--input", required=True, help=".csv or .npz (formats below)")
+    pr.add_argument("--reference", default=None,
+                    help="radial exports: the free whisker's Ze of the device (.npz, below)")
     pr.add_argument("--out", default=None,
                     help="write the rows as CSV here (default: print a table)")
     pr.set_defaults(func=_predict)

@@ -76,8 +76,10 @@ def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
     return all(hparams.get(key) == value for key, value in wanted.items())
 
 
-def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> None:
-    """A few test-shard measurements as a CSV that ``wtml predict`` reads."""
+def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> Path | None:
+    """A few test-shard measurements as a CSV that ``wtml predict`` reads; for radial also
+    their devices' free references, ``sample_reference.npz`` beside it (returned; else
+    None)."""
     manifest = read_manifest(data_dir)
     data = load_shards(data_dir, split_shards(manifest["n_shards"], 1, 1)["test"])
     scene = dataset_scene(data_dir)
@@ -93,6 +95,11 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> None:
             for f, z in zip(freq, data["ze"][s], strict=True):
                 w.writerow([s, repr(float(f)), repr(float(z.real)), repr(float(z.imag))]
                            + [repr(float(data[k][s])) for k in truth])
+    if scene.task != "radial":
+        return None
+    reference = path.parent / "sample_reference.npz"
+    np.savez(reference, frequency_hz=freq, ze=data["ref"][:n])
+    return reference
 
 
 def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
@@ -126,9 +133,10 @@ def _export_and_predict(stages: Stages, slice_: str, ckpt: Path, model: Path,
     for kind, path in export_model(ckpt, model).items():
         print(f"{kind}: {path}")
     sample = model / "sample_input.csv"
-    write_sample_csv(data, sample)
-    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}")
-    rows = predict_file(model, sample)
+    reference = write_sample_csv(data, sample)
+    flag = f" --reference {reference}" if reference else ""
+    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}{flag}")
+    rows = predict_file(model, sample, reference=reference)
     print(format_predictions(rows))
     warning = domain_warning(rows)
     if warning:

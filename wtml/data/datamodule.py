@@ -41,11 +41,14 @@ TARGETS = {
 
 
 def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor, ...]:
-    """The two input tensors and the targets, float32: ``(ze_re, ze_im, targets)`` for the
-    phasor tasks, ``(e, i, targets)`` (V, A; NaN-padded targets: gap m, onsets s,
+    """The input tensors and the targets, float32: ``(ze_re, ze_im, targets)`` for fluid,
+    ``(ze_re, ze_im, ref_re, ref_im, targets)`` for radial (``ref``: the free whisker's Ze,
+    the user's reference), ``(e, i, targets)`` (V, A; NaN-padded targets: gap m, onsets s,
     detachments s) for the time-domain ones; targets as in ``TARGETS``."""
     if task in ("onset", "texture"):
         inputs = (arrays["e"], arrays["i"])
+    elif task == "radial":
+        inputs = (arrays["ze"].real, arrays["ze"].imag, arrays["ref"].real, arrays["ref"].imag)
     else:
         inputs = (arrays["ze"].real, arrays["ze"].imag)
     return tuple(torch.tensor(a, dtype=torch.float32) for a in (*inputs, TARGETS[task](arrays)))

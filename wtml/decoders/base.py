@@ -59,7 +59,8 @@ class DecoderModule(L.LightningModule, ABC):
 
     @abstractmethod
     def loss(self, batch) -> torch.Tensor:
-        """The training loss of a batch ``(ze_re, ze_im, targets)``."""
+        """The training loss of a batch ``(*inputs, targets)``: ``(ze_re, ze_im, targets)``,
+        with the reference ``(ze_re, ze_im, ref_re, ref_im, targets)`` for radial."""
 
     @abstractmethod
     def net_shape(self) -> dict:
@@ -82,15 +83,15 @@ class DecoderModule(L.LightningModule, ABC):
         if self.net is not None:
             return
         dm = self.trainer.datamodule
-        ze_re, ze_im, targets = dm.train_tensors()
-        self.net = self.build_net(dm.scene, ze_re, ze_im, targets)
+        *inputs, targets = dm.train_tensors()
+        self.net = self.build_net(dm.scene, *inputs, targets)
         self.scene = dm.scene_dict
-        self.gate = self.make_gate(dm.scene).fit(*self.gate_inputs(ze_re, ze_im))
+        self.gate = self.make_gate(dm.scene).fit(*self.gate_inputs(*inputs))
 
-    def gate_inputs(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def gate_inputs(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """The training inputs the domain gate is fitted on (after :meth:`build_net`): the
         training tensors themselves, unless a task feeds its net pieces of them."""
-        return x, y
+        return inputs
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["wtml"] = {"scene": self.scene, "shape": self.net_shape(),

@@ -46,11 +46,14 @@ class DomainGate(nn.Module):
     """Whitened distance of input features from the training data, and output ranges.
 
     Args:
-        features: ``(ze_re, ze_im) -> (batch, n_feat)`` float32 (part of the exported graph).
+        features: ``(*inputs) -> (batch, n_feat)`` float32 (part of the exported graph); the
+            inputs are the task's graph inputs (``ze_re, ze_im``; radial adds
+            ``ref_re, ref_im``).
         n_feat: number of features.
         ranges: trained range of each output that is checked, by output index.
 
-    Forward: ``ze_re, ze_im`` ``(batch, n_freq)`` -> ``score (batch,)`` (``<= 1`` inside).
+    Forward: the inputs, e.g. ``ze_re, ze_im`` ``(batch, n_freq)`` -> ``score (batch,)``
+    (``<= 1`` inside).
     """
 
     def __init__(self, features: nn.Module, n_feat: int,
@@ -69,8 +72,8 @@ class DomainGate(nn.Module):
         self.register_buffer("low", torch.tensor(lo, dtype=torch.float32))
         self.register_buffer("high", torch.tensor(hi, dtype=torch.float32))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> torch.Tensor:
-        return self.score(self.features(ze_re, ze_im))
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        return self.score(self.features(*inputs))
 
     def score(self, x: torch.Tensor) -> torch.Tensor:
         """The score of features already computed, ``(batch, n_feat)`` -> ``(batch,)``."""
@@ -98,8 +101,8 @@ class DomainGate(nn.Module):
         return gate
 
     @torch.no_grad()
-    def fit(self, ze_re: torch.Tensor, ze_im: torch.Tensor, quantile: float = QUANTILE,
-            floor: float = 1e-9) -> DomainGate:
+    def fit(self, *inputs: torch.Tensor, quantile: float = QUANTILE, floor: float = 1e-9
+            ) -> DomainGate:
         """Fit the whitening (float64) and the box to training inputs, then set the threshold
         at ``quantile`` of their scores as this float32 gate computes them.
 
@@ -110,8 +113,9 @@ class DomainGate(nn.Module):
         the covariance holds that much independent noise on each feature."""
         if not 0.5 <= quantile < 1:
             raise ValueError(f"quantile must be in [0.5, 1), got {quantile}")
-        x = torch.cat([self.features(ze_re[s:s + 65536], ze_im[s:s + 65536])
-                       for s in range(0, len(ze_re), 65536)]).double()
+        n = len(inputs[0])
+        x = torch.cat([self.features(*(a[s:s + 65536] for a in inputs))
+                       for s in range(0, n, 65536)]).double()
         size = x.abs().amax(0)
         mean, scale = x.mean(0), torch.maximum(x.std(0), RESOLUTION * size).clamp_min(1e-30)
         # rounding at RESOLUTION is independent noise on each feature: the covariance holds
@@ -126,15 +130,16 @@ class DomainGate(nn.Module):
         self.box_b.copy_((-low / margin - 10).float())
         self.mean.copy_(mean.float())
         self.whiten.copy_(whiten.float())
-        scores = torch.cat([self(ze_re[s:s + 65536], ze_im[s:s + 65536])
-                            for s in range(0, len(ze_re), 65536)])
+        scores = torch.cat([self(*(a[s:s + 65536] for a in inputs))
+                            for s in range(0, n, 65536)])
         threshold = float(torch.quantile(scores.double(), quantile))
         self.whiten.copy_((whiten / threshold**0.5).float())  # score 1 at the quantile
         return self
 
 
 class Gated(nn.Module):
-    """A net with its domain: ``(ze_re, ze_im) -> (*outputs, in_domain, domain_score)``.
+    """A net with its domain: ``(*inputs) -> (*outputs, in_domain, domain_score)`` (inputs
+    e.g. ``ze_re, ze_im``).
 
     ``in_domain`` is ``domain_score <= 1`` and, for the outputs the gate checks, the answer
     inside its trained range; the outputs at ``uncertain`` (indices) become NaN where it is
@@ -156,12 +161,12 @@ class Gated(nn.Module):
         self.shared = (getattr(net, "features", None) is gate.features
                        and hasattr(net, "from_features"))
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         if self.shared:
-            x = self.gate.features(ze_re, ze_im)
+            x = self.gate.features(*inputs)
             outputs, score = tuple(self.net.from_features(x)), self.gate.score(x)
         else:
-            outputs, score = tuple(self.net(ze_re, ze_im)), self.gate(ze_re, ze_im)
+            outputs, score = tuple(self.net(*inputs)), self.gate(*inputs)
         inside = (score <= 1.0) & self.gate.outputs_in_range(outputs)
         nan = torch.full_like(outputs[0], float("nan"))
         outputs = tuple(torch.where(inside, y, nan) if k in self.uncertain else y

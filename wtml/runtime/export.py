@@ -1,6 +1,9 @@
 """Checkpoint -> ONNX: the decoder and, beside it, the classical path as its own graph.
 
-Both graphs take ``ze_re, ze_im`` (float32, ``(batch, n_freq)``, Ω, dynamic batch) and return
+Both graphs take ``ze_re, ze_im`` (float32, ``(batch, n_freq)``, Ω, dynamic batch), radial
+ones also ``ref_re, ref_im`` (the free whisker's Ze of the user's device at the same tones,
+the reference its metadata's ``references`` names; a sample ``sample_reference.npz`` of the
+nominal device is written beside them), and return
 the task's outputs (``scene.OUTPUTS``), each ``(batch,)``: fluid ``eta`` (Pa·s) and ``rho``
 (kg/m³); radial ``distance`` (m from the tip) and ``sigma`` (m, the decoder's own
 uncertainty; 0 where it has none), then ``in_domain`` (bool) and ``domain_score`` (float,
@@ -9,7 +12,8 @@ is part of both graphs. The decoder's ``in_domain`` also requires its answer ins
 trained range; the classical graph's judges the input only (its answers are checked against
 the physically possible range by ``wtml predict``). The fluid classical graph is the thesis's
 closed form, calibrated T -> Zm -> band least squares; the radial one is the thesis's
-classical decoder, the 9th-degree polynomial of d in Im Ze. The metadata of each model
+classical decoder, the 9th-degree polynomial of d in Im Ze, of the ratio to the reference
+(``wtml.baselines.radial.PolynomialRadial``). The metadata of each model
 carries what a device needs: names and units, the frequency grid, the scene and its hash,
 the trained domain and its measured false-alarm rate, the package version. A device needs
 onnxruntime only.
@@ -35,6 +39,11 @@ from wtml.decoders.layers import StandardPolynomial, ZmFromZe
 from wtml.scenes import config_hash, scene_from_dict
 
 INPUTS = ("ze_re", "ze_im")
+RADIAL_INPUTS = (*INPUTS, "ref_re", "ref_im")
+REFERENCES = {"radial": {"reference": "the free (untouched) whisker's Ze of this device at the "
+                                      "model's frequencies, measured when it is set up "
+                                      "(ref_re, ref_im; wtml predict --reference)"}}
+"""What each task's export needs besides the measurement (the metadata's ``references``)."""
 GATE_OUTPUTS = ("in_domain", "domain_score")
 FRESH_SAMPLES = 20000
 """Fresh samples of the scene (not the training data) on which the exported decoder's
@@ -62,16 +71,20 @@ class ClassicalFluidNet(nn.Module):
 
 
 class PolynomialNet(nn.Module):
-    """A fitted ``PolynomialRadial`` as a graph: ``(distance, zeros)`` from Ze."""
+    """A fitted ``PolynomialRadial`` as a graph: ``(distance, zeros)`` from Ze and the
+    reference."""
 
     def __init__(self, poly) -> None:
         super().__init__()
-        self.part = poly.part
+        self.part, self.reference = poly.part, poly.reference
         self.poly = StandardPolynomial(poly.model.steps[1][1].degree).load_pipeline(poly.model)
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor]:
-        y = self.poly((ze_re if self.part == "real" else ze_im)[:, 0])
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, ref_re: torch.Tensor,
+                ref_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        from wtml.decoders.radial import ratio
+
+        z = ratio(ze_re, ze_im, ref_re, ref_im) if self.reference else (ze_re, ze_im)
+        y = self.poly(z[0 if self.part == "real" else 1][:, 0])
         return y, torch.zeros_like(y)
 
 
@@ -84,7 +97,10 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
     thousands of small nodes, where it takes minutes and gains little)."""
     example = tuple(torch.ones(2, w) for w in (widths or (n_freq,) * len(inputs)))
     batch = torch.export.Dim("batch", min=1)
-    names = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
+    names = module_inputs(module)
+    shapes = ({name: {0: batch} for name in names} if len(names) == len(inputs)
+              else {names[0]: tuple({0: batch} for _ in inputs)})  # forward(*inputs)
+    outputs = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
     registry = logging.getLogger("torch.onnx._internal.exporter._registration")
     level = registry.level
     registry.setLevel(logging.ERROR)  # "torchvision is not installed. Skipping ..." (4 lines)
@@ -95,9 +111,8 @@ def _export(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str]
         warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)`",
                                 category=FutureWarning)
         torch.onnx.export(module.eval(), example, str(path), input_names=list(inputs),
-                          output_names=names, dynamo=True, external_data=False,
-                          optimize=optimize,
-                          dynamic_shapes={name: {0: batch} for name in module_inputs(module)},
+                          output_names=outputs, dynamic_shapes=shapes, dynamo=True,
+                          external_data=False, optimize=optimize,
                           verbose=False)
     registry.setLevel(level)
     model = onnx.load(str(path))
@@ -115,11 +130,12 @@ def module_inputs(module: nn.Module) -> tuple[str, ...]:
 
 
 @torch.no_grad()
-def false_alarm_rate(model: Gated, ze: np.ndarray) -> float:
-    """The fraction of in-domain measurements ``ze`` (complex ``(n, n_freq)``) that
-    ``model`` flags as out of domain."""
-    out = model(torch.tensor(ze.real, dtype=torch.float32),
-                torch.tensor(ze.imag, dtype=torch.float32))
+def false_alarm_rate(model: Gated, *inputs: np.ndarray) -> float:
+    """The fraction of in-domain measurements that ``model`` flags as out of domain:
+    ``inputs`` complex ``(n, n_freq)`` each (``ze``, and ``ref`` for radial), passed to the
+    graph as real and imaginary parts."""
+    out = model(*(torch.tensor(p, dtype=torch.float32) for z in inputs
+                  for p in (z.real, z.imag)))
     return float(1.0 - out[-2].float().mean())
 
 
@@ -138,7 +154,7 @@ def domain_metadata(scene, false_alarm: float, n_fresh: int) -> dict:
 
 def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     """Write ``model.onnx`` (decoder) and ``classical.onnx`` for the checkpoint's task into
-    ``out``; returns the paths.
+    ``out`` (radial: and ``sample_reference.npz``); returns the paths.
 
     Raises:
         CheckpointError: the checkpoint is missing, unreadable, unsafe or not wtml's.
@@ -171,24 +187,32 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
         from wtml.baselines.radial import PolynomialRadial
 
         train = scene.simulate(20000, np.random.default_rng([scene.seed, 10**6]))
-        classical = PolynomialNet(PolynomialRadial("imag").fit(train["ze"], train["distance"]))
-        label = "polynomial 9 in Im Ze"  # fitted on 20000 fresh samples of the scene
-    fresh = scene.simulate(FRESH_SAMPLES, np.random.default_rng([scene.seed, 10**6 + 1]))["ze"]
-    domain = domain_metadata(scene, false_alarm_rate(decoder, fresh), FRESH_SAMPLES)
+        poly = PolynomialRadial("imag").fit(train["ze"], train["ref"], train["distance"])
+        classical = PolynomialNet(poly)
+        label = poly.name  # fitted on 20000 fresh samples of the scene
+    fresh = scene.simulate(FRESH_SAMPLES, np.random.default_rng([scene.seed, 10**6 + 1]))
+    measured = [fresh["ze"]] + ([fresh["ref"]] if task == "radial" else [])
+    domain = domain_metadata(scene, false_alarm_rate(decoder, *measured), FRESH_SAMPLES)
+    inputs = RADIAL_INPUTS if task == "radial" else INPUTS
     meta = {
         "wtml_version": __version__,
         "task": task,
-        "inputs": json.dumps(list(INPUTS)),
+        "inputs": json.dumps(list(inputs)),
+        "references": json.dumps(REFERENCES.get(task, {})),
         "outputs": json.dumps(list(scene.OUTPUTS)),
-        "units": json.dumps(scene.UNITS | {"ze_re": "ohm", "ze_im": "ohm"}),
+        "units": json.dumps(scene.UNITS | {name: "ohm" for name in inputs}),
         "frequency_hz": json.dumps(freq.tolist()),
         "scene": json.dumps(module.scene, sort_keys=True),
         "scene_hash": config_hash(scene),
         "domain": json.dumps(domain),
     }
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
+    if task == "radial":  # the nominal device's free Ze, noise-free: a --reference example
+        paths["sample reference"] = out / "sample_reference.npz"
+        np.savez(paths["sample reference"], frequency_hz=freq, ze=scene.free_ze())
     n_freq = len(freq)
-    _export(decoder, n_freq, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"})
+    _export(decoder, n_freq, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"},
+            inputs)
     _export(Gated(classical, module.gate.inputs_only()).eval(), n_freq, paths["classical"],
-            meta | {"kind": "classical", "label": label})
+            meta | {"kind": "classical", "label": label}, inputs)
     return paths

@@ -202,8 +202,10 @@ class RefinedRadialNet(nn.Module):
         """``(Re p, Im p, d0, Re ref, Im ref)`` (m, m, m, Ω, Ω), ``(batch, 4 n_freq + 1)``:
         p per frequency as in the module docstring."""
         f_re, f_im, g_re, g_im = self.table(d0)
-        q_re, q_im = ratio(ze_re, ze_im, ref_re, ref_im)
-        p_re, p_im = ratio(q_re - f_re, q_im - f_im, g_re, g_im)
+        # p = (ze - R ref) / (R' ref): one rounding of ze's size, as in ze - Ze(d0)
+        p_re, p_im = ratio(ze_re - (f_re * ref_re - f_im * ref_im),
+                           ze_im - (f_re * ref_im + f_im * ref_re),
+                           g_re * ref_re - g_im * ref_im, g_re * ref_im + g_im * ref_re)
         return torch.cat([p_re, p_im, d0[:, None], ref_re, ref_im], -1)
 
     def refine_normalized(self, ze_re: torch.Tensor, ze_im: torch.Tensor,

@@ -31,6 +31,7 @@ from wtml.decoders.domain import QUANTILE, DomainGate, Gated, ZeParts
 from wtml.decoders.fluid import FluidDecoder, load_fluid_net
 from wtml.decoders.radial import RadialDecoder
 from wtml.physics import ze_from_zm, zm_from_ze
+from wtml.physics.beam_presets import build as build_beam
 from wtml.physics.loads import stokes_sphere
 from wtml.pipeline import Stages, checkpoint_matches, summary
 from wtml.runtime.predict import OnnxModel, predict_file
@@ -92,16 +93,24 @@ def test_nothing_is_loaded_with_pickle_anywhere():
 # ---------------------------------------------------------------- 2. the trained domain
 
 
+def _parts(*arrays: np.ndarray) -> list[torch.Tensor]:
+    """Complex arrays as the graphs' float32 inputs: real and imaginary part of each."""
+    return [torch.tensor(p, dtype=torch.float32) for z in arrays for p in (z.real, z.imag)]
+
+
+def _measured(data: dict) -> tuple[np.ndarray, ...]:
+    """What a task's graphs read of a simulated batch: Ze, and radial's reference."""
+    return (data["ze"], data["ref"]) if "ref" in data else (data["ze"],)
+
+
 def _gate(decoder, scene, n_train: int, seed: int) -> DomainGate:
-    train = scene.simulate(n_train, np.random.default_rng(seed))["ze"]
-    return decoder.make_gate(scene).fit(torch.tensor(train.real, dtype=torch.float32),
-                                        torch.tensor(train.imag, dtype=torch.float32))
+    train = scene.simulate(n_train, np.random.default_rng(seed))
+    return decoder.make_gate(scene).fit(*_parts(*_measured(train)))
 
 
-def _score(gate: DomainGate, ze: np.ndarray) -> np.ndarray:
+def _score(gate: DomainGate, *measured: np.ndarray) -> np.ndarray:
     with torch.no_grad():
-        return gate(torch.tensor(ze.real, dtype=torch.float32),
-                    torch.tensor(ze.imag, dtype=torch.float32)).numpy()
+        return gate(*_parts(*measured)).numpy()
 
 
 @pytest.fixture(scope="module")
@@ -124,11 +133,11 @@ def _out_of_domain_variants(ze: np.ndarray) -> dict[str, np.ndarray]:
 
 def _check_held_out_and_variants(scene, gate: DomainGate, n: int) -> None:
     """At most 0.3 % of ``n`` held-out in-domain inputs flagged; every variant of 500 of
-    them from :func:`_out_of_domain_variants` flagged."""
-    held = scene.simulate(n, np.random.default_rng(2))["ze"]
-    assert np.mean(_score(gate, held) > 1) <= 0.003
-    for name, ze in _out_of_domain_variants(held[:500]).items():
-        assert np.all(_score(gate, ze) > 1), name
+    them from :func:`_out_of_domain_variants` flagged (radial: with their references)."""
+    held = _measured(scene.simulate(n, np.random.default_rng(2)))
+    assert np.mean(_score(gate, *held) > 1) <= 0.003
+    for name, ze in _out_of_domain_variants(held[0][:500]).items():
+        assert np.all(_score(gate, ze, *(x[:500] for x in held[1:])) > 1), name
 
 
 def test_fluid_domain_false_alarms_and_detections(fluid_domain):
@@ -149,15 +158,24 @@ def test_fluid_domain_false_alarms_and_detections(fluid_domain):
 
 
 def test_radial_domain_false_alarms_and_detections(radial_domain):
-    """Held-out in-domain inputs: <= 0.3 % flagged (stated 0.1 %). Every scaled or negated
-    input and every contact 100 µm or more past the trained 3200 µm: flagged."""
+    """Held-out in-domain inputs over the device spread: <= 0.3 % flagged (stated 0.1 %).
+    Every scaled or negated input, every contact 100 µm or more past the trained 3200 µm (on
+    the nominal device), and every device far off the trained spread (its bimorph 4× the
+    spread's free-length tolerance longer, or its structural loss doubled): flagged."""
     scene, gate = radial_domain
     _check_held_out_and_variants(scene, gate, 20000)
     rng = np.random.default_rng(3)
     d = 1e-6 * np.linspace(3300, 4500, 300)
     k = np.exp(rng.uniform(*np.log(scene.contact.stiffness), 300))
     ze = complex_noise(scene.ze_of(d, k), scene.noise.ze_relative, rng)
-    assert np.all(_score(gate, ze) > 1)
+    ref = np.broadcast_to(scene.free_ze(), ze.shape)
+    assert np.all(_score(gate, ze, ref) > 1)
+    for factors in ({"bimorph.length": 1 + 4 * scene.device.length}, {"loss_factor": 2.0}):
+        far = build_beam(scene.preset, factors=factors)
+        d = 1e-6 * rng.uniform(0, 3200, 300)
+        ze = complex_noise(scene.ze_of(d, k, far), scene.noise.ze_relative, rng)
+        ref = np.broadcast_to(scene.free_ze(far), ze.shape)
+        assert np.all(_score(gate, ze, ref) > 1), factors
 
 
 class _Constant(torch.nn.Module):
@@ -196,16 +214,16 @@ def test_exported_graphs_carry_the_domain_and_agree_with_torch(flow, radial_flow
                           radial_flow / "runs/radial/checkpoints/last.ckpt")):
         module = load_decoder(ckpt)
         data = load_shards(folder.parent.parent / "data" if "radial" in str(folder)
-                           else flow[0] / "data", [3])["ze"][:200]
+                           else flow[0] / "data", [3])
         # scaled by decades: outside any scene's domain (a negated component can be a
         # plausible measurement of a one-frequency scene, whose Im Ze changes sign)
-        ze = np.concatenate([data, data * 1e6, data * 1e-3])
+        ze = np.concatenate([data["ze"][:200], data["ze"][:200] * 1e6,
+                             data["ze"][:200] * 1e-3])
+        extra = (np.tile(data["ref"][:200], (3, 1)),) if "ref" in data else ()
         uncertain = (1,) if module.scene["task"] == "radial" else ()
         with torch.no_grad():
-            ref = Gated(module.net, module.gate, uncertain)(
-                torch.tensor(ze.real, dtype=torch.float32),
-                torch.tensor(ze.imag, dtype=torch.float32))
-        got = OnnxModel(folder / "model.onnx").predict(ze)
+            ref = Gated(module.net, module.gate, uncertain)(*_parts(ze, *extra))
+        got = OnnxModel(folder / "model.onnx").predict(ze, *extra)
         # float32 kernels differ, and the whitening (eigenvalues down to 1e-9 of the largest)
         # amplifies their rounding: scores agree to 1e-3, flags wherever that cannot matter
         np.testing.assert_allclose(got["domain_score"], ref[-1].numpy(), rtol=1e-3)
@@ -215,7 +233,7 @@ def test_exported_graphs_carry_the_domain_and_agree_with_torch(flow, radial_flow
         meta = {p.key: p.value for p in onnx.load(str(folder / "classical.onnx")).metadata_props}
         domain = json.loads(meta["domain"])
         assert domain["quantile"] == QUANTILE and 0 <= domain["false_alarm_fresh"] < 1
-        classical = OnnxModel(folder / "classical.onnx").predict(ze)
+        classical = OnnxModel(folder / "classical.onnx").predict(ze, *extra)
         assert not classical["in_domain"][200:].any()
         if uncertain:
             assert np.all(np.isnan(got["sigma"][~got["in_domain"]]))
@@ -510,6 +528,7 @@ def test_the_physics_inversion_converges_to_the_bound():
     """The damped, bounded solve reaches the Cramér–Rao bound (README: 1.01× on 10000
     samples; here 600, within 1.15×), where one undamped step stopped at 1.15×."""
     data = RADIAL_SMALL.simulate(600, np.random.default_rng(5))
-    err = InversionRadial(RADIAL_SMALL).predict(data["ze"])["distance"] - data["distance"]
+    err = (InversionRadial(RADIAL_SMALL).predict(data["ze"], data["ref"])["distance"]
+           - data["distance"])
     crlb = radial_crlb(RADIAL_SMALL, data["distance"], data["stiffness"])
     assert np.sqrt(np.mean(err**2) / np.mean(crlb**2)) <= 1.15

@@ -103,8 +103,16 @@ def _measured(data: dict) -> tuple[np.ndarray, ...]:
     return (data["ze"], data["ref"]) if "ref" in data else (data["ze"],)
 
 
-def _gate(decoder, scene, n_train: int, seed: int) -> DomainGate:
-    train = scene.simulate(n_train, np.random.default_rng(seed))
+def _simulate(scene, n: int, seed: int, shards: int = 1) -> dict:
+    """``n`` samples simulated as ``shards`` shards (a scene with a device spread draws its
+    devices per shard, as a dataset's shards do)."""
+    parts = [scene.simulate(n // shards, np.random.default_rng([seed, k]))
+             for k in range(shards)]
+    return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+
+
+def _gate(decoder, scene, n_train: int, seed: int, shards: int = 1) -> DomainGate:
+    train = _simulate(scene, n_train, seed, shards)
     return decoder.make_gate(scene).fit(*_parts(*_measured(train)))
 
 
@@ -122,7 +130,7 @@ def fluid_domain():
 @pytest.fixture(scope="module")
 def radial_domain():
     scene = load_scene(ROOT / "configs/scenes/radial.yaml")
-    return scene, _gate(RadialDecoder(), scene, 60000, 1)
+    return scene, _gate(RadialDecoder(), scene, 60000, 1, shards=6)  # 1536 devices
 
 
 def _out_of_domain_variants(ze: np.ndarray) -> dict[str, np.ndarray]:
@@ -131,13 +139,15 @@ def _out_of_domain_variants(ze: np.ndarray) -> dict[str, np.ndarray]:
             "Re Ze negated": -ze.real + 1j * ze.imag, "Im Ze negated": ze.conj()}
 
 
-def _check_held_out_and_variants(scene, gate: DomainGate, n: int) -> None:
+def _check_held_out_and_variants(scene, gate: DomainGate, n: int, shards: int = 1) -> None:
     """At most 0.3 % of ``n`` held-out in-domain inputs flagged; every variant of 500 of
-    them from :func:`_out_of_domain_variants` flagged (radial: with their references)."""
-    held = _measured(scene.simulate(n, np.random.default_rng(2)))
+    them from :func:`_out_of_domain_variants` flagged (radial: the measurement and its
+    reference alike, an instrument that reads wrong)."""
+    held = _measured(_simulate(scene, n, 2, shards))
     assert np.mean(_score(gate, *held) > 1) <= 0.003
-    for name, ze in _out_of_domain_variants(held[0][:500]).items():
-        assert np.all(_score(gate, ze, *(x[:500] for x in held[1:])) > 1), name
+    variants = [_out_of_domain_variants(x[:500]) for x in held]
+    for name in variants[0]:
+        assert np.all(_score(gate, *(v[name] for v in variants)) > 1), name
 
 
 def test_fluid_domain_false_alarms_and_detections(fluid_domain):
@@ -158,12 +168,15 @@ def test_fluid_domain_false_alarms_and_detections(fluid_domain):
 
 
 def test_radial_domain_false_alarms_and_detections(radial_domain):
-    """Held-out in-domain inputs over the device spread: <= 0.3 % flagged (stated 0.1 %).
+    """Held-out in-domain inputs over the device spread (new devices): <= 0.3 % flagged
+    (stated 0.1 %).
     Every scaled or negated input, every contact 100 µm or more past the trained 3200 µm (on
     the nominal device), and every device far off the trained spread (its bimorph 4× the
     spread's free-length tolerance longer, or its structural loss doubled): flagged."""
     scene, gate = radial_domain
-    _check_held_out_and_variants(scene, gate, 20000)
+    # the held-out devices many (40 × 512): a new device is out of domain whole, so a few
+    # hundred of them would count the stated rate in steps of their number
+    _check_held_out_and_variants(scene, gate, 20000, shards=40)
     rng = np.random.default_rng(3)
     d = 1e-6 * np.linspace(3300, 4500, 300)
     k = np.exp(rng.uniform(*np.log(scene.contact.stiffness), 300))
@@ -461,12 +474,15 @@ def test_the_main_job_summary_states_targets_times_and_places():
     radial = {"ours_onnx": row, "inversion": row | {"rmse": 0.397e-6},
               "best_polynomial_rmse": 3.42e-6, "ours_onnx_latency_s": 60e-6,
               "inversion_latency_s": 2e-3, "false_alarm": 0.0009, "worst_range_ratio": 1.1,
-              "n_test": 10000}
+              "n_test": 10000, "ours_spread": {"rmse": 33e-6, "cover": 0.94, "flagged": 0.002},
+              "spread_limit": "whisker.modulus ±3 % alone"}
     text = summary({"fluid": fluid, "radial": radial}, stages)
     for needle in ("1.13× the Bayes", "target ≤ 1 %: MISSED", "target ≤ 0.5 %: met",
                    "1.02× the CRLB", "8.6× below the best polynomial",
                    "runs/fluid/bench/report.md", "runs/radial/bench/error_vs_d.png",
-                   "train fluid 1 min 10 s", "total:"):
+                   "train fluid 1 min 10 s", "total:",
+                   "RMSE 33.0 µm (target ≤ 5 µm: MISSED), 94 % of in-domain answers within 2σ "
+                   "(target ≥ 90 %: met), 0.2 % flagged; limited by whisker.modulus"):
         assert needle in text, needle
 
 

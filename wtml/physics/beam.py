@@ -314,18 +314,22 @@ class BeamTransducer(Structure):
         return float(np.linalg.solve(k.real, theta)[-2])
 
 
-def device_forms(transducers, omega) -> tuple[np.ndarray, ...]:
+def device_forms(transducers, omega, chunk: int = 64) -> tuple[np.ndarray, ...]:
     """For transducers of one mesh (the same element counts, e.g. a preset's manufacturing
     spread): ``G = D⁻¹`` ``(n_dev, n_dof, n_dof, n_freq)`` (frequency last), ``Gb`` and
     ``GΘ`` ``(n_dev, n_dof, n_freq)``, and the free forms ``a, β, δ`` ``(n_dev, n_freq)``;
-    one batched inverse."""
+    batched inverses, ``chunk`` transducers at a time (small temporaries)."""
     omega = np.atleast_1d(check_omega(omega))
     k, m, theta = (np.stack(x) for x in zip(*(t.matrices() for t in transducers), strict=True))
-    rayleigh = np.array([t.rayleigh for t in transducers])[:, None, None, None]
+    rayleigh = np.array([t.rayleigh for t in transducers])[:, :, None, None, None]
     w = omega[None, :, None, None]
-    d = (k[:, None] - w**2 * m[:, None]
-         + 1j * w * (rayleigh[..., 0] * m[:, None] + rayleigh[..., 1] * k[:, None]))
-    g = np.ascontiguousarray(np.moveaxis(np.linalg.inv(d), 1, -1))  # symmetric in the DOFs
+    g = np.empty(k.shape + omega.shape, dtype=complex)
+    for s in range(0, len(k), chunk):
+        ks, ms, r = k[s:s + chunk, None], m[s:s + chunk, None], rayleigh[s:s + chunk]
+        d = ks - w**2 * ms
+        if np.any(r):
+            d = d + 1j * w * (r[:, 0] * ms + r[:, 1] * ks)
+        g[s:s + chunk] = np.moveaxis(np.linalg.inv(d), 1, -1)  # symmetric in the DOFs
     g_tip, g_theta = g[:, -2], np.einsum("dijf,dj->dif", g, theta)
     cap = np.array([t.capacitance for t in transducers])[:, None]
     free = (g_tip[:, -2], g_theta[:, -2], cap + np.einsum("dif,di->df", g_theta, theta))

@@ -1,11 +1,15 @@
-"""The radial slice at its default size: the issue's accuracy targets for our decoder.
+"""The radial slice at its default size: issue 21's targets for our decoder over the device
+spread.
 
-Slow (about two and a half minutes on 2 cores): ``pytest -m slow``. It generates the shipped
-scene, trains ``configs/radial.yaml`` as shipped, and checks on the first 10000 test samples
-that our decoder's RMSE is within 1.5× the Cramér–Rao bound overall and in every 800 µm
-range of d (no region where it blows up, d near 0 included), and at least 5× below the best
-9th-degree polynomial (the thesis: 4.8×). Its predicted std must be calibrated: the
-normalised errors have a std within 10 % of 1.
+Slow (several minutes on 2 cores): ``pytest -m slow``. It generates the shipped scene (each
+record's device drawn from the manufacturing spread, with its free reference), trains
+``configs/radial.yaml`` as shipped, and checks on the first 10000 test samples (devices the
+training never saw): RMSE ≤ 5 µm (the thesis's ANN: 5.4 µm on its real device) and
+|error| ≤ 2σ for at least 90 % of the answers; and, on fresh records of the nominal device,
+that the decoder is at least 5× below the best 9th-degree polynomial there (the thesis:
+4.8×). With the whisker's modulus ±3 %, thickness and length ±0.5 % the first target is
+beyond what the free reference can tell (the bench's device-spread table: the whisker's
+parameters alone cost 15–24 µm): this test states the issue's target, not a promise.
 """
 
 import numpy as np
@@ -13,8 +17,6 @@ import pytest
 from conftest import generate_and_train
 
 from wtml.baselines.radial import PolynomialRadial
-from wtml.bench.bounds import radial_crlb
-from wtml.bench.radial import BINS_UM
 from wtml.data import load_shards
 from wtml.decoders.radial import TorchRadial, load_radial_net
 
@@ -23,20 +25,18 @@ from wtml.decoders.radial import TorchRadial, load_radial_net
 def test_default_radial_decoder_meets_the_targets(tmp_path):
     scene = generate_and_train(tmp_path, "configs/scenes/radial.yaml", "configs/radial.yaml")
     net, _ = load_radial_net(str(tmp_path / "runs/radial/checkpoints/last.ckpt"))
+    decoder = TorchRadial(net)
     train = load_shards(tmp_path / "data", list(range(scene.shards - 2)))
     test = {k: v[:10000] for k, v in load_shards(tmp_path / "data", [scene.shards - 1]).items()}
-    d = test["distance"]
-    out = TorchRadial(net).predict(test["ze"])
-    err = out["distance"] - d
-    crlb = radial_crlb(scene, d, test["stiffness"])
-    ratio = np.sqrt(np.mean(err**2) / np.mean(crlb**2))
-    assert ratio <= 1.5
-    for lo, hi in zip(BINS_UM[:-1], BINS_UM[1:], strict=True):
-        sel = (d >= lo * 1e-6) & (d < hi * 1e-6)
-        assert np.sqrt(np.mean(err[sel] ** 2) / np.mean(crlb[sel] ** 2)) <= 1.5, (lo, hi)
+    out = decoder.predict(test["ze"], test["ref"])
+    err = out["distance"] - test["distance"]
+    assert np.mean(np.abs(err) <= 2 * out["sigma"]) >= 0.9
+    nominal = scene.simulate(10000, np.random.default_rng(9), widths={})
+    ours = decoder.predict(nominal["ze"], nominal["ref"])["distance"] - nominal["distance"]
     best_poly = min(
-        np.sqrt(np.mean((PolynomialRadial(part).fit(train["ze"], train["distance"])
-                         .predict(test["ze"])["distance"] - d) ** 2))
+        np.sqrt(np.mean((PolynomialRadial(part).fit(train["ze"], train["ref"], train["distance"])
+                         .predict(nominal["ze"], nominal["ref"])["distance"]
+                         - nominal["distance"]) ** 2))
         for part in ("real", "imag"))
-    assert best_poly >= 5 * np.sqrt(np.mean(err**2))
-    assert abs(np.std(err / out["sigma"]) - 1) < 0.1
+    assert best_poly >= 5 * np.sqrt(np.mean(ours**2))
+    assert np.sqrt(np.mean(err**2)) <= 5e-6

@@ -130,7 +130,7 @@ def fluid_domain():
 @pytest.fixture(scope="module")
 def radial_domain():
     scene = load_scene(ROOT / "configs/scenes/radial.yaml")
-    return scene, _gate(RadialDecoder(), scene, 60000, 1, shards=6)  # 1536 devices
+    return scene, _gate(RadialDecoder(), scene, 60000, 1, shards=6)  # 12288 devices
 
 
 def _out_of_domain_variants(ze: np.ndarray) -> dict[str, np.ndarray]:

@@ -69,8 +69,10 @@ class ReferenceParts(nn.Module):
 
 class GateParts(nn.Module):
     """The radial domain gate's features: :class:`ReferenceParts`' ratio ``ze / ref - 1``
-    (Re, Im), the reference's deviation from the preset's free Ze ``u = ref / free - 1``
-    (Re, Im), and every product ``u_i u_j`` (i <= j) of those 2 n_freq deviations:
+    (Re, Im) and ``log |ze / ref|`` (a measurement scaled against its reference leaves the
+    box of those however the spread widens the ellipsoid), the reference's deviation from
+    the preset's free Ze ``u = ref / free - 1`` (Re, Im), and every product ``u_i u_j``
+    (i <= j) of those 2 n_freq deviations:
     ``(ze_re, ze_im, ref_re, ref_im)`` ``(batch, n_freq)`` -> ``(batch, n_feat(n_freq))``.
 
     Why the products: a device drawn from the spread moves its free Ze by O(10 %) near the
@@ -98,8 +100,8 @@ class GateParts(nn.Module):
 
     @staticmethod
     def n_feat(n_freq: int) -> int:
-        """Number of features for ``n_freq`` frequencies: 4 n + 2n (2n + 1) / 2."""
-        return 4 * n_freq + n_freq * (2 * n_freq + 1)
+        """Number of features for ``n_freq`` frequencies: 5 n + 2n (2n + 1) / 2."""
+        return 5 * n_freq + n_freq * (2 * n_freq + 1)
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, ref_re: torch.Tensor,
                 ref_im: torch.Tensor) -> torch.Tensor:
@@ -107,7 +109,9 @@ class GateParts(nn.Module):
         u_re, u_im = ratio(ref_re, ref_im, self.free_re.expand_as(ref_re),
                            self.free_im.expand_as(ref_im))
         u = torch.cat([u_re - 1, u_im], -1)
-        return torch.cat([r_re - 1, r_im, u, u[:, self.pair_i] * u[:, self.pair_j]], -1)
+        log_r = 0.5 * torch.log(r_re * r_re + r_im * r_im)
+        return torch.cat([r_re - 1, r_im, log_r, u, u[:, self.pair_i] * u[:, self.pair_j]],
+                         -1)
 
 
 def ratio(a_re: torch.Tensor, a_im: torch.Tensor, b_re: torch.Tensor, b_im: torch.Tensor

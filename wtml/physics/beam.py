@@ -161,6 +161,18 @@ def hermite(xi: np.ndarray, h: float) -> np.ndarray:
                      3 * xi**2 - 2 * xi**3, h * (-xi**2 + xi**3)], -1)
 
 
+def _spring_to_ground(forms, nb, nt, gg, stiff):
+    """Sherman–Morrison update (module docstring) of the free forms ``(a, β, δ)`` by contacts
+    of stiffness ``stiff`` ``(n_contacts,)`` N/m (``inf`` rigid) with ``nb = bᵀGn``,
+    ``nt = ΘᵀGn``, ``gg = nᵀGn``, each ``(n_contacts, n_freq)``."""
+    a, beta, delta = forms
+    stiff = np.asarray(stiff, dtype=float)[:, None]
+    rigid = np.isinf(stiff)
+    finite = np.where(rigid, 0.0, stiff)
+    factor = np.where(rigid, 1.0 / gg, finite / (1 + finite * gg))
+    return a - factor * nb**2, beta - factor * nb * nt, delta - factor * nt**2
+
+
 @dataclass(frozen=True)
 class BeamTransducer(Structure):
     """A clamped piezo-coupled beam with the mechanical port at its free end (the whisker tip).
@@ -254,11 +266,7 @@ class BeamTransducer(Structure):
         gn = np.einsum("fij,cj->cfi", g, vecs)  # (n_contacts, n_freq, n_dof)
         nb, nt = gn[..., -2], gn @ theta
         gg = np.einsum("cfi,ci->cf", gn, vecs)
-        stiff = np.asarray(stiff, dtype=float)[:, None]
-        rigid = np.isinf(stiff)
-        finite = np.where(rigid, 0.0, stiff)
-        factor = np.where(rigid, 1.0 / gg, finite / (1 + finite * gg))
-        return a - factor * nb**2, beta - factor * nb * nt, delta - factor * nt**2
+        return _spring_to_ground((a, beta, delta), nb, nt, gg, stiff)
 
     def contact_vectors(self, positions) -> np.ndarray:
         """Shape-function vectors n of contacts at ``positions`` (m from the clamp),
@@ -304,3 +312,61 @@ class BeamTransducer(Structure):
         """``U/E`` at ω -> 0 with a free tip, m/V (the thesis's HUE(0))."""
         k, _, theta = self.matrices()
         return float(np.linalg.solve(k.real, theta)[-2])
+
+
+def device_forms(transducers, omega, chunk: int = 64) -> tuple[np.ndarray, ...]:
+    """For transducers of one mesh (the same element counts, e.g. a preset's manufacturing
+    spread): ``G = D⁻¹`` ``(n_dev, n_dof, n_dof, n_freq)`` (frequency last), ``Gb`` and
+    ``GΘ`` ``(n_dev, n_dof, n_freq)``, and the free forms ``a, β, δ`` ``(n_dev, n_freq)``;
+    batched inverses, ``chunk`` transducers at a time (small temporaries)."""
+    omega = np.atleast_1d(check_omega(omega))
+    k, m, theta = (np.stack(x) for x in zip(*(t.matrices() for t in transducers), strict=True))
+    rayleigh = np.array([t.rayleigh for t in transducers])[:, :, None, None, None]
+    w = omega[None, :, None, None]
+    g = np.empty(k.shape + omega.shape, dtype=complex)
+    for s in range(0, len(k), chunk):
+        ks, ms, r = k[s:s + chunk, None], m[s:s + chunk, None], rayleigh[s:s + chunk]
+        d = ks - w**2 * ms
+        if np.any(r):
+            d = d + 1j * w * (r[:, 0] * ms + r[:, 1] * ks)
+        g[s:s + chunk] = np.moveaxis(np.linalg.inv(d), 1, -1)  # symmetric in the DOFs
+    g_tip, g_theta = g[:, -2], np.einsum("dijf,dj->dif", g, theta)
+    cap = np.array([t.capacitance for t in transducers])[:, None]
+    free = (g_tip[:, -2], g_theta[:, -2], cap + np.einsum("dif,di->df", g_theta, theta))
+    return g, g_tip, g_theta, free
+
+
+def contact_transduction_matrices(transducers, which, omega, positions, stiffness, *,
+                                  forms: tuple | None = None) -> np.ndarray:
+    """T(ω) with a shaft contact for records on several transducers of one mesh: record c
+    has its contact on ``transducers[which[c]]`` at ``positions[c]`` (m from the clamp) with
+    ``stiffness[c]`` (N/m, ``inf`` rigid). One batched inverse per transducer and frequency
+    (:func:`device_forms`, or ``forms`` where already computed); each record then reads the 4
+    DOFs of its contact's element.
+    Shape ``(n_contacts, n_freq, 2, 2)``, the same as
+    :meth:`BeamTransducer.contact_transduction_matrix` of each record's transducer."""
+    omega = np.atleast_1d(check_omega(omega))
+    which = np.asarray(which, dtype=int)
+    positions = np.asarray(positions, dtype=float)
+    stiff = np.broadcast_to(np.asarray(stiffness, dtype=float), positions.shape)
+    check_range("contact stiffness", stiff, 0.0, np.inf, unit="N/m")
+    g, g_tip, g_theta, free = forms or device_forms(transducers, omega)
+    nodes = np.stack([t.nodes() for t in transducers])
+    check_range("contact position", positions, 0.0, float(nodes[which, -1].max()), unit="m",
+                low_open=True)
+    rec = nodes[which]  # (n, n_nodes)
+    el = np.clip((rec <= positions[:, None]).sum(1) - 1, 0, nodes.shape[1] - 2)
+    rows = np.arange(len(which))
+    x0, h = rec[rows, el], rec[rows, el + 1] - rec[rows, el]
+    shape = hermite((positions - x0) / h, 1.0) * np.stack(
+        [np.ones_like(h), h, np.ones_like(h), h], -1)  # (n, 4)
+    dof = 2 * el[:, None] + np.arange(4) - 2  # the clamped node's DOFs are removed
+    shape = np.where(dof >= 0, shape, 0.0)
+    dof = np.maximum(dof, 0)
+    dev = which[:, None]
+    nb = (g_tip[dev, dof] * shape[..., None]).sum(1)
+    nt = (g_theta[dev, dof] * shape[..., None]).sum(1)
+    block = g[dev[..., None], dof[:, :, None], dof[:, None, :]]  # (n, 4, 4, n_freq)
+    gg = (block * (shape[:, :, None] * shape[:, None, :])[..., None]).sum((1, 2))
+    forms = _spring_to_ground(tuple(f[which] for f in free), nb, nt, gg, stiff)
+    return BeamTransducer._t_from_forms(omega, *forms)

@@ -19,11 +19,21 @@ Assumptions (not in the thesis):
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 from scipy.optimize import least_squares
 
 from wtml.physics import cascade, tip_mass, ze_from_zm
-from wtml.physics.beam import BeamTransducer, PointMass, Segment, bimorph, rectangular, round_rod
+from wtml.physics.beam import (
+    BeamTransducer,
+    PiezoMaterial,
+    PointMass,
+    Segment,
+    bimorph,
+    rectangular,
+    round_rod,
+)
 from wtml.physics.fluids import water
 from wtml.physics.loads import stokes_sphere
 
@@ -32,6 +42,7 @@ CARBON_FIBRE = (20e9, 7600.0)  # Table 3.3 as restated in physics.md §7
 EPOXY = (3.5e9, 1000.0)
 TUNGSTEN = (411e9, 19300.0)
 LOSS = 0.02
+TAN_DELTA = 0.02
 
 PRESETS: dict[str, dict] = {
     "macro": dict(bimorph=dict(length=46e-3, width=2.1e-3, t_piezo=0.2e-3, t_substrate=0.15e-3,
@@ -63,13 +74,13 @@ PRESETS: dict[str, dict] = {
 """Preset data, SI units."""
 
 
-def _whisker(spec: dict) -> Segment:
+def _whisker(spec: dict, loss: float) -> Segment:
     e, rho = spec["material"]
     if spec["kind"] == "round":
-        return round_rod("whisker", spec["length"], spec["size"], e, rho, loss_factor=LOSS,
+        return round_rod("whisker", spec["length"], spec["size"], e, rho, loss_factor=loss,
                          elements=8)
     return rectangular("whisker", spec["length"], spec["size"], spec["size"], e, rho,
-                       loss_factor=LOSS, elements=8)
+                       loss_factor=loss, elements=8)
 
 
 def sphere_mass(name: str) -> float:
@@ -78,31 +89,68 @@ def sphere_mass(name: str) -> float:
     return 0.0 if s is None else s["density"] * 4 / 3 * np.pi * s["radius"] ** 3
 
 
-def build(name: str, fit_values: tuple[float, ...] | None = None, *, with_clamp: bool = True
-          ) -> BeamTransducer:
+def build(name: str, fit_values: tuple[float, ...] | None = None, *, with_clamp: bool = True,
+          factors: Mapping[str, float] | None = None) -> BeamTransducer:
     """The preset as a beam model; ``fit_values`` (m, the fitted lengths in the order of
-    ``PRESETS[name]["fit"]["parameters"]``) default to the fitted ones."""
+    ``PRESETS[name]["fit"]["parameters"]``) default to the fitted ones. ``factors``: a
+    device off the preset, each named parameter of :func:`device_parameters` times its
+    factor (1 where not given; ``wtml.physics.spread`` draws them)."""
     if name not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {name!r}")
     p = PRESETS[name]
+    unknown = sorted(set(factors or {}) - set(device_parameters(name)))
+    if unknown:
+        raise ValueError(f"factors: {unknown[0]!r} is not a parameter of preset {name!r}; "
+                         f"allowed: {sorted(device_parameters(name))}")
+
+    def f(key: str) -> float:
+        return 1.0 if factors is None else float(factors.get(key, 1.0))
+
     values = dict(zip(p["fit"]["parameters"],
                       fitted_values(name) if fit_values is None else fit_values, strict=True))
     b = p["bimorph"]
-    length = values.get("bimorph", b["length"])
-    segs = [bimorph("bimorph", length, b["width"], b["t_piezo"], b["t_substrate"],
-                    *b["substrate"], loss_factor=LOSS, elements=12)]
+    length = values.get("bimorph", b["length"]) * f("bimorph.length")
+    loss = LOSS * f("loss_factor")
+    piezo = PiezoMaterial(d31=PiezoMaterial.d31 * f("coupling"),
+                          s11e=PiezoMaterial.s11e / f("bimorph.modulus"))
+    substrate = (b["substrate"][0] * f("substrate.modulus"), b["substrate"][1])
+    segs = [bimorph("bimorph", length, b["width"], b["t_piezo"] * f("bimorph.thickness"),
+                    b["t_substrate"] * f("bimorph.thickness"), *substrate, piezo=piezo,
+                    loss_factor=loss, elements=12)]
     if "block" in p:
         k = p["block"]
-        segs.append(rectangular("block", k["length"], k["width"], k["thickness"],
-                                *k["material"], loss_factor=LOSS, elements=2))
-    segs.append(_whisker(p["whisker"] | ({"length": values["whisker"]} if "whisker" in values
-                                         else {})))
+        segs.append(rectangular("block", k["length"] * f("block.length"), k["width"],
+                                k["thickness"] * f("block.thickness"),
+                                k["material"][0] * f("block.modulus"), k["material"][1],
+                                loss_factor=loss, elements=2))
+    w = p["whisker"] | ({"length": values["whisker"]} if "whisker" in values else {})
+    segs.append(_whisker(w | {"length": w["length"] * f("whisker.length"),
+                              "size": w["size"] * f("whisker.thickness"),
+                              "material": (w["material"][0] * f("whisker.modulus"),
+                                           w["material"][1])}, loss))
     masses = ()
     if with_clamp and "clamp" in p:
         # the thesis measures the clamp from the bimorph's fixed end, i.e. the holder
         offset = b["length"] - length
         masses = (PointMass(p["clamp"]["position"] - offset, p["clamp"]["mass"]),)
-    return BeamTransducer(tuple(segs), masses, tan_delta=0.02)
+    return BeamTransducer(tuple(segs), masses, tan_delta=TAN_DELTA * f("tan_delta"))
+
+
+def device_parameters(name: str) -> dict[str, str]:
+    """The preset's parameters that a built device may differ in, each with its class (a
+    field of ``wtml.physics.spread.DeviceSpread``): each segment's length and bending
+    thickness (the bimorph's free length, and its layers together), each material's Young's
+    modulus (the PZT's 1/s11E), the structural loss factor (all segments), tanδ and the piezo
+    coupling (d31)."""
+    p = PRESETS[name]
+    segments = ["bimorph"] + ["block"] * ("block" in p) + ["whisker"]
+    out = {f"{s}.{q}": cls for s in segments
+           for q, cls in (("length", "length"), ("thickness", "thickness"),
+                          ("modulus", "modulus"))}
+    if p["bimorph"]["t_substrate"] > 0:
+        out["substrate.modulus"] = "modulus"
+    return out | {"loss_factor": "loss_factor", "tan_delta": "tan_delta",
+                  "coupling": "coupling"}
 
 
 def resonance(name: str, condition: str, fit_values: tuple[float, ...] | None = None) -> float:
@@ -187,5 +235,5 @@ def format_fidelity(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["PRESETS", "build", "fidelity_table", "fitted_values", "format_fidelity",
-           "resonance", "sphere_mass"]
+__all__ = ["PRESETS", "build", "device_parameters", "fidelity_table", "fitted_values",
+           "format_fidelity", "resonance", "sphere_mass"]

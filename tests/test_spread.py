@@ -1,0 +1,107 @@
+"""A preset's manufacturing spread (wtml/physics/spread.py) and the radial scene drawing its
+devices from it."""
+
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from wtml.physics.beam import BeamTransducer
+from wtml.physics.beam_presets import PRESETS, build, device_parameters
+from wtml.physics.spread import DeviceSpread, device_ze, devices, draw_factors
+
+SPREAD = DeviceSpread(length=0.01, thickness=0.01, modulus=0.03, loss_factor=0.25,
+                      tan_delta=0.25, coupling=0.03)
+OMEGA = 2 * np.pi * np.array([420.0, 380.0, 460.0])
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_zero_spread_is_the_preset_exactly(preset):
+    """Every factor of a zero spread is exactly 1, and the device built from it has the
+    preset's matrices, coupling, capacitance and tanδ bit for bit."""
+    factors = draw_factors(preset, DeviceSpread().widths(preset), 3, np.random.default_rng(0))
+    assert all(np.array_equal(f, np.ones(3)) for f in factors.values())
+    nominal = build(preset)
+    for device in devices(preset, factors):
+        for a, b in zip(device.matrices(), nominal.matrices(), strict=True):
+            np.testing.assert_array_equal(a, b)
+        assert device.capacitance == nominal.capacitance and device.length == nominal.length
+
+
+def test_drawn_factors_have_the_stated_spread():
+    """Uniform on 1 ± w: inside the band, std w/√3 (20000 draws: within 3 %), mean 1, each
+    parameter independent of the others, and each class's width on each of its parameters."""
+    widths = SPREAD.widths("macro")
+    assert set(widths) == set(device_parameters("macro"))
+    factors = draw_factors("macro", widths, 20000, np.random.default_rng(1))
+    for name, f in factors.items():
+        w = widths[name]
+        assert w == getattr(SPREAD, device_parameters("macro")[name]) and w > 0
+        assert np.all(np.abs(f - 1) <= w)
+        assert np.std(f) == pytest.approx(w / np.sqrt(3), rel=0.03)
+        assert abs(np.mean(f) - 1) < 4 * w / np.sqrt(3 * 20000)
+    corr = np.corrcoef(np.stack(list(factors.values())))
+    assert np.max(np.abs(corr - np.eye(len(factors)))) < 0.05
+
+
+def test_drawn_devices_carry_their_factors():
+    """The built device's segments scale as drawn: EI of the whisker (square) with
+    E t⁴, its length with L, the bimorph's free length, tanδ, the loss factor and the
+    coupling."""
+    factors = draw_factors("micro", SPREAD.widths("micro"), 4, np.random.default_rng(2))
+    nominal = build("micro")
+    for i, device in enumerate(devices("micro", factors)):
+        f = {k: v[i] for k, v in factors.items()}
+        whisker, bimorph = device.segments[-1], device.segments[0]
+        assert whisker.bending_stiffness == pytest.approx(
+            nominal.segments[-1].bending_stiffness * f["whisker.modulus"]
+            * f["whisker.thickness"] ** 4, rel=1e-12)
+        assert whisker.length == pytest.approx(nominal.segments[-1].length
+                                               * f["whisker.length"], rel=1e-12)
+        assert bimorph.length == pytest.approx(nominal.segments[0].length * f["bimorph.length"],
+                                               rel=1e-12)
+        assert device.tan_delta == pytest.approx(nominal.tan_delta * f["tan_delta"], rel=1e-12)
+        assert bimorph.loss_factor == pytest.approx(0.02 * f["loss_factor"], rel=1e-12)
+        # Γ = e31 b z with e31 = d31/s11E and z the layers' mid-plane: d31 E t
+        assert bimorph.coupling == pytest.approx(nominal.segments[0].coupling * f["coupling"]
+                                                 * f["bimorph.modulus"]
+                                                 * f["bimorph.thickness"], rel=1e-12)
+
+
+def test_unknown_factor_and_parameter_are_named():
+    with pytest.raises(ValueError, match="'block.length' is not a parameter of preset 'micro'"):
+        build("micro", factors={"block.length": 1.01})
+    with pytest.raises(ValueError, match="parameter must be one of"):
+        SPREAD.only("sphere.radius", "micro")
+    assert SPREAD.only("whisker.modulus", "micro") == {
+        p: 0.03 if p == "whisker.modulus" else 0.0 for p in device_parameters("micro")}
+
+
+@settings(max_examples=10, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(sorted(PRESETS)))
+def test_perturbed_devices_are_reciprocal_and_the_batched_path_agrees(seed, preset):
+    """At the spread's widest bands: det T = 1 for every drawn device, free and with a
+    contact anywhere on its shaft (stiff, soft or rigid), and the batched evaluation of
+    every record's device agrees with each device's own (1e-10), Rayleigh damping included."""
+    rng = np.random.default_rng(seed)
+    wide = DeviceSpread(length=0.1, thickness=0.1, modulus=0.3, loss_factor=0.9,
+                        tan_delta=0.9, coupling=0.3)
+    trs = devices(preset, draw_factors(preset, wide.widths(preset), 3, rng))
+    trs[1] = BeamTransducer(trs[1].segments, trs[1].masses, trs[1].tan_delta, (3.0, 1e-5))
+    which = rng.integers(0, 3, 12)
+    lengths = np.array([t.length for t in trs])
+    d = rng.uniform(0.0, 0.9, 12) * lengths[which]
+    k = np.where(rng.random(12) < 0.2, np.inf, np.exp(rng.uniform(0, np.log(1e6), 12)))
+    free, ze = device_ze(trs, OMEGA, which, d, k)
+    for i, tr in enumerate(trs):
+        t = tr.transduction_matrix(OMEGA)
+        np.testing.assert_allclose(np.linalg.det(t), 1.0, atol=1e-9)
+        np.testing.assert_allclose(free[i], t[:, 0, 1] / t[:, 1, 1], rtol=1e-10)
+        sel = which == i
+        if sel.any():
+            tc = tr.contact_transduction_matrix(OMEGA, tr.length - d[sel], k[sel])
+            np.testing.assert_allclose(np.linalg.det(tc), 1.0, atol=1e-9)
+            np.testing.assert_allclose(ze[sel], tc[..., 0, 1] / tc[..., 1, 1], rtol=1e-10)
+
+

@@ -1,0 +1,114 @@
+"""A preset's manufacturing spread: built devices drawn around its nominal values (physics.md §12).
+
+A built transducer differs from its drawing. :class:`DeviceSpread` states by how much, per
+class of parameter, as the relative half-width of a uniform tolerance band (a part within
+±w of its nominal value, every value in the band equally likely: std ``w/√3``). The named
+parameters of each preset and their classes are ``beam_presets.device_parameters``: each
+segment's length (the bimorph's free length, the block's, the whisker's) and bending
+thickness (the bimorph's layers together, the whisker's side or radius), each material's
+Young's modulus (the PZT's 1/s11E, the substrate's, the whisker's), the structural loss factor
+(one for all segments), tanδ, and the piezo coupling (d31). Each parameter is drawn
+independently. Densities, widths and the clamp are kept nominal.
+
+Assembling a beam model takes ~1 ms, so a scene draws a finite set of devices per call
+(:attr:`DeviceSpread.devices`, a few hundred) and assigns its records to them at random;
+:func:`device_ze` then evaluates every device's free Ze and every record's contact with one
+batched inverse per device (``wtml.physics.beam.device_forms``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wtml.physics.beam import BeamTransducer, contact_transduction_matrices, device_forms
+from wtml.physics.beam_presets import build, device_parameters
+
+
+def _width(high: float, default=0.0):
+    """A field in [0, high], validated by ``wtml.scenes.config.build`` like one made by its
+    ``bounded`` (which this module cannot import: ``wtml.scenes`` imports it)."""
+    return field(default=default, metadata={"range": (0.0, high)})
+
+
+CLASSES = ("length", "thickness", "modulus", "loss_factor", "tan_delta", "coupling")
+"""The spread's classes of parameter (the fields of :class:`DeviceSpread` that are widths)."""
+
+
+@dataclass(frozen=True)
+class DeviceSpread:
+    """Relative half-widths of uniform tolerance bands around a preset (module docstring).
+    All zero (the default): every device is the preset itself.
+
+    Attributes:
+        length: each segment's length (bimorph free length, block, whisker); issue 21:
+            0.005–0.01.
+        thickness: each segment's bending thickness (the bimorph's layers, the whisker's
+            side or radius); 0.005–0.01.
+        modulus: each material's Young's modulus (PZT 1/s11E, substrate, block, whisker);
+            ~0.03.
+        loss_factor: the structural loss factor η of every segment; ~0.25.
+        tan_delta: the dielectric loss tangent; ~0.25.
+        coupling: the piezo coupling d31; ~0.03.
+        devices: distinct devices drawn per simulated batch (records are assigned to them
+            uniformly at random).
+    """
+
+    length: float = _width(0.1)
+    thickness: float = _width(0.1)
+    modulus: float = _width(0.3)
+    loss_factor: float = _width(0.9)
+    tan_delta: float = _width(0.9)
+    coupling: float = _width(0.3)
+    devices: int = field(default=256, metadata={"range": (1, 100_000)})
+
+    @property
+    def none(self) -> bool:
+        """Whether every width is zero (every device is the preset)."""
+        return all(getattr(self, c) == 0 for c in CLASSES)
+
+    def only(self, parameter: str, preset: str) -> dict[str, float]:
+        """Half-width of each of ``preset``'s parameters with all but ``parameter`` at zero
+        (for a one-parameter-at-a-time study)."""
+        widths = self.widths(preset)
+        if parameter not in widths:
+            raise ValueError(f"parameter must be one of {sorted(widths)}, got {parameter!r}")
+        return {p: w if p == parameter else 0.0 for p, w in widths.items()}
+
+    def widths(self, preset: str) -> dict[str, float]:
+        """Half-width of each of ``preset``'s named parameters."""
+        return {p: getattr(self, cls) for p, cls in device_parameters(preset).items()}
+
+
+def draw_factors(preset: str, widths: dict[str, float], n: int, rng: np.random.Generator
+                 ) -> dict[str, np.ndarray]:
+    """``n`` devices' factors (actual / nominal), each parameter ``(n,)`` uniform on
+    ``1 ± width``; exactly 1 where the width is 0. Draws in the preset's parameter order."""
+    if n < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    return {p: 1.0 + widths.get(p, 0.0) * rng.uniform(-1.0, 1.0, n)
+            for p in device_parameters(preset)}
+
+
+def devices(preset: str, factors: dict[str, np.ndarray]) -> list[BeamTransducer]:
+    """The beam model of each drawn device (``factors`` from :func:`draw_factors`)."""
+    n = len(next(iter(factors.values())))
+    return [build(preset, factors={p: float(v[i]) for p, v in factors.items()})
+            for i in range(n)]
+
+
+def device_ze(transducers: list[BeamTransducer], omega: np.ndarray, which: np.ndarray,
+              distance: np.ndarray, stiffness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ze (Ω) of each device with its tip free, ``(n_devices, n_freq)``, and of record c with
+    a contact ``distance[c]`` m from the tip of device ``which[c]`` of stiffness
+    ``stiffness[c]`` N/m (free tip), ``(n, n_freq)``: one batched inverse for both."""
+    forms = device_forms(transducers, omega)
+    free = BeamTransducer._t_from_forms(omega, *forms[-1])
+    length = np.array([tr.length for tr in transducers])
+    t = contact_transduction_matrices(transducers, which, omega, length[which] - distance,
+                                      stiffness, forms=forms)
+    return free[..., 0, 1] / free[..., 1, 1], t[..., 0, 1] / t[..., 1, 1]
+
+
+__all__ = ["CLASSES", "DeviceSpread", "device_ze", "devices", "draw_factors"]

@@ -41,6 +41,15 @@ LAWS = ("linear", "power", "hunt_crossley", "mount_hertz")
 
 LINEAR, POWER, HUNT_CROSSLEY, MOUNT_HERTZ = range(4)
 
+CONTACT_OUTPUTS = ("slide", "friction")
+"""What the contact stepper records beside :data:`~wtml.physics.modal.OUTPUTS`: the contact
+point's sliding velocity along the wall ``v_c`` (m/s, along +x, away from the clamp) and the
+friction force on the tip ``T`` (N, along +x)."""
+
+SLIP_SPEED = 1e-8
+"""The default regularisation v_s of sign(v) in the wall's friction, m/s (see the module's
+notes: the contact point slides at ~1e-6–1e-5 m/s in the onset scene)."""
+
 
 def law_codes(law) -> np.ndarray:
     """Law names (from :data:`LAWS`) or codes as int64 codes; ValueError naming the allowed."""
@@ -83,12 +92,16 @@ class ContactWall:
         alpha: Hunt–Crossley's damping, s/m, in [0, 100].
         k_mount: the mount's stiffness, N/m (``mount_hertz`` records: > k_ref).
         damping: the linear law's c, N·s/m (>= 0, finite).
+        friction: μ of the tangential (Coulomb) friction along the wall, in [0, 2]; 0: none.
+        slip_speed: v_s, m/s, in (0, 1]: the regularisation ``tanh(v/v_s)`` of sign(v).
+        offset: ρ, m, in [0, 1 mm]: the contact point's distance from the whisker's axis (half
+            its thickness); required where ``friction > 0``.
     """
 
     implicit = True
 
     def __init__(self, gap, law, k_ref, delta_ref=1e-6, n=1.0, alpha=0.0, k_mount=np.inf,
-                 damping=0.0) -> None:
+                 damping=0.0, friction=0.0, slip_speed=SLIP_SPEED, offset=None) -> None:
         g = np.asarray(gap, float)
         g = g[:, None] if g.ndim == 1 else np.atleast_2d(g)
         if g.ndim != 2 or not np.all(np.isfinite(g)):
@@ -108,6 +121,12 @@ class ContactWall:
         self.alpha = batch("alpha", alpha, 0.0, 100.0, "s/m")
         self.damping = batch("damping", damping, 0.0, np.inf, "N·s/m", high_open=True)
         self.k_mount = np.broadcast_to(np.asarray(k_mount, float), (size,)).copy()
+        self.friction = batch("friction", friction, 0.0, 2.0, "")
+        self.slip_speed = batch("slip_speed", slip_speed, 0.0, 1.0, "m/s", low_open=True)
+        if offset is None and np.any(self.friction > 0):
+            raise ValueError("offset: the contact point's distance from the whisker's axis (half "
+                             "its thickness), m, is needed with friction > 0")
+        self.offset = batch("offset", 0.0 if offset is None else offset, 0.0, 1e-3, "m")
         mount = self.law == MOUNT_HERTZ
         if np.any(mount):
             check_range("k_mount", self.k_mount[mount] / self.k_ref[mount], 1.0, np.inf,
@@ -165,7 +184,8 @@ def simulate_contact(model, e, de_step, de_out, dt: float, load: ContactWall, co
                      cols: np.ndarray, dtype, threads: int | None
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Step ``model`` (a :class:`~wtml.physics.modal.ModalTransducer`) from rest with the
-    contact wall ``load``; the arguments as prepared by its ``simulate``. Returns the recorded
+    contact wall ``load``; the arguments as prepared by its ``simulate`` (``cols`` index into
+    :data:`~wtml.physics.modal.OUTPUTS` + :data:`CONTACT_OUTPUTS`). Returns the recorded
     outputs ``(len(cols), B, n_steps)`` and ``contact`` (``F > 0``, bool ``(B, n_steps)``)."""
     from wtml.physics.modal import ModalTransducer, _blocks, _eigenbasis, available_cores
 
@@ -173,27 +193,47 @@ def simulate_contact(model, e, de_step, de_out, dt: float, load: ContactWall, co
     if load.gap.shape[1] not in (1, n_steps):
         raise ValueError(f"gap: shape (B,) or (B, {n_steps}) for the drive's {n_steps} "
                          f"samples, got {load.gap.shape}")
+    sliding = bool(np.any(load.friction > 0)) or bool(np.any(np.asarray(cols) >= 4))
+    if sliding and model.tip_slope is None:
+        raise ValueError("friction: the wall's friction acts through the modes' tip slope; "
+                         "make the model with ModalTransducer.from_beam (tip_slope is None)")
     zero = np.zeros(bsz)
-    lam, gain, out, feed, to_modal, _ = _eigenbasis(model.step_matrices(dt, zero, zero,
-                                                                        coupling_scale))
+    lam, gain, out, feed, to_modal, to_state = _eigenbasis(
+        model.step_matrices(dt, zero, zero, coupling_scale))
     # the force enters q'' as -φb F, as E enters as φθ E: a model whose coupling is -φb gives,
-    # in its E and Ė columns, the step's exact response to F held and to F's slope
-    pushed = ModalTransducer(model.omega_n, model.zeta, model.tip, -model.tip)
+    # in its E and Ė columns, the step's exact response to F held and to F's slope; the
+    # friction T enters as ψ T with ψ = -ρ φs (one model with coupling φs, scaled per record)
     ns = 2 * model.n_modes + 1
+    pushed = ModalTransducer(model.omega_n, model.zeta, model.tip, -model.tip)
     held, ramp = np.moveaxis(to_modal @ pushed.step_matrices(dt, zero, zero)[:, :ns, ns:ns + 2],
                              2, 0)
+    rho = load.offset
+    if sliding:
+        turned = ModalTransducer(model.omega_n, model.zeta, model.tip, model.tip_slope)
+        t_held, t_ramp = np.moveaxis(
+            -rho[:, None, None] * (to_modal @ turned.step_matrices(dt, zero, zero)[:, :ns,
+                                                                                 ns:ns + 2]),
+            2, 0)
+        row = np.zeros(ns)
+        row[model.n_modes:2 * model.n_modes] = model.tip_slope  # θ' = φs·q'
+        slide = -rho[:, None] * (row @ to_state)  # v_c = -ρ θ' in the eigenbasis, (B, m)
+    else:
+        t_held = t_ramp = slide = np.zeros_like(held)
 
     def parts(a: np.ndarray) -> np.ndarray:  # (B, ...) complex -> (2, ..., B)
         return np.ascontiguousarray(np.moveaxis(np.stack([a.real, a.imag]), 1, -1))
 
-    gains = np.concatenate([gain[..., :2], held[..., None], ramp[..., None]], 2)
+    gains = np.concatenate([gain[..., :2], held[..., None], ramp[..., None], t_held[..., None],
+                            t_ramp[..., None]], 2)
+    out = np.concatenate([out, slide[:, None]], 1)
     lam, gains, out = parts(lam), parts(np.moveaxis(gains, 2, 1)), parts(out)
     feed = np.ascontiguousarray(np.moveaxis(feed[..., [0, 3]], 0, -1))  # on [E, Ė_out]
     a_r, b_r, _ = model.residual
     b_r = b_r * np.broadcast_to(np.asarray(coupling_scale, float), (bsz,))
     rate = (np.diff(load.gap, axis=1, prepend=load.gap[:, :1]) / dt if load.gap.shape[1] > 1
             else np.zeros_like(load.gap))
-    params = (load.law, load.coefficient, load.n, load.alpha, load.damping, load.k_mount)
+    params = (load.law, load.coefficient, load.n, load.alpha, load.damping, load.k_mount,
+              load.friction, load.slip_speed)
     values = np.empty((len(cols), bsz, n_steps), dtype)
     contact = np.empty((bsz, n_steps), bool)
     blocks = _blocks(bsz, threads)
@@ -204,7 +244,7 @@ def simulate_contact(model, e, de_step, de_out, dt: float, load: ContactWall, co
                       feed[..., b].copy(), *(np.ascontiguousarray(x[own])
                                              for x in (e, de_step, de_out)),
                       load.gap[b], rate[b], *(p[b].copy() for p in params), a_r,
-                      b_r[b].copy(), dt, cols, values[:, b], contact[b])
+                      b_r[b].copy(), dt, sliding, cols, values[:, b], contact[b])
 
     with ThreadPoolExecutor(min(len(blocks), threads or available_cores())) as pool:
         list(pool.map(step, blocks))
@@ -274,36 +314,160 @@ def _solve(law, au, bu, av, bv, k, n, alpha, c, k_m):
     return x
 
 
+@njit(cache=True)
+def _tangential(fn, a0, cx, mu, vs):
+    """The friction T (N, on the tip along +x) with ``T = -μ F_n tanh((a0 + c_x T)/v_s)``
+    (``a0`` the contact point's sliding velocity at the step's end without this step's T,
+    ``c_x >= 0`` its mobility to T), and its partial derivatives in a0 and in F_n.
+
+    ``R(T) = T + μ F_n tanh(·)`` rises at slope >= 1, ``R(-μF_n) <= 0 <= R(μF_n)``: Newton
+    from the explicit value, kept inside the bracket and bisecting when it leaves it.
+    """
+    cap = mu * fn
+    if cap <= 0.0:
+        return 0.0, 0.0, -mu * np.tanh(a0 / vs)
+    lo, hi = -cap, cap
+    x = -cap * np.tanh(a0 / vs)
+    for _ in range(200):
+        th = np.tanh((a0 + cx * x) / vs)
+        res = x + cap * th
+        slope = 1.0 + cap * (1.0 - th * th) * cx / vs
+        if res > 0.0:
+            hi = x
+        elif res < 0.0:
+            lo = x
+        else:
+            break
+        nxt = x - res / slope
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - x) <= 1e-15 * cap or hi - lo <= 1e-15 * cap:
+            x = nxt
+            break
+        x = nxt
+    th = np.tanh((a0 + cx * x) / vs)
+    sech2 = 1.0 - th * th
+    den = 1.0 + cap * sech2 * cx / vs
+    return x, -cap * sech2 / vs / den, -mu * th / den
+
+
+@njit(cache=True)
+def _residual(law, fn, au, bu, cu, av, bv, cv, ax, bx, cx, k, n, alpha, c, k_m, mu, vs):
+    """The normal force's residual at ``F_n = fn`` with its friction ``T(F_n)`` solved
+    (:func:`_tangential`), its derivative in F_n, and T: ``F_n - f(δ, δ')`` (explicit laws,
+    N) or ``δ_s(F_n) - δ`` with ``δ_s = F/k_m + (F/K_h)^(2/3)`` (mount_hertz, m); δ, δ' and
+    the sliding velocity linear in (F_n, T) with the coefficients given."""
+    t, dt_da, dt_dn = _tangential(fn, ax + bx * fn, cx, mu, vs)
+    dt_df = dt_da * bx + dt_dn
+    d, r = au + bu * fn + cu * t, av + bv * fn + cv * t
+    dd, dr = bu + cu * dt_df, bv + cv * dt_df
+    if law == MOUNT_HERTZ:
+        if fn <= 0.0:
+            return -d, np.inf, t
+        return (fn / k_m + (fn / k) ** (2.0 / 3.0) - d,
+                1.0 / k_m + (2.0 / 3.0) * fn ** (-1.0 / 3.0) * k ** (-2.0 / 3.0) - dd, t)
+    f, fd, fr = _law(law, d, r, k, n, alpha, c)
+    return fn - f, 1.0 - fd * dd - fr * dr, t
+
+
+@njit(cache=True)
+def _solve_friction(law, au, bu, cu, av, bv, cv, ax, bx, cx, k, n, alpha, c, k_m, mu, vs):
+    """The normal force F_n >= 0 and the friction T solved together at the step's end: δ, δ'
+    and the contact point's sliding velocity are linear in (F_n, T); ``F_n = f(δ, δ')`` and
+    ``T = -μ F_n tanh(v_c / v_s)``. F_n by Newton's method on :func:`_residual` (T solved
+    inside it for each F_n), from the frictionless answer, safeguarded by a bracket: the
+    residual is negative at 0 (where T = 0, as without friction) and the bracket's upper end
+    is found by doubling. Returns ``(F_n, T)``."""
+    x = _solve(law, au, bu, av, bv, k, n, alpha, c, k_m)
+    if x <= 0.0:
+        return 0.0, 0.0
+    scale = x
+    lo, hi = 0.0, -1.0
+    res, der, t = _residual(law, x, au, bu, cu, av, bv, cv, ax, bx, cx, k, n, alpha, c, k_m,
+                            mu, vs)
+    if res > 0.0:
+        hi = x
+    elif res < 0.0:
+        lo = x
+        probe = x
+        for _ in range(200):
+            probe = 2.0 * probe
+            if _residual(law, probe, au, bu, cu, av, bv, cv, ax, bx, cx, k, n, alpha, c, k_m,
+                         mu, vs)[0] >= 0.0:
+                hi = probe
+                break
+            lo = probe
+    else:
+        return x, t
+    for _ in range(200):
+        nxt = x - res / der if der > 0.0 and np.isfinite(der) else 0.5 * (lo + hi)
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - x) <= 1e-15 * scale or hi - lo <= 1e-15 * scale:
+            x = nxt
+            break
+        x = nxt
+        res, der, t = _residual(law, x, au, bu, cu, av, bv, cv, ax, bx, cx, k, n, alpha, c,
+                                k_m, mu, vs)
+        if res > 0.0:
+            hi = x
+        elif res < 0.0:
+            lo = x
+        else:
+            break
+    res, der, t = _residual(law, x, au, bu, cu, av, bv, cv, ax, bx, cx, k, n, alpha, c, k_m,
+                            mu, vs)
+    return x, t
+
+
 @njit(cache=True, nogil=True)
 def _step_contact(lam, gain, out, feed, e, de_step, de_out, gap, gap_rate, law, coef, expo,
-                  alpha, damping, k_mount, a_r, b_r, dt, cols, values, contact):
+                  alpha, damping, k_mount, mu, slip, a_r, b_r, dt, sliding, cols, values,
+                  contact):
     """The contact stepper for a block of B records side by side, in the free tip's
-    eigenbasis: ``lam`` (2, m, B), ``gain`` (2, 4, m, B) on ``[E, Ė, F held, F's slope]``,
-    ``out`` (2, 4, m, B) and ``feed`` (4, 2, B) on ``[E, Ė_out]`` for ``(u_m, u_m', ·, i)``
-    without the force's residual terms.
+    eigenbasis: ``lam`` (2, m, B), ``gain`` (2, 6, m, B) on ``[E, Ė, F held, F's slope,
+    T held, T's slope]``, ``out`` (2, 5, m, B) and ``feed`` (4, 2, B) on ``[E, Ė_out]`` for
+    ``(u_m, u_m', ·, i, v_c)`` without the force's residual terms.
 
-    The state ``w`` is kept as its prediction without the current step's force; each sample's
-    F solves :func:`_solve` with ``δ = u - g`` and ``δ' = u' - g'`` linear in it (at k = 0,
-    from rest, F enters only through the residual), then ``w`` takes F's share and the
-    outputs are recorded: ``u = u_m - a_r F``, ``u' = u_m' - a_r Ḟ``, ``i = i_m - β_r Ḟ``
-    with Ḟ the step's slope ``(F_k - F_{k-1})/dt``.
+    The state ``w`` is kept as its prediction without the current step's forces; each
+    sample's F (and, with friction, T) solves :func:`_solve` (:func:`_solve_friction`) with
+    ``δ = u - g``, ``δ' = u' - g'`` and the sliding velocity ``v_c`` linear in them (at k = 0,
+    from rest, F enters only through the residual and T not at all), then ``w`` takes their
+    share and the outputs are recorded: ``u = u_m - a_r F``, ``u' = u_m' - a_r Ḟ``,
+    ``i = i_m - β_r Ḟ`` with Ḟ the step's slope ``(F_k - F_{k-1})/dt``; ``v_c`` and T. A
+    record with μ = 0 takes exactly the frictionless arithmetic.
 
     Args:
         gap, gap_rate: g (m) and g' (m/s), ``(B, 1)`` or ``(B, n_steps)``.
-        law, coef, expo, alpha, damping, k_mount: per record, ``(B,)`` (:class:`ContactWall`).
+        law, coef, expo, alpha, damping, k_mount, mu, slip: per record, ``(B,)``
+            (:class:`ContactWall`).
+        sliding: whether ``v_c`` is needed (friction or its outputs recorded).
         values: written, ``(len(cols), B, n_steps)``; contact: written, bool ``(B, n_steps)``.
     """
     m, bsz = lam.shape[1], lam.shape[2]
     w = np.zeros((2, m, bsz))
     last = np.zeros(bsz)
+    last_t = np.zeros(bsz)
     bu_step, bv_step = np.empty(bsz), np.empty(bsz)
+    cu_step, cv_step = np.zeros(bsz), np.zeros(bsz)
+    bx_step, cx_step = np.zeros(bsz), np.zeros(bsz)
     for b in range(bsz):  # u_m and u_m' at the step's end per unit F there (ramped from 0)
         su, sv = 0.0, 0.0
         for j in range(m):
             su += (out[0, 0, j, b] * gain[0, 3, j, b] - out[1, 0, j, b] * gain[1, 3, j, b])
             sv += (out[0, 1, j, b] * gain[0, 3, j, b] - out[1, 1, j, b] * gain[1, 3, j, b])
         bu_step[b], bv_step[b] = su / dt, sv / dt
-    y = np.zeros(4)
+        if sliding:  # and per unit T; v_c per unit F and T
+            for j in range(m):
+                cu_step[b] += (out[0, 0, j, b] * gain[0, 5, j, b]
+                               - out[1, 0, j, b] * gain[1, 5, j, b]) / dt
+                cv_step[b] += (out[0, 1, j, b] * gain[0, 5, j, b]
+                               - out[1, 1, j, b] * gain[1, 5, j, b]) / dt
+                bx_step[b] += (out[0, 4, j, b] * gain[0, 3, j, b]
+                               - out[1, 4, j, b] * gain[1, 3, j, b]) / dt
+                cx_step[b] += (out[0, 4, j, b] * gain[0, 5, j, b]
+                               - out[1, 4, j, b] * gain[1, 5, j, b]) / dt
+    y = np.zeros(6)
     n_gap = gap.shape[1]
     for k in range(e.shape[1]):
         kg = min(k, n_gap - 1)
@@ -316,32 +480,59 @@ def _step_contact(lam, gain, out, feed, e, de_step, de_out, gap, gap_rate, law, 
                 for j in range(m):
                     acc += out[0, r, j, b] * w[0, j, b] - out[1, r, j, b] * w[1, j, b]
                 y[r] = acc
+            ax = 0.0
+            if sliding:
+                for j in range(m):
+                    ax += out[0, 4, j, b] * w[0, j, b] - out[1, 4, j, b] * w[1, j, b]
             bu = share * bu_step[b] - a_r
             bv = share * bv_step[b] - a_r / dt
             au = y[0] - gap[b, kg]
             av = y[1] + a_r * last[b] / dt - gap_rate[b, kg]
-            f = _solve(law[b], au, bu, av, bv, coef[b], expo[b], alpha[b], damping[b],
-                       k_mount[b])
+            t = 0.0
+            if mu[b] > 0.0:
+                cu, cv = share * cu_step[b], share * cv_step[b]
+                bx, cx = share * bx_step[b], share * cx_step[b]
+                f, t = _solve_friction(law[b], au, bu, cu, av, bv, cv, ax, bx, cx, coef[b],
+                                       expo[b], alpha[b], damping[b], k_mount[b], mu[b],
+                                       slip[b])
+            else:
+                f = _solve(law[b], au, bu, av, bv, coef[b], expo[b], alpha[b], damping[b],
+                           k_mount[b])
             if k > 0:
                 for j in range(m):
                     w[0, j, b] += gain[0, 3, j, b] / dt * f
                     w[1, j, b] += gain[1, 3, j, b] / dt * f
+                if mu[b] > 0.0:
+                    for j in range(m):
+                        w[0, j, b] += gain[0, 5, j, b] / dt * t
+                        w[1, j, b] += gain[1, 5, j, b] / dt * t
             slope = (f - last[b]) / dt
-            y[0] = au + bu * f + gap[b, kg]
-            y[1] = av + bv * f + gap_rate[b, kg]
+            if mu[b] > 0.0:
+                y[0] = au + bu * f + cu * t + gap[b, kg]
+                y[1] = av + bv * f + cv * t + gap_rate[b, kg]
+            else:
+                y[0] = au + bu * f + gap[b, kg]
+                y[1] = av + bv * f + gap_rate[b, kg]
             y[2] = f
             cur = feed[3, 0, b] * ek + feed[3, 1, b] * ok - b_r[b] * slope
             for j in range(m):
                 cur += out[0, 3, j, b] * w[0, j, b] - out[1, 3, j, b] * w[1, j, b]
             y[3] = cur
+            if sliding:
+                vc = 0.0
+                for j in range(m):
+                    vc += out[0, 4, j, b] * w[0, j, b] - out[1, 4, j, b] * w[1, j, b]
+                y[4] = vc
+            y[5] = t
             for c in range(len(cols)):
                 values[c, b, k] = y[cols[c]]
             contact[b, k] = f > 0.0
             last[b] = f
+            last_t[b] = t
         for j in range(m):
             for b in range(bsz):
                 src = b if e.shape[0] > 1 else 0
-                ek, dk, fk = e[src, k], de_step[src, k], last[b]
+                ek, dk, fk, tk = e[src, k], de_step[src, k], last[b], last_t[b]
                 re, im = w[0, j, b], w[1, j, b]
                 w[0, j, b] = (lam[0, j, b] * re - lam[1, j, b] * im + gain[0, 0, j, b] * ek
                               + gain[0, 1, j, b] * dk + (gain[0, 2, j, b] - gain[0, 3, j, b]
@@ -349,3 +540,6 @@ def _step_contact(lam, gain, out, feed, e, de_step, de_out, gap, gap_rate, law, 
                 w[1, j, b] = (lam[0, j, b] * im + lam[1, j, b] * re + gain[1, 0, j, b] * ek
                               + gain[1, 1, j, b] * dk + (gain[1, 2, j, b] - gain[1, 3, j, b]
                                                          / dt) * fk)
+                if tk != 0.0:
+                    w[0, j, b] += (gain[0, 4, j, b] - gain[0, 5, j, b] / dt) * tk
+                    w[1, j, b] += (gain[1, 4, j, b] - gain[1, 5, j, b] / dt) * tk

@@ -62,6 +62,10 @@ class ModalTransducer(Structure):
         residual: ``(a_r m/N, β_r m/V, δ_r F)`` of the truncated modes.
         capacitance: clamped capacitance Cp (real), F.
         loss_tangent: the dielectric's tanδ (constant in ω): ``Cp (1 - j tanδ)``.
+        tip_slope: the kept modes' tip slope θ = ∂w/∂x at the tip, rad/√kg per unit modal
+            coordinate, shape ``(n,)``, or None (a model not made from a beam): what a
+            tangential force at the tip's surface acts through (a wall's friction,
+            :mod:`wtml.physics.contact`).
     """
 
     omega_n: np.ndarray
@@ -71,10 +75,12 @@ class ModalTransducer(Structure):
     residual: tuple[float, float, float] = (0.0, 0.0, 0.0)
     capacitance: float = 0.0
     loss_tangent: float = 0.0
+    tip_slope: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = np.shape(self.omega_n)
-        for name in ("zeta", "tip", "coupling"):
+        for name in ("zeta", "tip", "coupling") + (("tip_slope",) if self.tip_slope is not None
+                                                   else ()):
             if np.shape(getattr(self, name)) != n:
                 raise ValueError(f"{name} must have the shape of omega_n {n}, "
                                  f"got {np.shape(getattr(self, name))}")
@@ -113,7 +119,7 @@ class ModalTransducer(Structure):
         eta = np.einsum("ji,jk,ki->i", phi, k.imag, phi) / w2
         cp = complex(beam.capacitance)
         return cls(omega, eta / 2, at_tip[kept], coupled[kept], residual, cp.real,
-                   -cp.imag / cp.real)
+                   -cp.imag / cp.real, phi[-1])
 
     def with_coupling(self, scale: float) -> ModalTransducer:
         """The same structure with its piezo coupling scaled by ``scale`` (a device whose
@@ -121,7 +127,7 @@ class ModalTransducer(Structure):
         a_r, b_r, d_r = self.residual
         return ModalTransducer(self.omega_n, self.zeta, self.tip, self.coupling * scale,
                                (a_r, b_r * scale, d_r * scale**2), self.capacitance,
-                               self.loss_tangent)
+                               self.loss_tangent, self.tip_slope)
 
     def _forms(self, omega: np.ndarray):
         w = omega[..., None]
@@ -261,7 +267,8 @@ class ModalTransducer(Structure):
             drive_rate: dE/dt in V/s at the samples, same shape as ``drive`` (default: central
                 differences); used for the outputs (the capacitive current), not the stepping.
             coupling_scale: each sample's device, ``(B,)`` or scalar (:meth:`with_coupling`).
-            record: which of :data:`OUTPUTS` to return.
+            record: which of :data:`OUTPUTS` to return (with a contact law also those of
+                :data:`~wtml.physics.contact.CONTACT_OUTPUTS`: the wall's friction).
             dtype: of the returned arrays.
             threads: records are stepped in blocks on this many threads (default: every core
                 this process may use); the answer does not depend on it.
@@ -276,9 +283,13 @@ class ModalTransducer(Structure):
         check_range("dt", dt, 0.0, np.inf, unit="s", low_open=True, high_open=True)
         if threads is not None:
             check_range("threads", threads, 1, 1024)
-        unknown = set(record) - set(OUTPUTS)
+        implicit = getattr(load, "implicit", False)
+        if implicit:
+            from wtml.physics.contact import CONTACT_OUTPUTS
+        allowed = OUTPUTS + (CONTACT_OUTPUTS if implicit else ())
+        unknown = set(record) - set(allowed)
         if unknown:
-            raise ValueError(f"record: unknown outputs {sorted(unknown)}; choose from {OUTPUTS}")
+            raise ValueError(f"record: unknown outputs {sorted(unknown)}; choose from {allowed}")
         bsz = load.batch
         e = np.atleast_2d(np.asarray(drive, dtype=float))  # (1 or B, n_steps)
         if e.ndim != 2 or e.shape[0] not in (1, bsz):
@@ -294,7 +305,7 @@ class ModalTransducer(Structure):
         else:
             de_out = np.broadcast_to(np.asarray(drive_rate, dtype=float), e.shape)
         de_step = np.diff(e, axis=1, append=e[:, -1:]) / dt
-        cols = np.array([OUTPUTS.index(r) for r in record])
+        cols = np.array([allowed.index(r) for r in record])
         loss = None
         if "i" in record and self.loss_tangent > 0:  # checked before stepping
             if tones is None:
@@ -302,7 +313,7 @@ class ModalTransducer(Structure):
                                  "for the dielectric loss current (ω Cp tanδ E at each tone) "
                                  "when recording i of a lossy model")
             loss = self.loss_current(e, tones)
-        if getattr(load, "implicit", False):  # a contact law: solved at every step
+        if implicit:  # a contact law (and its friction): solved at every step
             from wtml.physics.contact import simulate_contact
 
             values, contact = simulate_contact(self, e, de_step, de_out, dt, load,

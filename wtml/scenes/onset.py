@@ -42,6 +42,7 @@ from wtml.physics.contact import (
     LINEAR,
     MOUNT_HERTZ,
     POWER,
+    SLIP_SPEED,
     ContactWall,
 )
 from wtml.physics.modal import ModalTransducer, Wall
@@ -107,7 +108,13 @@ class WallSpec:
     exponent (uniform, 1 to Hertz's 1.5); ``alpha`` Hunt–Crossley's damping (s/m, uniform,
     0.1–1); ``mount_fraction`` the share k_ref/k_m of the mount in the mount+Hertz law's
     compliance at δ_ref (uniform, 0.5–0.9: the mount dominates, as §12 argues). ``damping``
-    is the linear law's; the others have their own (Hunt–Crossley) or none."""
+    is the linear law's; the others have their own (Hunt–Crossley) or none.
+
+    ``friction``: the range of μ (uniform) of a Coulomb friction as the tip's surface slides
+    along the wall (:mod:`wtml.physics.contact`: through the tip's slope, at half the
+    whisker's thickness from its axis), regularised over ``slip_speed`` (m/s); default
+    ``(0, 0)``: none, nothing drawn, the records those of a scene without the option. With
+    friction every law, the linear one included, is stepped implicitly."""
 
     gap_fraction: tuple[float, float] = bounded(-0.5, 1.5, default=(0.1, 0.9))
     stiffness: tuple[float, float] = bounded(1e-3, 1e6, default=(3.0, 8.0))
@@ -118,6 +125,8 @@ class WallSpec:
     power_n: tuple[float, float] = bounded(1.0, 1.5, default=(1.0, 1.5))
     alpha: tuple[float, float] = bounded(0.0, 100.0, default=(0.1, 1.0))
     mount_fraction: tuple[float, float] = bounded(0.01, 0.99, default=(0.5, 0.9))
+    friction: tuple[float, float] = bounded(0.0, 2.0, default=(0.0, 0.0))
+    slip_speed: float = bounded(1e-12, 1.0, default=SLIP_SPEED)
 
     def mixture(self, path: str = "wall") -> np.ndarray:
         """Each law's probability, in the order of :data:`~wtml.physics.contact.LAWS`
@@ -127,6 +136,9 @@ class WallSpec:
 
     def check(self, path: str) -> None:
         self.mixture(path)
+        lo, hi = self.friction
+        if lo > hi:
+            raise SceneError(f"{path}.friction: low {lo:g} above high {hi:g}")
 
 
 @dataclass(frozen=True)
@@ -216,6 +228,12 @@ class OnsetScene:
         amp = self.whisk_amplitude_m()
         return {"gap": OutputRange(lo, hi, (-2 * amp, 2 * amp), margin=0.02, absent_ok=True)}
 
+    def contact_offset_m(self) -> float:
+        """The contact point's distance from the whisker's axis, m: half its thickness (the
+        preset's whisker size: a square's side, a rod's diameter), the lever of the wall's
+        friction on the tip's slope."""
+        return PRESETS[self.preset]["whisker"]["size"] / 2
+
     def reference_stiffness(self) -> float:
         """Geometric mean of the contact-stiffness range, N/m (the classical threshold's)."""
         return float(np.sqrt(np.prod(self.wall.stiffness)))
@@ -250,6 +268,10 @@ class OnsetScene:
         dac = a.effects.drive_scale(n, rng)  # the drive DAC's amplitude error
         tones = self.drive_tones(lead=True)
         law = self.draw_laws(n, rng)
+        mu = np.zeros(n)
+        if w.friction[1] > 0:  # drawn only where on: without it the records are unchanged
+            mu = rng.uniform(*w.friction, n)
+            law["law_mu"] = mu
         e, de = self.drive_voltage(lead=True)
         n_lead = len(e) - self.n_samples
         # the object moving with the floor against the transducer's base: the wall's gap
@@ -264,7 +286,8 @@ class OnsetScene:
             sl = slice(start, min(n, start + batch))
             # no wall: one far beyond the reach (never touched: exactly the free answer)
             g = np.where(np.isnan(gap[sl]), 1.0, gap[sl])
-            linear = (law["law"][sl] == LINEAR) & ~moving  # today's exact switched wall
+            # today's exact switched wall (no friction: a sliding tip is stepped implicitly)
+            linear = (law["law"][sl] == LINEAR) & ~moving & (mu[sl] == 0)
             for part in (np.flatnonzero(linear), np.flatnonzero(~linear)):
                 if not len(part):
                     continue
@@ -277,7 +300,9 @@ class OnsetScene:
                     wall = ContactWall(at, law["law"][rows], k[rows],
                                        np.nan_to_num(law["law_delta_ref"][rows], nan=1e-6),
                                        law["law_n"][rows], law["law_alpha"][rows],
-                                       k[rows] / mount, c[rows])
+                                       k[rows] / mount, c[rows], friction=mu[rows],
+                                       slip_speed=w.slip_speed,
+                                       offset=self.contact_offset_m())
                 amp = dac[rows, None] if a.effects.dac.enabled else np.ones((1, 1))
                 out = model.simulate(amp * e, dt, wall, drive_rate=amp * de,
                                      coupling_scale=scale[rows], record=("i",),

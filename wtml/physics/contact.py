@@ -37,16 +37,20 @@ from the beam's own geometric stiffness along a contact held at g while the whis
 per mode), is 0.7–30 % of the offset term's (larger at near walls, where the whisker bends
 back): the sliding speed is that much uncertain and it would make ψ depend on the state.
 (2) The friction acts through the kept modes (no static correction of the slope port). (3)
-The wall's normal stays along y (a 1e-3 rad tip slope tilts nothing measurable). (4) v_s is a
-regularisation, not a stick model: :data:`SLIP_SPEED` (1e-8 m/s) is 1e-3 of the ~1e-5 m/s at
-which the contact point slides in the onset scene (the contact's ringing in the whisker's 1.56
-and 2.53 kHz modes turns the tip at ~0.4 rad/s; the whisk itself at ~0.05 rad/s), so the law is
-Coulomb's to 1e-3 wherever it slides. Order of magnitude, micro preset, k = 5 N/m, μ = 0.5: F_n
-up to ~17 µN, |T| up to ~8 µN, a moment ρT ≈ 2e-10 N·m, equivalent to ~1e-7 N at the tip
-(``3 ρ T / 2L``, a 0.6 % share of F_n); measured with this stepper on a 5 Hz whisk into walls
-at 3–10 µm: u changes by up to 0.07 µm and the current by up to 7 nA (3 nA rms in contact) of
-its 3 µA, mostly as the contact's ringing damped; in the probe band (< 800 Hz) 0.6 nA rms, 600×
-the onset scene's 1 pA current noise.
+The wall is the plane y = g: its normal force stays along y whatever the tip's slope (up to
+2.5e-3 rad in contact). (4) v_s is a regularisation, not a stick model: :data:`SLIP_SPEED`
+(1e-8 m/s) is 1/200 of the rms speed at which the contact point slides in the onset scene's
+contacts (2.1e-6 m/s: the probe and the contact's ringing in the 1.56 and 2.53 kHz modes turn
+the tip), so the law is Coulomb's wherever it slides. Order of magnitude, micro preset, k = 5
+N/m: F_n up to ~18 µN, so at μ = 0.5 |T| up to ~9 µN, a moment ρT ≈ 2e-10 N·m on the tip.
+Measured with this stepper on the onset scene's drive (1 Hz whisk, 420 Hz probe, lead-in,
+linear wall c = 1.5e-4 N·s/m at 0.1–0.9 of the whisking amplitude, no noise): the contact
+intervals are unchanged (the touching flags identical), u changes by at most 3–18 nm at μ = 0.5
+(0.6–4 nm at μ = 0.1), and the current in the probe band (300–550 Hz) by 0.10–0.82 nA rms over
+the contacts at μ = 0.5 (21–165 pA at μ = 0.1; larger at near walls, where F_n is larger): 1–7
+% of the probe current there (11 nA), 100–800× the scene's 1 pA current noise. The friction
+damps the probe's motion in contact: a Coulomb describing function adds to Re Zm, as the
+texture's does (physics.md §11).
 
 Stepping (:func:`simulate_contact`): the linear part is stepped exactly in the free tip's
 eigenbasis, as in :mod:`wtml.physics.friction`, but the force is held first-order over the step
@@ -85,7 +89,7 @@ friction force on the tip ``T`` (N, along +x)."""
 
 SLIP_SPEED = 1e-8
 """The default regularisation v_s of sign(v) in the wall's friction, m/s (see the module's
-notes: the contact point slides at ~1e-6–1e-5 m/s in the onset scene)."""
+notes: the contact point slides at ~2e-6 m/s rms in the onset scene's contacts)."""
 
 
 def law_codes(law) -> np.ndarray:

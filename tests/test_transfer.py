@@ -30,12 +30,17 @@ def short_onset():
 
 def test_onset_rows_make_what_they_name(short_onset):
     """Each law row draws only its law (the shipped mixture leaves Hunt–Crossley out: that
-    row is held out); each acquisition row has only its effect on; the base rows move the
-    object at their levels; every row is reproducible from the seed."""
+    row is held out); the wall's friction (off in the shipped scene's training) is the other
+    held-out row, its μ drawn over 0.1–0.5; each acquisition row has only its effect on; the
+    base rows move the object at their levels; every row is reproducible from the seed."""
     rows = onset_variants(short_onset)
     kinds = {v.name: v.kind for v in rows}
     assert kinds["contact law hunt_crossley alone (held out)"] == "held out"
-    assert sum(k == "held out" for k in kinds.values()) == 1
+    assert kinds["wall friction μ 0.1–0.5 (held out)"] == "held out"
+    assert sum(k == "held out" for k in kinds.values()) == 2
+    friction = next(v for v in rows if v.name.startswith("wall friction"))
+    mu = friction.make(4, np.random.default_rng(0))["law_mu"]
+    assert np.all((mu >= 0.1) & (mu <= 0.5))
     assert len([n for n in kinds if n.startswith("object moving")]) == len(BASE_LEVELS)
     for v in rows:
         if v.name.startswith("contact law"):

@@ -1,6 +1,7 @@
 """The onset bench's transfer table: its methods on each contact law alone (the laws left out of
-the training mixture held out), on each acquisition effect alone, on an object moving with the
-base, and on records of the independent simulator (:mod:`wtml.bench.independent`).
+the training mixture held out), with the wall's tangential friction (held out where the scene
+trains without it), on each acquisition effect alone, on an object moving with the base, and on
+records of the independent simulator (:mod:`wtml.bench.independent`).
 
 Per row and method: location RMSE and max |error| over the records with a wall (and how many
 got no location), F1 of onsets at ±1 ms, and for a method with σ and a domain flag (the
@@ -23,6 +24,11 @@ BASE_LEVELS = (("base", {"enabled": True, "rms_m": 1e-8}),
                ("base", {"enabled": True, "rms_m": 0.8e-6}))
 """The object moving with the base: an isolated optical table (~10 nm rms) and a floor at
 50 µm/s rms near 10 Hz (0.8 µm; physics.md §12). Neither is in the shipped scenes' training."""
+
+
+FRICTION_RANGE = (0.1, 0.5)
+"""μ of the wall's friction in its row where the scene trains without it: a tip sliding along
+a wall, μ ≈ 0.1–0.5 (physics.md §12)."""
 
 
 def _with_law(scene, law: str):
@@ -48,7 +54,20 @@ def onset_variants(scene) -> list[Variant]:
     :data:`BASE_LEVELS`)."""
     rows = [Variant("the trained scene (in family)", "in family", scene.simulate)]
     rows += member_variants(scene, LAWS, scene.wall.law, _with_law, "contact law")
+    rows.append(friction_variant(scene))
     return rows + acquisition_variants(scene, BASE_LEVELS)
+
+
+def friction_variant(scene) -> Variant:
+    """The trained scene (its law mixture) with the wall's tangential friction on: μ over the
+    scene's own range where it trains with friction (in family), else over
+    :data:`FRICTION_RANGE` (held out)."""
+    trained = scene.wall.friction[1] > 0
+    mu = scene.wall.friction if trained else FRICTION_RANGE
+    alone = dataclasses.replace(scene, wall=dataclasses.replace(scene.wall, friction=tuple(mu)))
+    return Variant(f"wall friction μ {mu[0]:g}–{mu[1]:g}" + ("" if trained else " (held out)"),
+                   "in family" if trained else "held out",
+                   lambda n, rng: alone.simulate(n, rng))
 
 
 def independent_variant(scene) -> Variant:

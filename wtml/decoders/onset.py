@@ -96,8 +96,10 @@ def frame_basis(period: int) -> np.ndarray:
 
 class ProbeFrames(nn.Module):
     """``(e, i)`` ``(batch, n_samples)`` and the calibration (:data:`CALIBRATION`) -> frames
-    ``(batch, n_frames, 5)``: ``u_L`` (m), ``Re Zm, Im Zm`` (N·s/m), ``|E_H|`` (V),
-    ``|I_H|`` (A).
+    ``(batch, n_frames, 5)``: ``u_L`` (m), ``Re Zm, Im Zm`` (N·s/m), ``|E_H|`` (V), and
+    ``|I_H| / (|Y_free| |E_H|)``, the probe current over what the device's free tip draws
+    (``Y_free = t22/t12``, from Zm = 0): 1 on free whisking for every device, where
+    ``|I_H|`` itself differs between devices by more than a contact changes it.
 
     Args:
         period: samples per probe period (an integer: the scene's rate is a multiple of the
@@ -131,14 +133,18 @@ class ProbeFrames(nn.Module):
         # x = c cos + s sin = Re(X e^{jωt}) with X = c - j s
         e_re, e_im, i_re, i_im = fe[:, 1], -fe[:, 2], fi[:, 1], -fi[:, 2]
         zm_re, zm_im = self.zm(e_re, e_im, i_re, i_im, t_re, t_im)
-        return torch.stack([hue0[:, None] * fe[:, 0], zm_re, zm_im,
-                            torch.sqrt(e_re * e_re + e_im * e_im),
-                            torch.sqrt(i_re * i_re + i_im * i_im) / s], -1)
+        mag_e = torch.sqrt(e_re * e_re + e_im * e_im)
+        y_free = torch.sqrt((t_re[:, 3:] * t_re[:, 3:] + t_im[:, 3:] * t_im[:, 3:])
+                            / (t_re[:, 1:2] * t_re[:, 1:2] + t_im[:, 1:2] * t_im[:, 1:2]))
+        free = (s * y_free * mag_e).clamp_min(1e-30)  # µA
+        return torch.stack([hue0[:, None] * fe[:, 0], zm_re, zm_im, mag_e,
+                            torch.sqrt(i_re * i_re + i_im * i_im) / free], -1)
 
 
 class RecordSummary(nn.Module):
     """The domain gate's features of a record, ``(batch, 3 + N_DEVICE)``: probe level |E_H|
-    (mV), whisking amplitude of u_L (µm), log10 of the mean |I_H| (A), then the device as its
+    (mV), whisking amplitude of u_L (µm), log10 of the mean probe current relative to the
+    free tip's (:class:`ProbeFrames`), then the device as its
     calibration shows it (:meth:`device`)."""
 
     N_DEVICE = 5

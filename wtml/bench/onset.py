@@ -16,7 +16,11 @@ agreement with the offline graph and its detection delay (from each true onset t
 the end of the chunk in which its contact probability first passes 0.5). Also: the decoder's
 domain flag on variants it was not trained on (another whisking amplitude, another probe
 level), the thesis's Figure 5.22 (15 positions × ``repeats``, measured against actual location,
-with R²), the modal model's convergence table, and the simulator's speed.
+with R²), the transfer table (held-out physics), the device-spread table (every method on the
+nominal device, on devices of the trained spread and on each class of issue 21's spread alone,
+each record with its own device's calibration: :func:`wtml.bench.onset_transfer.device_variants`),
+the modal model's convergence table, and the simulator's speed. Every method gets each record's
+calibration (T at the probe, HUE(0)); the Cramér–Rao bound is the nominal device's.
 Writes ``report.md``, ``summary.json`` and PNGs.
 """
 

@@ -10,6 +10,7 @@ from scipy.stats import kstest
 
 from tests.conftest import ROOT
 from wtml.constants import BOLTZMANN
+from wtml.physics.spread import DeviceSpread
 from wtml.scenes import load_scene
 from wtml.scenes.config import SceneError, build
 from wtml.scenes.onset import OnsetScene
@@ -196,7 +197,7 @@ def test_shipped_scenes_are_bench_top_and_the_probe_band_noise_is_the_budget():
         off = set(fx.NAMES) if name.startswith("onset") else {"base"}
         assert [getattr(fx, n).enabled for n in fx.NAMES] == [n not in off for n in fx.NAMES]
     scene = dataclasses.replace(load_scene(ROOT / "configs/scenes/onset.yaml"),
-                                calibration_error=0.0)
+                                calibration_error=0.0, device=DeviceSpread())  # Cp nominal
     a = scene.acquisition
     noisy = dataclasses.replace(scene, acquisition=dataclasses.replace(
         a, effects=a.effects.only("iv", "adc", "hum")))

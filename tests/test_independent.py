@@ -20,16 +20,19 @@ from wtml.bench.independent import (
     simulate_onset,
 )
 from wtml.physics.beam_presets import build
+from wtml.physics.spread import DeviceSpread
 from wtml.scenes import load_scene
 
 
 @pytest.fixture(scope="module")
 def nominal():
     """The shipped onset scene without noise and without the acquisition's effects, its wall
-    the linear one alone (the tests that compare another law say so)."""
+    the linear one alone (the tests that compare another law say so), on the nominal device
+    (this simulator's model is the preset's: the shipped scene draws each record's device
+    from a spread)."""
     base = load_scene(ROOT / "configs/scenes/onset.yaml")
     return dataclasses.replace(
-        base, wall=dataclasses.replace(base.wall, law={"linear": 1.0}),
+        base, device=DeviceSpread(), wall=dataclasses.replace(base.wall, law={"linear": 1.0}),
         acquisition=dataclasses.replace(base.acquisition, e_noise_v=0.0, i_noise_a=0.0,
                                         effects=base.acquisition.effects.only()))
 

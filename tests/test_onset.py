@@ -13,10 +13,13 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tests.conftest import ROOT
+from wtml.physics.spread import DeviceSpread
 from wtml.runtime.onset import (
+    calibration_file,
     contacts_from,
     predict_records,
     read_record,
+    record_inputs,
     stream_record,
     thesis_pipeline,
 )
@@ -28,9 +31,20 @@ SMALL = {"samples": 24, "shards": 3}
 
 
 @pytest.fixture(scope="module")
-def scene():
-    base = load_scene(ROOT / "configs/scenes/onset.yaml")
-    return dataclasses.replace(base, **SMALL)
+def spread_scene():
+    """The shipped scene, small: every record's device drawn from its spread."""
+    return dataclasses.replace(load_scene(ROOT / "configs/scenes/onset.yaml"), **SMALL)
+
+
+@pytest.fixture(scope="module")
+def scene(spread_scene):
+    """The shipped scene on the nominal device (the preset alone)."""
+    return dataclasses.replace(spread_scene, device=DeviceSpread())
+
+
+def tensors(rec: dict) -> list[torch.Tensor]:
+    """A graph's inputs (e, i and the records' calibration) as tensors."""
+    return [torch.tensor(x) for x in record_inputs(rec)]
 
 
 def test_intervals_merge_touches_on_successive_probe_peaks():
@@ -87,7 +101,7 @@ def test_thesis_pipeline_lands_just_beyond_the_wall_without_noise(scene):
     gaps = np.array([0.3, 0.6]) * amp
     rec = quiet.simulate(2, np.random.default_rng(2), gaps=gaps)
     with torch.no_grad():
-        gap = thesis_pipeline(quiet)(torch.tensor(rec["e"]), torch.tensor(rec["i"]))[0].numpy()
+        gap = thesis_pipeline(quiet)(*tensors(rec))[0].numpy()
     beyond = gap - gaps
     assert np.all((beyond > 0.1e-6) & (beyond < 1.0e-6)), beyond
 
@@ -114,18 +128,22 @@ def onset_export(tmp_path_factory, scene):
     return {"data": data, "run": run, "model": model}
 
 
-def test_exported_graphs_match_torch(onset_export, scene):
+def test_exported_graphs_match_torch(onset_export, spread_scene):
+    """ONNX against torch on records of devices drawn from the spread, each record through
+    its own device's calibration (the graphs' inputs t_re, t_im, hue0)."""
     from wtml.decoders.checkpoint import load_decoder
     from wtml.decoders.domain import Gated
 
+    scene = spread_scene
     module = load_decoder(onset_export["run"] / "checkpoints/last.ckpt")
     rec = scene.simulate(3, np.random.default_rng(5))
+    assert len({complex(t) for t in rec["t_probe"][:, 0, 1]}) == 3  # three devices
+    x = record_inputs(rec)
     with torch.no_grad():
-        ref = Gated(module.net, module.gate, (1,)).eval()(torch.tensor(rec["e"]),
-                                                          torch.tensor(rec["i"]))
-        ref_cl = thesis_pipeline(scene)(torch.tensor(rec["e"]), torch.tensor(rec["i"]))
-    dec = OnnxModel(onset_export["model"] / "model.onnx").run(rec["e"], rec["i"])
-    cl = OnnxModel(onset_export["model"] / "classical.onnx").run(rec["e"], rec["i"])
+        ref = Gated(module.net, module.gate, (1,)).eval()(*tensors(rec))
+        ref_cl = thesis_pipeline(scene)(*tensors(rec))
+    dec = OnnxModel(onset_export["model"] / "model.onnx").run(*x)
+    cl = OnnxModel(onset_export["model"] / "classical.onnx").run(*x)
     np.testing.assert_allclose(dec["gap"], ref[0].numpy(), rtol=1e-4, atol=1e-10)
     np.testing.assert_allclose(dec["contact"], ref[2].numpy(), atol=1e-4)
     np.testing.assert_allclose(dec["detach_margin"], ref[3].numpy(),
@@ -140,9 +158,9 @@ def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene
     graph's contact probabilities frame by frame and, after the last chunk, its gap, sigma
     and domain score."""
     rec = scene.simulate(3, np.random.default_rng(7))
-    offline = OnnxModel(onset_export["model"] / "model.onnx").run(rec["e"], rec["i"])
+    offline = OnnxModel(onset_export["model"] / "model.onnx").run(*record_inputs(rec))
     stream = OnnxModel(onset_export["model"] / "stream.onnx")
-    streamed = stream_record(stream, rec["e"], rec["i"])
+    streamed = stream_record(stream, *record_inputs(rec))
     assert streamed["contact"].shape == offline["contact"].shape
     np.testing.assert_allclose(streamed["contact"], offline["contact"], atol=1e-5)
     np.testing.assert_allclose(streamed["gap"], offline["gap"], rtol=1e-5, atol=1e-12)
@@ -153,7 +171,7 @@ def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene
                                atol=1e-3)
     np.testing.assert_array_equal(streamed["in_domain"], offline["in_domain"])
     with pytest.raises(InputError, match="do not split into chunks"):
-        stream_record(stream, rec["e"][:, :-1], rec["i"][:, :-1])
+        stream_record(stream, rec["e"][:, :-1], rec["i"][:, :-1], *record_inputs(rec)[2:])
 
 
 def test_timing_rule_finds_every_contact_from_zm_steps_and_the_detachment_level(scene):
@@ -181,9 +199,10 @@ def test_timing_rule_finds_every_contact_from_zm_steps_and_the_detachment_level(
     frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
     offsets = edge_offsets(targets, frame_s, scene.max_contacts)
     net = OnsetDecoder()._make(scene, torch.stack([torch.zeros(5), torch.ones(5)]))
+    x = tensors(rec)
     with torch.no_grad():
-        f = net.frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double()
-    reach = net.reach(f)
+        f = net.frames(*x).double()
+    reach = net.reach(f, net.reach_per_volt(*x[2:4]).double())
     step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:].norm(dim=-1).numpy()
     threshold = touch_threshold(step, targets, frame_s, scene.max_contacts)
     lo, hi = detach_brackets(torch.tensor(targets), reach, frame_s, scene.max_contacts)
@@ -221,7 +240,7 @@ def test_a_first_touch_shows_in_its_own_frame_as_a_step_of_zm(scene):
                          gaps=np.linspace(0.1, 0.9, 12) * amp)
     frames = OnsetDecoder()._frames(scene)
     with torch.no_grad():
-        f = frames(torch.tensor(rec["e"]), torch.tensor(rec["i"])).double()
+        f = frames(*tensors(rec)).double()
     step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:].norm(dim=-1).numpy()
     frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
     for r in range(len(step)):
@@ -272,7 +291,8 @@ def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_pa
     rate = scene.acquisition.sample_rate_hz
     path = tmp_path / "rec.npz"
     np.savez(path, e=rec["e"][0], i=rec["i"][0], sample_rate_hz=rate)
-    rows = predict_records(onset_export["model"], path)
+    rows = predict_records(onset_export["model"], path,
+                           calibration=calibration_file(tmp_path / "cal.npz", scene))
     assert {r["method"] for r in rows} == {"decoder", "classical"}
     # the same record at twice the rate is resampled to the trained one
     from scipy.signal import resample_poly
@@ -298,6 +318,65 @@ def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_pa
     np.savez(bad, e=rec["e"][0], sample_rate_hz=rate)
     with pytest.raises(InputError, match="missing \\['i'\\]"):
         read_record(bad, rate, scene.n_samples)
+
+
+def test_predict_needs_the_devices_calibration_and_refuses_without_it(onset_export, scene,
+                                                                       tmp_path):
+    """The export names the calibration it needs (metadata ``references``; the graphs'
+    inputs t_re, t_im, hue0); ``wtml predict`` without it, or with one that lacks HUE(0) or is
+    taken at another frequency, is a clear error, never a silent default; with it, a record
+    gets the decoder's answer through the device's own calibration."""
+    import json
+
+    from wtml.runtime.onset import ONSET_INPUTS, STREAM_INPUTS
+
+    model = OnnxModel(onset_export["model"] / "model.onnx")
+    assert "calibration" in model.references
+    assert json.loads(model.metadata["inputs"]) == list(ONSET_INPUTS)
+    assert [i.name for i in model.session.get_inputs()] == list(ONSET_INPUTS)
+    stream = OnnxModel(onset_export["model"] / "stream.onnx")
+    assert [i.name for i in stream.session.get_inputs()] == list(STREAM_INPUTS)
+    rec = scene.simulate(1, np.random.default_rng(13))
+    path = tmp_path / "rec.npz"
+    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
+    with pytest.raises(InputError, match="needs --calibration"):
+        predict_records(onset_export["model"], path)
+    cli = subprocess.run([sys.executable, "-m", "wtml.cli", "predict", "--model",
+                          str(onset_export["model"]), "--input", str(path)], cwd=ROOT,
+                         capture_output=True, text=True)
+    assert cli.returncode != 0 and "needs --calibration" in cli.stderr
+    t, hue0 = scene.calibration(scene.transducer())
+    no_hue = tmp_path / "no_hue.npz"
+    np.savez(no_hue, frequency_hz=[scene.drive.probe_hz], t=t[None])
+    with pytest.raises(InputError, match="needs 'hue0'"):
+        predict_records(onset_export["model"], path, calibration=no_hue)
+    other = tmp_path / "other.npz"
+    np.savez(other, frequency_hz=[400.0], t=t[None], hue0=hue0)
+    with pytest.raises(InputError, match="is not the model's"):
+        predict_records(onset_export["model"], path, calibration=other)
+    negative = tmp_path / "negative.npz"
+    np.savez(negative, frequency_hz=[scene.drive.probe_hz], t=t[None], hue0=-hue0)
+    with pytest.raises(InputError, match="hue0 must be finite and > 0"):
+        predict_records(onset_export["model"], path, calibration=negative)
+    cal = calibration_file(tmp_path / "cal.npz", scene, rec)
+    rows = predict_records(onset_export["model"], path, calibration=cal)
+    out = model.run(*record_inputs(rec))
+    dec = [r for r in rows if r["method"] == "decoder"]
+    assert dec[0]["domain_score"] == pytest.approx(float(out["domain_score"][0]), rel=1e-6)
+
+
+def test_a_decoder_trained_on_one_device_flags_the_others(onset_export, scene, spread_scene):
+    """The fixture's decoder was trained on the nominal device alone: records of devices
+    drawn from the shipped spread, each with its own calibration, fall outside its domain
+    (its gate sees the device's calibration), far beyond the nominal device's."""
+    model = OnnxModel(onset_export["model"] / "model.onnx")
+    spread = model.run(*record_inputs(spread_scene.simulate(4, np.random.default_rng(14))))
+    nominal = model.run(*record_inputs(scene.simulate(4, np.random.default_rng(14))))
+    assert np.all(spread["domain_score"] > 1), spread["domain_score"]
+    assert not spread["in_domain"].any()
+    # the fixture's gate (16 training records) scores the nominal device's records near its
+    # training ones (0.01-3 measured), the other devices' far beyond
+    assert spread["domain_score"].min() > 100 * nominal["domain_score"].max()
 
 
 def test_a_missing_wall_passes_the_gates_range_check_only_where_absence_is_an_answer():
@@ -353,7 +432,9 @@ def test_a_free_record_is_in_domain_and_reports_a_wall_only_with_a_contact(onset
     rec = free.simulate(3, np.random.default_rng(11))
     path = onset_export["model"] / "free.npz"
     np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
-    rows = [r for r in predict_records(onset_export["model"], path) if r["method"] == "decoder"]
+    cal = calibration_file(onset_export["model"] / "free_cal.npz", scene, rec)
+    rows = [r for r in predict_records(onset_export["model"], path, calibration=cal)
+            if r["method"] == "decoder"]
     assert {r["record"] for r in rows} == {0, 1, 2}
     for r in rows:
         assert r["domain_score"] <= 1  # free whisking's inputs are in the trained domain
@@ -361,9 +442,9 @@ def test_a_free_record_is_in_domain_and_reports_a_wall_only_with_a_contact(onset
         assert np.isfinite(r["gap (m)"]) or np.isnan(r["sigma (m)"])  # σ NaN out of domain too
         if r["contact"] < 0:  # "no wall" passes the range check
             assert r["in_domain"] and r["flags"] == ""
-    streamed = stream_record(OnnxModel(onset_export["model"] / "stream.onnx"), rec["e"],
-                             rec["i"])
-    offline = OnnxModel(onset_export["model"] / "model.onnx").run(rec["e"], rec["i"])
+    streamed = stream_record(OnnxModel(onset_export["model"] / "stream.onnx"),
+                             *record_inputs(rec))
+    offline = OnnxModel(onset_export["model"] / "model.onnx").run(*record_inputs(rec))
     np.testing.assert_array_equal(streamed["in_domain"], offline["in_domain"])
     np.testing.assert_array_equal(np.isnan(streamed["gap"]), np.isnan(offline["gap"]))
     assert np.all(offline["in_domain"] | np.isfinite(offline["gap"]))

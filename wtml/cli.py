@@ -77,7 +77,7 @@ def _predict(args: argparse.Namespace) -> int:
     if task == "onset":
         from wtml.runtime.onset import predict_records
 
-        rows = predict_records(args.model, args.input)
+        rows = predict_records(args.model, args.input, calibration=args.calibration)
     elif task == "texture":
         from wtml.runtime.texture import predict_records as texture_records
 
@@ -122,7 +122,8 @@ def _bench_onset(args: argparse.Namespace) -> int:
     print(run_bench(args.data, args.model, args.out, free_records=args.free_records,
                     variant_records=args.variant_records, repeats=args.repeats,
                     transfer_records=args.transfer_records,
-                    independent_records=args.independent_records))
+                    independent_records=args.independent_records,
+                    device_records=args.device_records))
     return 0
 
 
@@ -242,7 +243,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                    "classical.onnx), e.g. export/fluid")
     pr.add_argument("--input", required=True, help=".csv or .npz (formats below)")
     pr.add_argument("--calibration", default=None,
-                    help="fluid: the device's calibrated T, .npz with frequency_hz and t")
+                    help="fluid and onset: the device's calibration, .npz with frequency_hz "
+                         "and t (its calibrated T there); onset also hue0 (m/V)")
     pr.add_argument("--out", default=None,
                     help="write the rows as CSV here (default: print a table)")
     pr.set_defaults(func=_predict)
@@ -280,7 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
                                        "by range of g, onset/detachment time error, F1 at "
                                        "±1 ms, false contacts in free whisking, domain flag on "
                                        "untrained drives, Figure 5.22, latency, the streaming "
-                                       "graph's delay; the modal convergence table and the "
+                                       "graph's delay; the transfer and device-spread "
+                                       "tables; the modal convergence table and the "
                                        "simulator's speed.")
     _bench_options(bo, "onset")
     bo.add_argument("--free-records", type=int, default=50,
@@ -295,6 +298,9 @@ def build_parser() -> argparse.ArgumentParser:
     bo.add_argument("--independent-records", type=int, default=8,
                     help="records of the independent simulator (its row of the transfer "
                          "table; 0: none)")
+    bo.add_argument("--device-records", type=int, default=32,
+                    help="fresh records per row of the device-spread table (the nominal device, "
+                         "the trained spread, each class of issue 21's spread alone; 0: none)")
     bo.set_defaults(func=_bench_onset)
 
     bt = be_sub.add_parser("texture", help="the texture slice", formatter_class=_Help,

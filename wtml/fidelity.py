@@ -153,12 +153,12 @@ def figure_5_22(scene, repeats: int = 3, seed: int = 0) -> dict:
     """The thesis's pipeline on 15 wall positions across the onset scene's reach, ``repeats``
     records each: ``actual`` and ``measured`` gap (m), the line's ``r2`` and ``slope``, and
     the ``rmse`` (m)."""
-    from wtml.runtime.onset import thesis_pipeline
+    from wtml.runtime.onset import record_inputs, thesis_pipeline
 
     positions = np.repeat(np.linspace(*scene.gap_range_m(), 15), repeats)
     rec = scene.simulate(len(positions), np.random.default_rng([scene.seed, seed, 522]),
                          gaps=positions)
-    gap = thesis_pipeline(scene).eval()(torch.tensor(rec["e"]), torch.tensor(rec["i"]))[0]
+    gap = thesis_pipeline(scene).eval()(*(torch.tensor(x) for x in record_inputs(rec)))[0]
     gap = gap.double().numpy()
     ok = np.isfinite(gap)
     slope = np.polyfit(positions[ok], gap[ok], 1)[0]

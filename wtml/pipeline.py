@@ -30,6 +30,8 @@ TRANSFER_RECORDS = 4
 version: their benches' defaults are the full tables)."""
 INDEPENDENT_RECORDS = 4
 """Records of the independent simulator in the main job's onset transfer table."""
+DEVICE_RECORDS = 8
+"""Fresh records per row of the main job's onset device-spread table."""
 
 
 class Stages:
@@ -265,17 +267,26 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
 def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: Path,
                                 data: Path, predict_records) -> dict:
     """Export a time-domain slice, write two test records as ``model/rec.npz`` (e, i,
-    sample_rate_hz), print ``wtml predict`` on them; returns the test shard."""
+    sample_rate_hz) and, for onset, their devices' calibration as ``model/cal.npz``
+    (``--calibration``), print ``wtml predict`` on them; returns the test shard."""
     stages.begin(slice_, f"export {model.name}",
                  f"wtml export --checkpoint {ckpt} --out {model}")
     for kind, path in export_model(ckpt, model).items():
         print(f"{kind}: {path}")
     test = load_shards(data, split_shards(read_manifest(data)["n_shards"], 1, 1)["test"])
     sample = model / "rec.npz"
+    scene = dataset_scene(data)
     np.savez(sample, e=test["e"][:2], i=test["i"][:2],
-             sample_rate_hz=dataset_scene(data).acquisition.sample_rate_hz)
-    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}")
-    print(format_predictions(predict_records(model, sample)))
+             sample_rate_hz=scene.acquisition.sample_rate_hz)
+    options, flag = {}, ""
+    if slice_ == "onset":
+        from wtml.runtime.onset import calibration_file
+
+        options["calibration"] = calibration_file(
+            model / "cal.npz", scene, {k: test[k][:2] for k in ("t_probe", "hue0")})
+        flag = f" --calibration {options['calibration']}"
+    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}{flag}")
+    print(format_predictions(predict_records(model, sample, **options)))
     return test
 
 
@@ -293,9 +304,11 @@ def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
           + ", ".join(f"{t:.4f}" for t in test["onset"][:2].ravel() if np.isfinite(t)) + " s")
     stages.begin("onset", "bench", f"wtml bench onset --out {bench} --free-records 50 "
                                    f"--variant-records 8 --transfer-records {TRANSFER_RECORDS} "
-                                   f"--independent-records {INDEPENDENT_RECORDS}")
+                                   f"--independent-records {INDEPENDENT_RECORDS} "
+                                   f"--device-records {DEVICE_RECORDS}")
     print(run_bench(data, model, bench, free_records=50, variant_records=8,
-                    transfer_records=TRANSFER_RECORDS, independent_records=INDEPENDENT_RECORDS))
+                    transfer_records=TRANSFER_RECORDS, independent_records=INDEPENDENT_RECORDS,
+                    device_records=DEVICE_RECORDS))
     stages.end()
     return json.loads((bench / "summary.json").read_text())
 
@@ -325,12 +338,29 @@ def _onset_lines(onset: dict, stages: Stages) -> list[str]:
             f"{k} {100 * v:.0f} %" for k, v in onset["domain_flag"].items())
         + f"; held-out test rows flagged {100 * onset['false_alarm_held_out']:.1f} %",
         *_onset_transfer_lines(onset["transfer"]),
+        *_onset_device_lines(onset),
         "  simulator: " + ", ".join(
             f"{r['modes']} modes {r['per_core']:.0f}×" for r in onset["simulator"]
             if r["threads"] == 1)
         + f" real time per core (target ≥ 1000× at ~6 modes: {_met(six >= 1000)})",
         "  report runs/onset/bench/report.md, plots runs/onset/bench/*.png",
         f"  time: {stages.line('onset')}"]
+
+
+def _onset_device_lines(onset: dict) -> list[str]:
+    """The decoder over the device spread against the nominal device (issue 21 §1's target:
+    location RMSE within 1.5×), and the class of parameter that limits it."""
+    sm = onset.get("device_summary")
+    if not sm:
+        return []
+    nom, spr = sm["nominal"], sm["spread"]
+    records = onset["device_spread"][0]["records"]
+    return [f"  device spread ({records} fresh records per row): nominal device "
+            f"{1e6 * nom['rmse']:.3f} µm, F1 {nom['f1']:.2f}; {sm['spread_name']} "
+            f"{1e6 * spr['rmse']:.3f} µm ({sm['ratio']:.2f}×; target ≤ 1.5×: "
+            f"{_met(sm['ratio'] <= 1.5)}), F1 {spr['f1']:.2f}, flagged "
+            f"{100 * spr['flagged']:.0f} %, {100 * spr['within_2sigma']:.0f} % within 2σ; "
+            f"limited by {sm['limit']}: {1e6 * sm['limit_rmse']:.3f} µm"]
 
 
 def _onset_transfer_lines(rows: list[dict]) -> list[str]:

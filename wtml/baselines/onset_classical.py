@@ -6,7 +6,8 @@ the probe band; the probe band's filter is complex, ``h(n) e^{jωH n/fs}`` with 
 low-pass prototype: its real part is the band-pass and its imaginary part the band-pass's FIR
 Hilbert transform, so it yields the analytic signals ``E_H(t), I_H(t)`` directly, with the
 same delay as the low-pass (all filters applied centred: offline, zero delay). Then
-``Zm(t) = (t22 E_H - t12 I_H)/(t11 I_H - t21 E_H)`` with the calibrated T at ωH, contact
+``Zm(t) = (t22 E_H - t12 I_H)/(t11 I_H - t21 E_H)`` with the calibrated T at ωH (the user's
+calibration of their device: an input, as the decoder's), contact
 where ``|Zm(t)|`` exceeds half of ``k_ref/ωH`` (k_ref: the middle of the scene's contact
 stiffness range), and the location ``u(t_c) = HUE(0) e_L(t_c)`` averaged over every rising
 (onset) and falling (detachment) edge. The filters' first and last half-lengths (19 ms at
@@ -38,35 +39,36 @@ def band_filters(sample_rate: float, probe_hz: float, taps: int = 1025, low_cut_
 
 
 class ThesisOnset(nn.Module):
-    """``(e, i)`` ``(batch, n)`` (V, A) -> ``(gap, sigma, contact)``: the wall location (m; NaN
-    without an edge), NaN (no uncertainty), and the contact state per sample ``(batch, n)``.
+    """``(e, i)`` ``(batch, n)`` (V, A) and each record's calibration ``t_re, t_im`` ``(batch,
+    4)`` (T at the probe) and ``hue0`` ``(batch,)`` (m/V) -> ``(gap, sigma, contact)``: the
+    wall location (m; NaN without an edge), NaN (no uncertainty), and the contact state per
+    sample ``(batch, n)``.
 
     Args:
         sample_rate, probe_hz: Hz.
-        t_probe: calibrated T at the probe ``(2, 2)`` complex.
-        hue0: calibrated HUE(0), m/V.
         threshold: on |Zm|, N·s/m.
         taps: FIR length (odd).
     """
 
-    def __init__(self, sample_rate: float, probe_hz: float, t_probe: np.ndarray, hue0: float,
-                 threshold: float, taps: int = 1025) -> None:
+    def __init__(self, sample_rate: float, probe_hz: float, threshold: float,
+                 taps: int = 1025) -> None:
         super().__init__()
         self.register_buffer("fir", torch.tensor(band_filters(sample_rate, probe_hz, taps)[:, None],
                                                  dtype=torch.float32))
-        self.zm = ZmFromEI(t_probe)
-        self.hue0, self.threshold, self.pad = float(hue0), float(threshold), (taps - 1) // 2
+        self.zm = ZmFromEI()
+        self.threshold, self.pad = float(threshold), (taps - 1) // 2
 
-    def bands(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def bands(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor,
+              hue0: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """``u_L`` (m) and ``|Zm|`` (N·s/m) per sample, each ``(batch, n)``."""
         fe = fn.conv1d(fn.pad(e[:, None], (self.pad, self.pad)), self.fir)
         fi = fn.conv1d(fn.pad(i[:, None] * ZmFromEI.I_SCALE, (self.pad, self.pad)), self.fir[1:])
-        zm_re, zm_im = self.zm(fe[:, 1], fe[:, 2], fi[:, 0], fi[:, 1])
-        return self.hue0 * fe[:, 0], torch.sqrt(zm_re * zm_re + zm_im * zm_im)
+        zm_re, zm_im = self.zm(fe[:, 1], fe[:, 2], fi[:, 0], fi[:, 1], t_re, t_im)
+        return hue0[:, None] * fe[:, 0], torch.sqrt(zm_re * zm_re + zm_im * zm_im)
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        u, zm = self.bands(e, i)
+    def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor,
+                hue0: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        u, zm = self.bands(e, i, t_re, t_im, hue0)
         # the filters' first and last half-lengths see the record's edges: no decision there
         inner = (zm[:, self.pad:-self.pad] > self.threshold).float()
         edge = torch.zeros_like(zm[:, :self.pad])

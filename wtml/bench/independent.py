@@ -727,7 +727,9 @@ def simulate_onset(scene, gaps, stiffness, damping, coupling, *, law: str = "lin
 
     Returns:
         ``e``, ``i`` float32 ``(n, n_samples)`` (V, A); ``gap``, ``onset``, ``detachment``
-        (s, ``(n, max_contacts)``), ``stiffness``, ``damping``, ``coupling``.
+        (s, ``(n, max_contacts)``), ``stiffness``, ``damping``, ``coupling``; the device's
+        calibration ``t_probe`` (its T at the probe, ``(n, 2, 2)``) and ``hue0`` (m/V, ``(n,)``)
+        from this simulator's own modal model.
     """
     gaps = np.atleast_1d(np.asarray(gaps, dtype=float))
     n = len(gaps)
@@ -777,6 +779,11 @@ def simulate_onset(scene, gaps, stiffness, damping, coupling, *, law: str = "lin
            "i": quantize(i_rec, a.adc_bits, a.i_full_scale_a).astype(np.float32),
            "gap": gaps, "onset": onset, "detachment": detach,
            "stiffness": law_.stiffness, "damping": law_.damping, "coupling": np.array(scale)}
+    # the user's calibration of this simulator's device (its own modal model): T at the probe
+    # and HUE(0), as OnsetScene.simulate gives them
+    t_probe = model.transduction_matrix(np.array([2 * np.pi * scene.drive.probe_hz]))[0]
+    out |= {"t_probe": np.repeat(t_probe[None], n, 0),
+            "hue0": np.full(n, model.static_tip_displacement_per_volt())}
     if detail:
         out |= {"current": cur, "u": u, "force": force, "events": events}
     return out

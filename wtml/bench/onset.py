@@ -16,7 +16,11 @@ agreement with the offline graph and its detection delay (from each true onset t
 the end of the chunk in which its contact probability first passes 0.5). Also: the decoder's
 domain flag on variants it was not trained on (another whisking amplitude, another probe
 level), the thesis's Figure 5.22 (15 positions × ``repeats``, measured against actual location,
-with R²), the modal model's convergence table, and the simulator's speed.
+with R²), the transfer table (held-out physics), the device-spread table (every method on the
+nominal device, on devices of the trained spread and on each class of issue 21's spread alone,
+each record with its own device's calibration: :func:`wtml.bench.onset_transfer.device_variants`),
+the modal model's convergence table, and the simulator's speed. Every method gets each record's
+calibration (T at the probe, HUE(0)); the Cramér–Rao bound is the nominal device's.
 Writes ``report.md``, ``summary.json`` and PNGs.
 """
 
@@ -32,14 +36,20 @@ import numpy as np
 import torch
 
 from wtml.baselines.onset_classical import ruptures_contacts
-from wtml.bench.onset_transfer import independent_variant, onset_variants, transfer_table
+from wtml.bench.onset_transfer import (
+    device_variants,
+    independent_variant,
+    onset_variants,
+    spread_summary,
+    transfer_table,
+)
 from wtml.bench.onset_transfer import scorer as transfer_scorer
 from wtml.bench.transfer import run_variants
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.physics.beam_presets import build
 from wtml.physics.modal import Wall, available_cores, convergence_table
-from wtml.runtime.onset import contacts_from, stream_record, thesis_pipeline
+from wtml.runtime.onset import contacts_from, record_inputs, stream_record, thesis_pipeline
 from wtml.runtime.predict import OnnxModel
 
 TOLERANCE_S = 1e-3
@@ -126,10 +136,12 @@ class RupturesPeer:
         self.max_contacts = scene.max_contacts
 
     @torch.no_grad()
-    def run(self, e: np.ndarray, i: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def run(self, e: np.ndarray, i: np.ndarray, *calibration: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """On records ``e, i`` and their devices' calibration (``t_re, t_im, hue0``)."""
         from wtml.scenes.onset import intervals
 
-        u, zm = self.pipe.bands(torch.tensor(e), torch.tensor(i))
+        u, zm = self.pipe.bands(*(torch.tensor(x) for x in (e, i, *calibration)))
         n_fr = zm.shape[1] // self.period
         zf = zm[:, :n_fr * self.period].reshape(len(e), n_fr, -1).mean(-1).numpy()
         uf = u[:, :n_fr * self.period].reshape(len(e), n_fr, -1).mean(-1).numpy()
@@ -195,9 +207,9 @@ def calibrated_reference(scene, labels: dict) -> np.ndarray:
     from wtml.decoders.onset import OnsetDecoder, frame_period
 
     net = OnsetDecoder()._make(scene, torch.stack([torch.zeros(5), torch.ones(5)]))
+    x = [torch.tensor(v) for v in record_inputs(labels)]
     with torch.no_grad():
-        reach = net.reach(net.frames(torch.tensor(labels["e"]),
-                                     torch.tensor(labels["i"]))).double().numpy()
+        reach = net.reach(net.frames(*x), net.reach_per_volt(*x[2:4])).double().numpy()
     frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
     centres = (np.arange(reach.shape[1]) + 0.5) * frame_s
     out = np.full(len(reach), np.nan)
@@ -211,7 +223,7 @@ def calibrated_reference(scene, labels: dict) -> np.ndarray:
 def stream_metrics(stream: OnnxModel, offline: dict, labels: dict, frame_s: float) -> dict:
     """The streaming graph against the offline one on the same records, and its detection
     delay (ms; median and 95th percentile over true contacts, and the fraction detected)."""
-    streamed = stream_record(stream, labels["e"], labels["i"])
+    streamed = stream_record(stream, *record_inputs(labels))
     prob = streamed["contact"]
     chunk_s = json.loads(stream.metadata["chunk_samples"]) / json.loads(
         stream.metadata["sample_rate_hz"])
@@ -246,14 +258,14 @@ def _methods(model_dir: Path, scene):
     peer = RupturesPeer(scene)
 
     def onnx_run(model):
-        def run(e, i):
-            out = model.run(e, i)
+        def run(*inputs):
+            out = model.run(*inputs)
             on, off = contacts_from(out, model.metadata)
             return out["gap"], on, off, out
         return run
 
     return {"decoder (ONNX)": onnx_run(decoder), "thesis pipeline (ONNX)": onnx_run(classical),
-            peer.name: lambda e, i: (*peer.run(e, i), None)}, decoder
+            peer.name: lambda *inputs: (*peer.run(*inputs), None)}, decoder
 
 
 def simulator_speed(scene, records: int = 64, modes=(None, 6), repeats: int = 3) -> list[dict]:
@@ -284,11 +296,12 @@ def simulator_speed(scene, records: int = 64, modes=(None, 6), repeats: int = 3)
 
 
 def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_records: int = 16,
-              repeats: int = 3, transfer_records: int = 32, independent_records: int = 8
-              ) -> str:
+              repeats: int = 3, transfer_records: int = 32, independent_records: int = 8,
+              device_records: int = 32) -> str:
     """The whole bench; returns the markdown report (also written to ``out/report.md``).
     ``transfer_records`` fresh records per row of the transfer table made by the scene's own
-    simulator, ``independent_records`` for the independent simulator's row (0: none)."""
+    simulator, ``independent_records`` for the independent simulator's row (0: none),
+    ``device_records`` per row of the device-spread table (0: none)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     model_dir = Path(model_dir)
@@ -303,25 +316,27 @@ def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_recor
                                                                      free_fraction=1.0))
     free = free_scene.simulate(free_records, rng)
     own = np.isnan(test["gap"])  # the test shard's free records
-    free = {key: np.concatenate([free[key], test[key][own]]) for key in ("e", "i")}
+    free = {key: np.concatenate([free[key], test[key][own]])
+            for key in ("e", "i", "t_probe", "hue0")}
     free_s = len(free["e"]) * scene.n_samples / scene.acquisition.sample_rate_hz
     positions = np.repeat(np.linspace(*scene.gap_range_m(), 15), repeats)
     fig = scene.simulate(len(positions), rng, gaps=positions)
     results = []
     for name, run in methods.items():
-        gap, on, off, _ = run(test["e"], test["i"])
+        x = record_inputs(test)
+        gap, on, off, _ = run(*x)
         err = gap - test["gap"]
         ev = event_metrics(test, on, off)
-        f_gap, f_on, _, f_out = run(free["e"], free["i"])
+        f_gap, f_on, _, f_out = run(*record_inputs(free))
         false = free_positives(f_gap, f_on, free_s)
         if f_out is not None:
             false["flagged"] = float(1 - f_out["in_domain"].mean())
-        g_fig, _, _, _ = run(fig["e"], fig["i"])
+        g_fig, _, _, _ = run(*record_inputs(fig))
         ok = np.isfinite(g_fig)
         r2 = 1 - np.sum((g_fig[ok] - positions[ok]) ** 2) / np.sum(
             (positions[ok] - positions[ok].mean()) ** 2)
-        lat = _timed(run, test["e"][:1], test["i"][:1], repeats=repeats)
-        thr = len(test["e"]) / _timed(run, test["e"], test["i"], repeats=1)
+        lat = _timed(run, *(v[:1] for v in x), repeats=repeats)
+        thr = len(test["e"]) / _timed(run, *x, repeats=1)
         results.append({"name": name, "rows": location_rows(err, frac), **ev,
                         "false_per_s": false["per_s"], "free": false,
                         "fig522_r2": float(r2),
@@ -333,12 +348,14 @@ def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_recor
     if independent_records:
         transfer += run_variants([independent_variant(scene)], independent_records,
                                  scene.seed + 1, score, _progress)
+    spread = (run_variants(device_variants(scene), device_records, scene.seed + 2, score,
+                           _progress) if device_records else [])
     flags = {}
     for label, drive in (("whisk 7.5 V", {"whisk_v": 7.5}), ("probe 40 mV", {"probe_v": 0.04})):
         var = dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, **drive))
         rec = var.simulate(variant_records, rng)
-        flags[label] = float(1 - decoder.run(rec["e"], rec["i"])["in_domain"].mean())
-    offline = decoder.run(test["e"], test["i"])
+        flags[label] = float(1 - decoder.run(*record_inputs(rec))["in_domain"].mean())
+    offline = decoder.run(*record_inputs(test))
     held_in = float(1 - offline["in_domain"].mean())
     frame_s = json.loads(decoder.metadata["frame_s"])
     streaming = stream_metrics(OnnxModel(model_dir / "stream.onnx"), offline, test, frame_s)
@@ -351,14 +368,15 @@ def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_recor
     conv = convergence_table(build(scene.preset), band)
     speed = simulator_speed(scene)
     report = _report(results, reference, streaming, flags, held_in, conv, speed, scene,
-                     len(test["e"]), free_s, transfer)
+                     len(test["e"]), free_s, transfer, spread)
     (out / "report.md").write_text(report)
     summary = {"task": "onset", "n_test": len(test["e"]),
                "methods": [{k: v for k, v in r.items() if k not in ("err", "fig522")}
                            for r in results], "domain_flag": flags,
                "reference": reference, "streaming": streaming,
                "false_alarm_held_out": held_in, "convergence": conv, "simulator": speed,
-               "transfer": transfer}
+               "transfer": transfer, "device_spread": spread,
+               "device_summary": spread_summary(spread) if spread else None}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     _plots(results, test, fig, positions, amp, scene, methods, out)
     return report
@@ -369,7 +387,7 @@ def _progress(text: str) -> None:
 
 
 def _report(results, reference, streaming, flags, held_in, conv, speed, scene, n_test,
-            free_s, transfer) -> str:
+            free_s, transfer, spread) -> str:
     rows = results[0]["rows"]
     lines = [f"# wtml bench onset ({n_test} held-out records of "
              f"{scene.n_samples / scene.acquisition.sample_rate_hz:g} s; "
@@ -408,6 +426,20 @@ def _report(results, reference, streaming, flags, held_in, conv, speed, scene, n
               "flagged out of domain, the in-domain answers' RMSE and the share of them within "
               "2σ.", ""]
     lines += transfer_table(transfer)
+    if spread:
+        sm = spread_summary(spread)
+        lines += ["", "## Device spread", "",
+                  f"Fresh records per row from devices drawn around the preset "
+                  f"(uniform within ±half-width; {scene.device.devices} devices per simulated "
+                  "batch), every record with its own device's calibration (T at the probe and "
+                  "HUE(0), the graphs' inputs t_re, t_im, hue0); the coupling's calibration "
+                  f"error ({100 * scene.calibration_error:g} %) stays unknown on top. Columns as "
+                  "the transfer table's.", ""]
+        lines += transfer_table(spread)
+        lines += ["", f"Decoder over the {sm['spread_name']}: location RMSE "
+                  f"{sm['ratio']:.2f}× the nominal device's (target ≤ 1.5×: "
+                  f"{'met' if sm['ratio'] <= 1.5 else 'MISSED'}); the class that limits it "
+                  f"alone: {sm['limit']} ({1e6 * sm['limit_rmse']:.3f} µm)."]
     lines += ["", "Decoder's domain flag (fraction of records flagged out of domain): "
               f"held-out test {held_in:.3f}; free whisking {results[0]['free']['flagged']:.3f}; "
               + "; ".join(f"{k} {v:.3f}" for k, v in flags.items()), "",
@@ -459,8 +491,9 @@ def _plots(results, test, fig, positions, amp, scene, methods, out: Path) -> Non
            title=f"Figure 5.22: 15 positions × {len(positions) // 15} repeats")
     save(f, ax, "fig5_22.png")
     pipe = thesis_pipeline(scene).eval()
+    first = [v[:1] for v in record_inputs(test)]
     with torch.no_grad():
-        u, zm = pipe.bands(torch.tensor(test["e"][:1]), torch.tensor(test["i"][:1]))
+        u, zm = pipe.bands(*(torch.tensor(v) for v in first))
     t = np.arange(scene.n_samples) / scene.acquisition.sample_rate_hz
     f, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
     axes[0].plot(t, test["e"][0], lw=0.5)
@@ -469,7 +502,7 @@ def _plots(results, test, fig, positions, amp, scene, methods, out: Path) -> Non
     axes[1].set_ylabel("i (nA)")
     axes[2].plot(t, zm[0].numpy() * 1e3, lw=0.7, label="|Zm(t)| (thesis pipeline)")
     for k, (name, run) in enumerate(methods.items()):
-        _, on, off, _ = run(test["e"][:1], test["i"][:1])
+        _, on, off, _ = run(*first)
         for a, b in zip(on[0], off[0], strict=True):
             if np.isfinite(a):
                 axes[2].axvspan(a, b if np.isfinite(b) else t[-1], ymin=0.05 + 0.1 * k,

@@ -1,7 +1,10 @@
 """The onset bench's transfer table: its methods on each contact law alone (the laws left out of
 the training mixture held out), with the wall's tangential friction (held out where the scene
 trains without it), on each acquisition effect alone, on an object moving with the base, and on
-records of the independent simulator (:mod:`wtml.bench.independent`).
+records of the independent simulator (:mod:`wtml.bench.independent`); and its device-spread
+table (issue 21 §1): the same methods on the nominal device, on devices drawn from the trained
+spread and from the issue's, and from each class of the issue's spread alone
+(:func:`device_variants`), every record with its own device's calibration.
 
 Per row and method: location RMSE and max |error| over the records with a wall (and how many
 got no location), F1 of onsets at ±1 ms, and for a method with σ and a domain flag (the
@@ -19,6 +22,8 @@ import numpy as np
 from wtml.bench.independent import simulate_onset
 from wtml.bench.transfer import Variant, acquisition_variants, member_variants
 from wtml.physics.contact import LAWS
+from wtml.physics.spread import CLASSES, DeviceSpread
+from wtml.runtime.onset import record_inputs
 
 BASE_LEVELS = (("base", {"enabled": True, "rms_m": 1e-8}),
                ("base", {"enabled": True, "rms_m": 0.8e-6}))
@@ -29,6 +34,47 @@ BASE_LEVELS = (("base", {"enabled": True, "rms_m": 1e-8}),
 FRICTION_RANGE = (0.1, 0.5)
 """μ of the wall's friction in its row where the scene trains without it: a tip sliding along
 a wall, μ ≈ 0.1–0.5 (physics.md §12)."""
+
+
+ISSUE_SPREAD = DeviceSpread(length=0.005, thickness=0.005, modulus=0.03, loss_factor=0.25,
+                            tan_delta=0.25, coupling=0.03)
+"""Issue 21's tolerances (uniform half-widths): lengths and thicknesses ±0.5 %, moduli ±3 %,
+the structural loss factor and tanδ ±25 %, the piezo coupling ±3 %."""
+
+
+def device_variants(scene) -> list[Variant]:
+    """The device-spread table's rows: the nominal device (the preset), the trained spread
+    (the scene's ``device`` block), the issue's (:data:`ISSUE_SPREAD`, where it differs) and
+    each class of the issue's alone (kind ``"one class"``). Records from the scene's own
+    simulator with the scene's nuisance, each with its device's calibration."""
+    def row(name: str, kind: str, device: DeviceSpread) -> Variant:
+        alone = dataclasses.replace(scene, device=dataclasses.replace(
+            device, devices=scene.device.devices))
+        return Variant(name, kind, lambda n, rng: alone.simulate(n, rng))
+
+    rows = [row("nominal device", "nominal", DeviceSpread())]
+    if not scene.device.none:
+        rows.append(row("trained spread", "spread", scene.device))
+    if dataclasses.replace(scene.device, devices=ISSUE_SPREAD.devices) != ISSUE_SPREAD:
+        rows.append(row("issue 21 spread", "spread", ISSUE_SPREAD))
+    return rows + [row(f"{c} ±{100 * getattr(ISSUE_SPREAD, c):g} % alone", "one class",
+                       DeviceSpread(**{c: getattr(ISSUE_SPREAD, c)})) for c in CLASSES]
+
+
+def spread_summary(rows: list[dict]) -> dict:
+    """The decoder's figures over the spread against the nominal device's: ``nominal`` and
+    ``spread`` (its scores on those rows: the trained spread, else the issue's), ``ratio``
+    (location RMSE over the spread / nominal; the issue's target ≤ 1.5) and ``limit``, the
+    class whose row alone has the largest RMSE (what a user must measure better)."""
+    dec = {r["name"]: r["methods"][0] for r in rows}
+    nominal = dec["nominal device"]
+    spread = next(r for r in rows if r["kind"] == "spread")
+    alone = [r for r in rows if r["kind"] == "one class"]
+    limit = max(alone, key=lambda r: dec[r["name"]]["rmse"]) if alone else None
+    return {"nominal": nominal, "spread_name": spread["name"], "spread": dec[spread["name"]],
+            "ratio": dec[spread["name"]]["rmse"] / nominal["rmse"],
+            "limit": None if limit is None else limit["name"],
+            "limit_rmse": None if limit is None else dec[limit["name"]]["rmse"]}
 
 
 def _with_law(scene, law: str):
@@ -105,12 +151,13 @@ def _rms(x: np.ndarray) -> float:
 def scorer(methods: dict[str, Callable], events: Callable[[dict, np.ndarray, np.ndarray], dict]
            ) -> Callable[[dict], list[dict]]:
     """``score(records)`` for :func:`~wtml.bench.transfer.run_variants`: each method
-    (``run(e, i) -> (gap, onset, detachment, outputs or None)``) scored by
+    (``run(e, i, t_re, t_im, hue0) -> (gap, onset, detachment, outputs or None)``, the
+    records' own calibration after ``e, i``: ``wtml.runtime.onset.record_inputs``) scored by
     :func:`location_scores` and ``events`` (F1 and timing of the contacts)."""
     def score(records: dict) -> list[dict]:
         rows = []
         for name, run in methods.items():
-            gap, on, off, out = run(records["e"], records["i"])
+            gap, on, off, out = run(*record_inputs(records))
             answers = out if out is not None and {"sigma", "in_domain"} <= set(out) else None
             extra = (answers["sigma"], answers["in_domain"].astype(bool)) if answers else ()
             rows.append({"name": name, **location_scores(gap, records["gap"], *extra),

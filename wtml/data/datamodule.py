@@ -40,13 +40,26 @@ TARGETS = {
 """The training targets of each task, shape ``(n, n_targets)``."""
 
 
+def onset_calibration(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    """Each onset record's calibration as the decoder's graph takes it
+    (``wtml.decoders.onset.CALIBRATION``): ``t_re, t_im`` ``(n, 4)`` (its device's T at the
+    probe, flattened t11, t12, t21, t22) and ``hue0`` ``(n,)`` m/V."""
+    if "t_probe" not in arrays or "hue0" not in arrays:
+        raise DatasetError("an onset dataset without each record's calibration ('t_probe', "
+                           "'hue0'): made by an older wtml; generate it again")
+    t = np.asarray(arrays["t_probe"]).reshape(-1, 4)
+    return t.real, t.imag, np.asarray(arrays["hue0"], float)
+
+
 def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor, ...]:
     """The input tensors and the targets, float32: ``(ze_re, ze_im, targets)`` for radial,
     ``(ze_re, ze_im, t_re, t_im, targets)`` for fluid (each record's calibrated T, ``(n,
     n_freq, 4)`` flattened as t11, t12, t21, t22), ``(e, i, targets)`` (V, A; NaN-padded
-    targets: gap m, onsets s, detachments s) for the time-domain ones; targets as in
-    ``TARGETS``."""
-    if task in ("onset", "texture"):
+    targets: gap m, onsets s, detachments s) for texture, and for onset also each record's
+    calibration after ``e, i`` (:func:`onset_calibration`); targets as in ``TARGETS``."""
+    if task == "onset":
+        inputs = (arrays["e"], arrays["i"], *onset_calibration(arrays))
+    elif task == "texture":
         inputs = (arrays["e"], arrays["i"])
     elif task == "fluid":
         if "t" not in arrays:

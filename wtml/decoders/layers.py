@@ -44,34 +44,30 @@ class ZmFromZe(nn.Module):
 
 class ZmFromEI(nn.Module):
     """Eq. 5.6 on analytic signals or phasors: ``Zm = (t22 E - t12 I)/(t11 I - t21 E)`` with
-    a calibrated T at one frequency, in float32 real arithmetic. The current enters in µA
-    (T's current-side elements are scaled to match), which keeps both terms of each
-    difference of similar size in float32.
+    the user's calibrated T at one frequency (an input: each device has its own), in float32
+    real arithmetic, written out by hand (no complex tensors, no linear solve). The current
+    enters in µA (T's current-side elements are scaled to match), which keeps both terms of
+    each difference of similar size in float32.
 
-    Args:
-        t: complex T ``(2, 2)`` (numpy).
-
-    Forward: ``e_re, e_im`` (V) and ``i_re, i_im`` (µA), any equal shapes -> ``zm_re, zm_im``
-    (N·s/m).
+    Forward: ``e_re, e_im`` (V) and ``i_re, i_im`` (µA), each ``(batch, n)``, and the T of
+    each record ``t_re, t_im`` ``(batch, 4)`` (t11, t12, t21, t22: the order of
+    ``T.reshape(..., 4)``, T in SI as :meth:`~wtml.physics.beam.BeamTransducer.transduction_matrix`
+    gives it) -> ``zm_re, zm_im`` ``(batch, n)`` (N·s/m).
     """
 
     I_SCALE = 1e6
     """A -> µA."""
 
-    def __init__(self, t: np.ndarray) -> None:
-        super().__init__()
-        t = np.asarray(t, dtype=complex)
-        for name, value in (("t11", t[0, 0] / self.I_SCALE), ("t12", t[0, 1] / self.I_SCALE),
-                            ("t21", t[1, 0]), ("t22", t[1, 1])):
-            self.register_buffer(f"{name}_re", torch.tensor(value.real, dtype=torch.float32))
-            self.register_buffer(f"{name}_im", torch.tensor(value.imag, dtype=torch.float32))
-
     def forward(self, e_re: torch.Tensor, e_im: torch.Tensor, i_re: torch.Tensor,
-                i_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        num_re = self.t22_re * e_re - self.t22_im * e_im - (self.t12_re * i_re - self.t12_im * i_im)
-        num_im = self.t22_re * e_im + self.t22_im * e_re - (self.t12_re * i_im + self.t12_im * i_re)
-        den_re = self.t11_re * i_re - self.t11_im * i_im - (self.t21_re * e_re - self.t21_im * e_im)
-        den_im = self.t11_re * i_im + self.t11_im * i_re - (self.t21_re * e_im + self.t21_im * e_re)
+                i_im: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        (a11, b11), (a12, b12), (a21, b21), (a22, b22) = t_elements(t_re[:, None],
+                                                                    t_im[:, None])
+        a11, b11, a12, b12 = (x / self.I_SCALE for x in (a11, b11, a12, b12))
+        num_re = a22 * e_re - b22 * e_im - (a12 * i_re - b12 * i_im)
+        num_im = a22 * e_im + b22 * e_re - (a12 * i_im + b12 * i_re)
+        den_re = a11 * i_re - b11 * i_im - (a21 * e_re - b21 * e_im)
+        den_im = a11 * i_im + b11 * i_re - (a21 * e_im + b21 * e_re)
         mag2 = den_re * den_re + den_im * den_im
         return ((num_re * den_re + num_im * den_im) / mag2,
                 (num_im * den_re - num_re * den_im) / mag2)

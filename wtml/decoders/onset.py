@@ -8,7 +8,10 @@ The graph takes the raw records and computes its own features per probe period (
    the whisking ramp, which would otherwise leak into the probe's phasor): the whisking
    position ``u_L = HUE(0) e_L`` and the probe phasors
    ``E_H, I_H``, then ``Zm = (t22 E_H - t12 I_H)/(t11 I_H - t21 E_H)`` through the
-   calibrated T at the probe frequency (real arithmetic, exportable).
+   calibrated T at the probe frequency (real arithmetic, exportable). T at the probe and
+   HUE(0) are the user's calibration of their own device: inputs of the graph (``t_re``,
+   ``t_im`` ``(batch, 4)``, ``hue0`` ``(batch,)`` m/V; :data:`CALIBRATION`), never constants
+   of the preset, so the decoder maps each device through its own T.
 2. A causal temporal convolution over the frames (dilated, so it sees ~60 frames back: the
    400 Hz mode rings for ~40 ms), fed the normalised frames, u_L's step and Zm's step from
    the frame before (compressed by asinh on the scale of free whisking's frame-to-frame
@@ -37,6 +40,10 @@ The graph takes the raw records and computes its own features per probe period (
    ~1e-12 m from e alone), passes the detachment level, which the net estimates; the
    output ``detach_margin`` is reach minus that level per frame (m).
 
+Inputs: ``e`` (V), ``i`` (A) ``(batch, n_samples)`` and the calibration ``t_re, t_im,
+hue0``. The whisking amplitude of the nominal device (``amp``) is the unit of the net's
+offsets only (a device's own amplitude differs by a few %, its offsets by as little).
+
 Outputs (each ``(batch,)`` unless said): ``gap`` and ``sigma`` (m, NaN in a record without
 contact: :func:`answer` decides wall and contacts together), ``contact`` (``(batch,
 n_frames)``, probability per frame), ``detach_margin`` (m, ``(batch, n_frames)``; -1 m in a
@@ -56,6 +63,17 @@ from torch.nn import functional as fn
 from wtml.decoders.base import ConfigError, DecoderModule, check_positive
 from wtml.decoders.domain import RESOLUTION
 from wtml.decoders.layers import ZmFromEI
+
+CALIBRATION = ("t_re", "t_im", "hue0")
+"""The graph's inputs after ``e, i``: the user's calibrated T at the probe frequency, real and
+imaginary parts ``(batch, 4)`` as ``T.reshape(4)`` (t11, t12, t21, t22), and HUE(0) (m/V,
+``(batch,)``)."""
+
+FRAME_CLIP = 30.0
+"""Normalised frame features are held within ±this many training std before the convolution.
+A contact's Zm is ~10 std; a frame in which a contact switches can read a nearly vanishing
+tip velocity and |Zm| ~1000 std (met over the device spread: 0.31 N·s/m), which drove the
+main job's training to NaN."""
 
 LEVEL_SCALE = 0.001
 """The detachment level's loss is log cosh of its error in units of this fraction of the
@@ -77,23 +95,23 @@ def frame_basis(period: int) -> np.ndarray:
 
 
 class ProbeFrames(nn.Module):
-    """``(e, i)`` ``(batch, n_samples)`` -> frames ``(batch, n_frames, 5)``: ``u_L`` (m),
-    ``Re Zm, Im Zm`` (N·s/m), ``|E_H|`` (V), ``|I_H|`` (A).
+    """``(e, i)`` ``(batch, n_samples)`` and the calibration (:data:`CALIBRATION`) -> frames
+    ``(batch, n_frames, 5)``: ``u_L`` (m), ``Re Zm, Im Zm`` (N·s/m), ``|E_H|`` (V), and
+    ``|I_H| / (|Y_free| |E_H|)``, the probe current over what the device's free tip draws
+    (``Y_free = t22/t12``, from Zm = 0): 1 on free whisking for every device, where
+    ``|I_H|`` itself differs between devices by more than a contact changes it.
 
     Args:
         period: samples per probe period (an integer: the scene's rate is a multiple of the
             probe frequency).
-        t_probe: complex T at the probe frequency ``(2, 2)``.
-        hue0: HUE(0), m/V.
     """
 
-    def __init__(self, period: int, t_probe: np.ndarray, hue0: float) -> None:
+    def __init__(self, period: int) -> None:
         super().__init__()
         self.period = int(period)
         self.register_buffer("basis", torch.tensor(frame_basis(self.period).T,
                                                    dtype=torch.float32))
-        self.zm = ZmFromEI(t_probe)
-        self.hue0 = float(hue0)
+        self.zm = ZmFromEI()
 
     def fit(self, x: torch.Tensor) -> torch.Tensor:
         """``(batch, n_samples)`` -> ``(batch, 3, n_frames)``: frame level, cos, sin.
@@ -108,30 +126,50 @@ class ProbeFrames(nn.Module):
         fit = ((frames - first) @ self.basis).transpose(1, 2)
         return fit + torch.cat([first[..., 0][:, None], torch.zeros_like(fit[:, 1:])], 1)
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
+    def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor, hue0: torch.Tensor) -> torch.Tensor:
         s = ZmFromEI.I_SCALE
         fe, fi = self.fit(e), self.fit(i * s)
         # x = c cos + s sin = Re(X e^{jωt}) with X = c - j s
         e_re, e_im, i_re, i_im = fe[:, 1], -fe[:, 2], fi[:, 1], -fi[:, 2]
-        zm_re, zm_im = self.zm(e_re, e_im, i_re, i_im)
-        return torch.stack([self.hue0 * fe[:, 0], zm_re, zm_im,
-                            torch.sqrt(e_re * e_re + e_im * e_im),
-                            torch.sqrt(i_re * i_re + i_im * i_im) / s], -1)
+        zm_re, zm_im = self.zm(e_re, e_im, i_re, i_im, t_re, t_im)
+        mag_e = torch.sqrt(e_re * e_re + e_im * e_im)
+        y_free = torch.sqrt((t_re[:, 3:] * t_re[:, 3:] + t_im[:, 3:] * t_im[:, 3:])
+                            / (t_re[:, 1:2] * t_re[:, 1:2] + t_im[:, 1:2] * t_im[:, 1:2]))
+        free = (s * y_free * mag_e).clamp_min(1e-30)  # µA
+        return torch.stack([hue0[:, None] * fe[:, 0], zm_re, zm_im, mag_e,
+                            torch.sqrt(i_re * i_re + i_im * i_im) / free], -1)
 
 
 class RecordSummary(nn.Module):
-    """The domain gate's features of a record, ``(batch, 3)``: probe level |E_H| (mV),
-    whisking amplitude of u_L (µm), and log10 of the mean |I_H| (A)."""
+    """The domain gate's features of a record, ``(batch, 3 + N_DEVICE)``: probe level |E_H|
+    (mV), whisking amplitude of u_L (µm), log10 of the mean probe current relative to the
+    free tip's (:class:`ProbeFrames`), then the device as its
+    calibration shows it (:meth:`device`)."""
+
+    N_DEVICE = 5
+    """The device features (:meth:`device`)."""
 
     def __init__(self, frames: ProbeFrames) -> None:
         super().__init__()
         self.frames = frames
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
-        f = self.frames(e, i)
+    @staticmethod
+    def device(t_re: torch.Tensor, t_im: torch.Tensor, hue0: torch.Tensor) -> torch.Tensor:
+        """HUE(0) (µm/V), Re and Im of t12 and of t21 at the probe, ``(batch, N_DEVICE)``:
+        what the gate needs to tell a device outside the trained spread. Not all of T: det T
+        = 1 ties its elements, and a direction the training devices never move (their
+        covariance's null space) would flag any measured T, whose determinant is 1 only to
+        its measurement's precision."""
+        return torch.stack([1e6 * hue0, t_re[:, 1], t_im[:, 1], t_re[:, 2], t_im[:, 2]], -1)
+
+    def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor, hue0: torch.Tensor) -> torch.Tensor:
+        f = self.frames(e, i, t_re, t_im, hue0)
         u = f[..., 0] * 1e6
-        return torch.stack([1e3 * f[..., 3].mean(-1), (u.amax(-1) - u.amin(-1)) / 2,
-                            torch.log10(f[..., 4].mean(-1))], -1)
+        return torch.cat([torch.stack([1e3 * f[..., 3].mean(-1), (u.amax(-1) - u.amin(-1)) / 2,
+                                       torch.log10(f[..., 4].mean(-1))], -1),
+                          self.device(t_re, t_im, hue0)], -1)
 
 
 class CausalConv(nn.Module):
@@ -156,9 +194,9 @@ class OnsetNet(nn.Module):
         zm_step: the scale of Zm's frame-to-frame step (Re, Im; N·s/m), ``(2,)``: its median
             over the training frames, nearly all of free whisking.
         touch_step: the size of Zm's step (N·s/m) that marks a touch (:func:`touch_threshold`).
-        amp: the whisking amplitude, m (the offsets' unit).
-        reach_per_volt: the calibrated free tip's probe amplitude per probe volt,
-            ``1/(ωH |t12|)``, m/V.
+        amp: the nominal whisking amplitude, m (the offsets' unit).
+        probe_omega: ωH, rad/s (the free tip's probe amplitude per probe volt is
+            ``1/(ωH |t12|)`` with each record's calibrated t12).
         channels, dilations, kernel: the temporal convolution.
     """
 
@@ -167,7 +205,7 @@ class OnsetNet(nn.Module):
     detachment level."""
 
     def __init__(self, frames: ProbeFrames, scale: torch.Tensor, zm_step: torch.Tensor,
-                 touch_step: float, amp: float, reach_per_volt: float, channels: int,
+                 touch_step: float, amp: float, probe_omega: float, channels: int,
                  dilations: tuple[int, ...], kernel: int = 3) -> None:
         super().__init__()
         self.frames = frames
@@ -176,7 +214,7 @@ class OnsetNet(nn.Module):
         self.register_buffer("zm_step", zm_step.float().clone())
         self.register_buffer("touch_step", torch.tensor(float(touch_step)))
         self.amp = float(amp)
-        self.reach_per_volt = float(reach_per_volt)
+        self.probe_omega = float(probe_omega)
         layers, c_in = [], 8
         for d in dilations:
             layers += [CausalConv(c_in, channels, kernel, d), nn.GELU()]
@@ -191,37 +229,49 @@ class OnsetNet(nn.Module):
         x = torch.cat([previous, f[..., :3]], 1)
         return x[:, 1:] - x[:, :-1]
 
-    def reach(self, f: torch.Tensor) -> torch.Tensor:
-        """The free tip's reach on the probe peaks, ``u_L + |u_H|`` (m), ``(batch, n)``."""
-        return f[..., 0] + self.reach_per_volt * f[..., 3]
+    def reach_per_volt(self, t_re: torch.Tensor, t_im: torch.Tensor) -> torch.Tensor:
+        """The calibrated free tip's probe amplitude per probe volt, ``1/(ωH |t12|)`` (m/V),
+        ``(batch, 1)``, from each record's T at the probe ``(batch, 4)``."""
+        t12 = torch.sqrt(t_re[:, 1:2] * t_re[:, 1:2] + t_im[:, 1:2] * t_im[:, 1:2])
+        return 1.0 / (self.probe_omega * t12)
 
-    def per_frame(self, e: torch.Tensor, i: torch.Tensor) -> dict[str, torch.Tensor]:
+    @staticmethod
+    def reach(f: torch.Tensor, per_volt: torch.Tensor) -> torch.Tensor:
+        """The free tip's reach on the probe peaks, ``u_L + |u_H|`` (m), ``(batch, n)``, with
+        :meth:`reach_per_volt`."""
+        return f[..., 0] + per_volt * f[..., 3]
+
+    def per_frame(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
+                  t_im: torch.Tensor, hue0: torch.Tensor) -> dict[str, torch.Tensor]:
         """Per frame, each ``(batch, n_frames)``: ``contact`` logit, ``vote``/``est``/
         ``log_sd`` of g (m), ``vote_off``/``est_off`` of the detachment level (m),
         ``reach`` (m) and ``touch`` (Zm's step over :attr:`touch_step`: >= 1 on a touch)."""
-        f = self.frames(e, i)
-        return self.split(f, self.steps(f, f[:, :1, :3]))
+        f = self.frames(e, i, t_re, t_im, hue0)
+        return self.split(f, self.steps(f, f[:, :1, :3]), self.reach_per_volt(t_re, t_im))
 
-    def split(self, f: torch.Tensor, step: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The heads of frames ``f`` ``(batch, n, 5)`` with their steps (:meth:`steps`)."""
-        return self.outputs(self.head(self.body(self.inputs(f, step))), f, step)
+    def split(self, f: torch.Tensor, step: torch.Tensor, per_volt: torch.Tensor
+              ) -> dict[str, torch.Tensor]:
+        """The heads of frames ``f`` ``(batch, n, 5)`` with their steps (:meth:`steps`) and
+        the records' reach per volt (:meth:`reach_per_volt`)."""
+        return self.outputs(self.head(self.body(self.inputs(f, step))), f, step, per_volt)
 
     def inputs(self, f: torch.Tensor, step: torch.Tensor) -> torch.Tensor:
-        """The convolution's input ``(batch, 8, n)``: normalised frames, u_L's step, and
-        Zm's step as ``asinh(step / zm_step)`` (a first touch's step is ~1e3 zm_step)."""
-        x = (f - self.mean) / self.std
+        """The convolution's input ``(batch, 8, n)``: normalised frames (held within
+        :data:`FRAME_CLIP` std), u_L's step, and Zm's step as ``asinh(step / zm_step)`` (a
+        first touch's step is ~1e3 zm_step)."""
+        x = ((f - self.mean) / self.std).clamp(-FRAME_CLIP, FRAME_CLIP)
         du = step[..., :1] / self.std[0] * 10.0
         return torch.cat([x, du, torch.asinh(step[..., 1:] / self.zm_step)], -1).transpose(1, 2)
 
-    def outputs(self, h: torch.Tensor, f: torch.Tensor, step: torch.Tensor
-                ) -> dict[str, torch.Tensor]:
+    def outputs(self, h: torch.Tensor, f: torch.Tensor, step: torch.Tensor,
+                per_volt: torch.Tensor) -> dict[str, torch.Tensor]:
         """The per-frame quantities (see :meth:`per_frame`) from the heads ``(batch, 6, n)``,
-        the frames and their steps."""
+        the frames, their steps and the records' reach per volt."""
         u = f[..., 0]
         zm = step[..., 1:]
         return {"contact": h[:, 0], "vote": h[:, 1], "est": u + self.amp * h[:, 2],
                 "log_sd": h[:, 3], "vote_off": h[:, 4], "est_off": u + self.amp * h[:, 5],
-                "reach": self.reach(f),
+                "reach": self.reach(f, per_volt),
                 "touch": torch.sqrt((zm * zm).sum(-1)) / self.touch_step}
 
     def pooled(self, p: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
@@ -232,8 +282,9 @@ class OnsetNet(nn.Module):
         off = (torch.softmax(p["vote_off"], -1) * p["est_off"]).sum(-1)
         return g, torch.sqrt(var), off
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        p = self.per_frame(e, i)
+    def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor, hue0: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        p = self.per_frame(e, i, t_re, t_im, hue0)
         g, sd, off = self.pooled(p)
         prob = torch.sigmoid(p["contact"])
         gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
@@ -360,33 +411,37 @@ class OnsetDecoder(DecoderModule):
         self.register_buffer("offsets", torch.zeros(2))
 
     @staticmethod
-    def _probe_t(scene) -> np.ndarray:
-        wh = 2 * np.pi * scene.drive.probe_hz
-        return scene.transducer().transduction_matrix(np.array([wh]))[0]
-
-    def _frames(self, scene) -> ProbeFrames:
-        hue0 = scene.transducer().static_tip_displacement_per_volt()
-        return ProbeFrames(frame_period(scene), self._probe_t(scene), hue0)
+    def _frames(scene) -> ProbeFrames:
+        return ProbeFrames(frame_period(scene))
 
     def domain_features(self, scene) -> tuple[nn.Module, int]:
-        return RecordSummary(self._frames(scene)), 3
+        return RecordSummary(self._frames(scene)), 3 + RecordSummary.N_DEVICE
 
     def _make(self, scene, scale: torch.Tensor, zm_step: torch.Tensor | None = None,
               touch_step: float = 1.0) -> OnsetNet:
         h = self.hparams
-        reach = 1 / (2 * np.pi * scene.drive.probe_hz * abs(self._probe_t(scene)[0, 1]))
         return OnsetNet(self._frames(scene), scale,
                         torch.ones(2) if zm_step is None else zm_step, touch_step,
-                        scene.whisk_amplitude_m(), reach, h.channels, tuple(h.dilations))
+                        scene.whisk_amplitude_m(), 2 * np.pi * scene.drive.probe_hz,
+                        h.channels, tuple(h.dilations))
 
-    def build_net(self, scene, e, i, targets) -> nn.Module:
+    def build_net(self, scene, *tensors) -> nn.Module:
+        *inputs, targets = tensors
         frames = self._frames(scene)
         with torch.no_grad():
-            f = torch.cat([frames(e[s:s + 64], i[s:s + 64]) for s in range(0, len(e), 64)])
+            f = torch.cat([frames(*(x[s:s + 64] for x in inputs))
+                           for s in range(0, len(targets), 64)])
+        # the statistics leave out the frames of the largest |Zm| (1 in 10^4): a frame whose
+        # tip velocity phasor nearly vanishes (a contact switching inside it) reads |Zm| ~100x
+        # a wall's, and one such frame in the training data (met over the device spread: 0.31
+        # N·s/m against ~2e-3) set the floor below, hence the touch threshold, 6x too high
+        flat = f.flatten(0, 1)
+        zm = flat[:, 1:3].norm(dim=-1)
+        flat = flat[zm <= torch.quantile(zm.double(), 0.9999).float()]
         # a feature the data hold nearly constant (the probe level) is scaled no finer than
         # float32 resolves it, or rounding differences between graphs would drive the net
-        floor = RESOLUTION * f.abs().amax((0, 1))
-        scale = torch.stack([f.mean((0, 1)), torch.maximum(f.std((0, 1)), floor)])
+        floor = RESOLUTION * flat.abs().amax(0)
+        scale = torch.stack([flat.mean(0), torch.maximum(flat.std(0), floor)])
         step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:]
         zm_step = torch.maximum(step.abs().flatten(0, 1).median(0).values, floor[1:3])
         frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
@@ -409,8 +464,8 @@ class OnsetDecoder(DecoderModule):
         self._max_contacts = scene.max_contacts
 
     def loss(self, batch) -> torch.Tensor:
-        e, i, targets = batch
-        p = self.net.per_frame(e, i)
+        *inputs, targets = batch
+        p = self.net.per_frame(*inputs)
         n = p["contact"].shape[1]
         labels = frame_labels(targets, n, self._frame_s, self._max_contacts)
         weight = 1 + self.hparams.onset_weight * onset_frames(targets, n, self._frame_s,

@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from wtml.decoders.domain import DomainGate
-from wtml.decoders.onset import CausalConv, OnsetNet, answer
+from wtml.decoders.onset import CausalConv, OnsetNet, RecordSummary, answer
 
 POOLS = (("vote", "est", "log_sd", 0), ("vote_off", "est_off", None, 4))
 """The two softmax poolings: vote, estimate, (for g) the log std, and where their running
@@ -35,8 +35,10 @@ then the top contact probability, the frame count, Σ(|E_H| − level), max u_L,
 
 
 class StreamingOnset(nn.Module):
-    """``(e, i, state) -> (contact, detach_margin, touch, gap, sigma, next_state, in_domain,
-    domain_score)`` for chunks of ``chunk_frames`` probe periods.
+    """``(e, i, t_re, t_im, hue0, state) -> (contact, detach_margin, touch, gap, sigma,
+    next_state, in_domain, domain_score)`` for chunks of ``chunk_frames`` probe periods; the
+    device's calibration ``t_re, t_im, hue0`` as the offline graph takes it
+    (:data:`~wtml.decoders.onset.CALIBRATION`), the same in every chunk of a record.
 
     Args:
         net: a trained onset net.
@@ -71,12 +73,12 @@ class StreamingOnset(nn.Module):
         """The state before a record's first chunk: zeros, ``(batch, state_size)``."""
         return torch.zeros(batch, self.state_size)
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor, state: torch.Tensor
-                ) -> tuple[torch.Tensor, ...]:
+    def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor,
+                hue0: torch.Tensor, state: torch.Tensor) -> tuple[torch.Tensor, ...]:
         parts = torch.split(state, self.sizes, 1)
         prev, buffers, pool = parts[0], parts[1:-1], parts[-1]
         net = self.net
-        f = net.frames(e, i)  # (batch, chunk_frames, 5)
+        f = net.frames(e, i, t_re, t_im, hue0)  # (batch, chunk_frames, 5)
         first = pool[:, 8] == 0  # no frame before this chunk
 
         def running(op, old, new):
@@ -94,7 +96,7 @@ class StreamingOnset(nn.Module):
                 x = layer.conv(full)
             else:
                 x = layer(x)
-        p = net.outputs(net.head(x), f, step)
+        p = net.outputs(net.head(x), f, step, net.reach_per_volt(t_re, t_im))
         pooled, merged = [], []
         for vote, est, log_sd, at in POOLS:
             run = pool[:, at:at + (4 if log_sd else 3)]
@@ -119,8 +121,10 @@ class StreamingOnset(nn.Module):
         u_max = running(torch.maximum, pool[:, 10], f[..., 0].amax(-1))
         u_min = running(torch.minimum, pool[:, 11], f[..., 0].amin(-1))
         sum_i = pool[:, 12] + (f[..., 4] - self.level_i).sum(-1)
-        summary = torch.stack([1e3 * (self.level_e + sum_e / count), 1e6 * (u_max - u_min) / 2,
-                               torch.log10(self.level_i + sum_i / count)], -1)
+        summary = torch.cat([torch.stack([1e3 * (self.level_e + sum_e / count),
+                                          1e6 * (u_max - u_min) / 2,
+                                          torch.log10(self.level_i + sum_i / count)], -1),
+                             RecordSummary.device(t_re, t_im, hue0)], -1)
         # this chunk's margin uses the level so far and the contact seen so far
         gap, sd, off_margin = answer(*pooled[:2], top, p, pooled[2])
         score = self.gate.score(summary)

@@ -1,7 +1,11 @@
 """Onset models on a device: export, reading records, and contacts from the graphs' outputs.
 
 Both graphs (``model.onnx``: the decoder; ``classical.onnx``: the thesis's pipeline) take
-``e`` (V) and ``i`` (A), float32 ``(batch, n_samples)`` at the trained sampling rate, and
+``e`` (V) and ``i`` (A), float32 ``(batch, n_samples)`` at the trained sampling rate, and the
+user's calibration of their own device (:data:`ONSET_REFERENCES`; the metadata's
+``references``): ``t_re, t_im`` ``(batch, 4)``, its T at the probe frequency flattened as
+(t11, t12, t21, t22), and ``hue0`` ``(batch,)``, its HUE(0) in m/V (``wtml predict
+--calibration cal.npz``: :func:`read_onset_calibration`); and they
 return ``gap`` (m), ``sigma`` (m; NaN for the classical path and out of domain), ``contact``
 (``(batch, n_frames)``: a probability per probe frame for the decoder, a 0/1 state per sample
 for the classical path), the decoder also ``detach_margin`` (m per frame: the free tip's
@@ -24,18 +28,24 @@ import torch
 
 from wtml import __version__
 from wtml.baselines.onset_classical import ThesisOnset
+from wtml.data.datamodule import onset_calibration
 from wtml.decoders.domain import Gated
-from wtml.decoders.onset import frame_period
+from wtml.decoders.onset import CALIBRATION, frame_period
 from wtml.decoders.onset_stream import StreamingOnset
 from wtml.runtime.export import _export, domain_metadata
-from wtml.runtime.predict import InputError
+from wtml.runtime.predict import InputError, read_calibration
 from wtml.scenes import config_hash
 from wtml.scenes.onset import intervals
 
-ONSET_INPUTS = ("e", "i")
+ONSET_INPUTS = ("e", "i", *CALIBRATION)
+ONSET_REFERENCES = {"calibration": "the device's calibrated T at the probe frequency and its "
+                                   "HUE(0) (the calibration of physics.md §4 on the user's own "
+                                   "device): inputs t_re, t_im (T.reshape(4): t11, t12, t21, "
+                                   "t22) and hue0 (m/V)"}
+"""What the onset graphs need besides the record (the metadata's ``references``)."""
 ONSET_OUTPUTS = ("gap", "sigma", "contact")
 DECODER_OUTPUTS = ONSET_OUTPUTS + ("detach_margin", "touch")
-STREAM_INPUTS = ("e", "i", "state")
+STREAM_INPUTS = ("e", "i", *CALIBRATION, "state")
 STREAM_OUTPUTS = ("contact", "detach_margin", "touch", "gap", "sigma", "next_state")
 TOUCH_LOOKBACK = 4
 """Frames ahead of a decoder's contact run in which its first touch is still looked for (the
@@ -48,14 +58,62 @@ FRESH_RECORDS = 64
 
 
 def thesis_pipeline(scene) -> ThesisOnset:
-    """The classical path for ``scene``: calibrated T at the probe and HUE(0), threshold at
-    half of ``k_ref/ωH``."""
-    model = scene.transducer()
+    """The classical path for ``scene`` (each record's calibrated T at the probe and HUE(0)
+    its inputs), threshold at half of ``k_ref/ωH``."""
     wh = 2 * np.pi * scene.drive.probe_hz
     return ThesisOnset(scene.acquisition.sample_rate_hz, scene.drive.probe_hz,
-                       model.transduction_matrix(np.array([wh]))[0],
-                       model.static_tip_displacement_per_volt(),
                        0.5 * scene.reference_stiffness() / wh)
+
+
+def record_inputs(records: dict) -> tuple[np.ndarray, ...]:
+    """A graph's inputs from records of an onset scene (``e``, ``i``, ``t_probe``, ``hue0``):
+    ``(e, i, t_re, t_im, hue0)`` float32, in the order of :data:`ONSET_INPUTS`."""
+    return tuple(np.asarray(x, np.float32)
+                 for x in (records["e"], records["i"], *onset_calibration(records)))
+
+
+def calibration_file(path: str | Path, scene, records: dict | None = None) -> Path:
+    """Write the calibration ``wtml predict --calibration`` reads (:func:`read_onset_calibration`)
+    to ``path``: each record's (``t_probe``, ``hue0`` of ``records``), or the preset's."""
+    if records is None:
+        t, hue0 = scene.calibration(scene.transducer())
+        t, hue0 = t[None], np.float64(hue0)
+    else:
+        t, hue0 = np.asarray(records["t_probe"])[:, None], np.asarray(records["hue0"])
+    np.savez(path, frequency_hz=np.array([scene.drive.probe_hz]), t=t, hue0=hue0)
+    return Path(path)
+
+
+def read_onset_calibration(path: str | Path | None, probe_hz: float, n: int
+                           ) -> tuple[np.ndarray, ...]:
+    """The device's calibration for ``n`` records as the onset graphs take it, ``(t_re, t_im,
+    hue0)`` float32 (``(n, 4)``, ``(n, 4)``, ``(n,)``), from an .npz with ``frequency_hz``
+    (the probe's, ``(1,)``), ``t`` (complex T there, ``(1, 2, 2)`` for every record or ``(n,
+    1, 2, 2)`` one per record) and ``hue0`` (m/V, scalar or ``(n,)``).
+
+    Raises:
+        InputError: no calibration given (an onset export needs one: never a default), a
+            missing or unreadable file, another probe frequency, a wrong shape, NaN or inf,
+            HUE(0) not > 0.
+    """
+    if path is None:
+        raise InputError(f"this onset export needs --calibration: the device's calibrated T at "
+                         f"the probe ({probe_hz:g} Hz) and its HUE(0) (npz with frequency_hz "
+                         f"[{probe_hz:g}], t complex (1, 2, 2) and hue0 in m/V); "
+                         "physics.md §4")
+    t = read_calibration(path, np.array([float(probe_hz)]), n)[:, 0].reshape(n, 4)
+    with np.load(path, allow_pickle=False) as data:
+        if "hue0" not in data.files:
+            raise InputError(f"{path}: an onset calibration needs 'hue0' (the device's HUE(0), "
+                             f"m/V) beside 'frequency_hz' and 't'; has {sorted(data.files)}")
+        hue0 = np.asarray(data["hue0"], float)
+    if hue0.shape not in ((), (1,), (n,)):
+        raise InputError(f"{path}: hue0 must be a scalar or have shape (n={n},), got "
+                         f"{hue0.shape}")
+    if not np.all(np.isfinite(hue0) & (hue0 > 0)):
+        raise InputError(f"{path}: hue0 must be finite and > 0 (m/V), got {hue0.ravel()[:3]}")
+    hue0 = np.broadcast_to(hue0.reshape(-1) if hue0.ndim else hue0, (n,))
+    return tuple(np.asarray(x, np.float32) for x in (t.real, t.imag, hue0))
 
 
 @torch.no_grad()
@@ -66,7 +124,7 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
     start; outputs :data:`STREAM_OUTPUTS` then ``in_domain``, ``domain_score``)."""
     decoder = Gated(module.net, module.gate, (1,)).eval()
     fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
-    inside = decoder(torch.tensor(fresh["e"]), torch.tensor(fresh["i"]))[-2]
+    inside = decoder(*(torch.tensor(x) for x in record_inputs(fresh)))[-2]
     domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
     rate = scene.acquisition.sample_rate_hz
     period = frame_period(scene)
@@ -74,7 +132,9 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
     on_off = [float(x) for x in module.offsets]
     meta = {"wtml_version": __version__, "task": "onset",
             "inputs": json.dumps(list(ONSET_INPUTS)), "outputs": json.dumps(list(ONSET_OUTPUTS)),
-            "units": json.dumps({"gap": "m", "sigma": "m", "contact": "1", "e": "V", "i": "A"}),
+            "units": json.dumps({"gap": "m", "sigma": "m", "contact": "1", "e": "V", "i": "A",
+                                 "t_re": "SI (T)", "t_im": "SI (T)", "hue0": "m/V"}),
+            "references": json.dumps(ONSET_REFERENCES),
             "frequency_hz": json.dumps([scene.drive.probe_hz]),
             "sample_rate_hz": json.dumps(rate), "n_samples": json.dumps(scene.n_samples),
             "merge_s": json.dumps(merge),
@@ -85,12 +145,14 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
               "detach_offset_s": json.dumps(on_off[1])}
     samples = {"frame_s": json.dumps(1 / rate), "onset_offset_s": "0.0",
                "detach_offset_s": "0.0"}
+    widths = (scene.n_samples,) * 2 + (4, 4, ())
     _export(decoder, scene.n_samples, paths["decoder"],
             meta | frames | {"kind": "decoder", "label": "decoder",
-                             "outputs": json.dumps(list(DECODER_OUTPUTS))}, ONSET_INPUTS)
+                             "outputs": json.dumps(list(DECODER_OUTPUTS))}, ONSET_INPUTS, widths)
     classical = Gated(thesis_pipeline(scene), module.gate.inputs_only()).eval()
     _export(classical, scene.n_samples, paths["classical"],
-            meta | samples | {"kind": "classical", "label": "thesis pipeline"}, ONSET_INPUTS)
+            meta | samples | {"kind": "classical", "label": "thesis pipeline"}, ONSET_INPUTS,
+            widths)
     stream = StreamingOnset(module.net, module.gate, STREAM_CHUNK_FRAMES).eval()
     paths["stream"] = out / "stream.onnx"
     _export(stream, stream.chunk_samples, paths["stream"],
@@ -99,7 +161,7 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
                              "inputs": json.dumps(list(STREAM_INPUTS)),
                              "chunk_samples": json.dumps(stream.chunk_samples),
                              "state_size": json.dumps(stream.state_size)},
-            STREAM_INPUTS, (stream.chunk_samples,) * 2 + (stream.state_size,))
+            STREAM_INPUTS, (stream.chunk_samples,) * 2 + (4, 4, (), stream.state_size))
     return paths
 
 
@@ -199,19 +261,24 @@ def read_record(path: str | Path, sample_rate_hz: float, n_samples: int, *,
     return np.stack([e, i]).astype(np.float32)
 
 
-def predict_records(model_dir: str | Path, input_path: str | Path) -> list[dict]:
+def predict_records(model_dir: str | Path, input_path: str | Path, *,
+                    calibration: str | Path | None = None) -> list[dict]:
     """One row per contact (and one per record without any) for the decoder and the
     classical path: ``record``, ``method``, ``contact``, ``onset (s)``, ``detachment (s)``,
-    ``gap (m)``, ``sigma (m)``, ``in_domain``, ``domain_score``, ``flags``."""
+    ``gap (m)``, ``sigma (m)``, ``in_domain``, ``domain_score``, ``flags``. ``calibration``:
+    the device's (:func:`read_onset_calibration`), which an export whose metadata names it
+    needs (:class:`InputError` without it)."""
     from wtml.runtime.predict import impossible, load_export
 
     decoder, classical = load_export(model_dir)
     meta = decoder.metadata
     x = read_record(input_path, json.loads(meta["sample_rate_hz"]),
                     json.loads(meta["n_samples"]))
+    cal = (read_onset_calibration(calibration, float(decoder.frequency_hz[0]), x.shape[1])
+           if "calibration" in decoder.references else ())
     rows = []
     for label, model in (("decoder", decoder), ("classical", classical)):
-        pred = model.run(x[0], x[1])
+        pred = model.run(x[0], x[1], *cal)
         onset, detach = contacts_from(pred, model.metadata)
         odd = impossible(model, pred)["gap"]
         for r in range(x.shape[1]):
@@ -236,12 +303,14 @@ def predict_records(model_dir: str | Path, input_path: str | Path) -> list[dict]
     return rows
 
 
-def stream_record(stream, e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
+def stream_record(stream, e: np.ndarray, i: np.ndarray, *calibration: np.ndarray
+                  ) -> dict[str, np.ndarray]:
     """Feed records through the streaming graph chunk by chunk, as a device would.
 
     Args:
         stream: the loaded ``stream.onnx`` (:class:`wtml.runtime.predict.OnnxModel`).
         e, i: V and A, ``(n, n_samples)``; ``n_samples`` a multiple of the chunk.
+        calibration: the records' ``t_re, t_im, hue0`` (every chunk gets them).
 
     Returns:
         ``contact`` ``(n, n_frames)`` (the chunks' probabilities side by side), and the
@@ -253,7 +322,7 @@ def stream_record(stream, e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]
     state = np.zeros((len(e), json.loads(stream.metadata["state_size"])), np.float32)
     probs = []
     for k in range(0, e.shape[1], chunk):
-        out = stream.run(e[:, k:k + chunk], i[:, k:k + chunk], state)
+        out = stream.run(e[:, k:k + chunk], i[:, k:k + chunk], *calibration, state)
         state = out["next_state"].astype(np.float32)
         probs.append(out["contact"])
     return {"contact": np.concatenate(probs, 1),

@@ -39,7 +39,9 @@ Fluid models also need the device's calibration (--calibration): .npz with frequ
 measurement, or (n, n_freq, 2, 2) one per measurement).
 Onset models take a recording instead: .npz with e (V) and i (A), each (n_samples,) or
 (n_records, n_samples), and sample_rate_hz (another rate than trained is resampled when the
-ratio is one of whole numbers, else refused); they return one row per contact: onset and
+ratio is one of whole numbers, else refused) and the device's calibration (--calibration:
+.npz with frequency_hz [the probe's], t, its calibrated T there, complex (1, 2, 2) or
+(n_records, 1, 2, 2), and hue0, its HUE(0) in m/V); they return one row per contact: onset and
 detachment (s), the wall's location gap (m) and sigma (m)."""
 
 

@@ -19,6 +19,17 @@ simulated and not recorded. Each record's device differs from the calibrated one
 coupling, a factor ``1 + N(0, calibration_error)``: HUE(0) and T at 420 Hz are off by about
 that much, and no method sees it (the classical path and the decoders use the calibrated model).
 
+The device (issue 21 §1): with a ``device:`` block (:class:`wtml.physics.spread.DeviceSpread`,
+relative half-widths of uniform tolerance bands around the preset; all zero by default) each
+record's transducer is drawn from the preset's manufacturing spread: ``device.devices`` built
+devices per call of :meth:`OnsetScene.simulate`, the records assigned to them at random, each
+device's modal model ``ModalTransducer.from_beam(build(preset, factors=...), n_modes)``. Every
+record carries what its user measures on their own device when it is calibrated (physics.md
+§4): ``t_probe``, the device's T at the probe frequency (complex ``(n, 2, 2)``), and ``hue0``,
+its HUE(0) (m/V). The calibration error above (the coupling factor) stays unknown on top of it.
+With no spread the records are those of the preset alone, draw for draw (nothing more is drawn
+from the generator), and ``t_probe``, ``hue0`` the preset's.
+
 Labels: ``gap`` g (m; NaN in a record without a wall), and every contact's ``onset`` and
 ``detachment`` (s; NaN-padded to ``max_contacts``). A contact is a stretch of touching; touches
 on successive probe peaks (gaps shorter than ``merge_periods`` probe periods) are one contact.
@@ -46,6 +57,7 @@ from wtml.physics.contact import (
     ContactWall,
 )
 from wtml.physics.modal import ModalTransducer, Wall
+from wtml.physics.spread import DeviceSpread, draw_factors
 from wtml.scenes.config import SceneError, bounded, mixture, one_of
 from wtml.signals.excitation import lead_in
 from wtml.signals.noise import quantize
@@ -163,6 +175,7 @@ class OnsetScene:
     calibration_error: float = bounded(0.0, 0.2, default=0.01)
     max_contacts: int = bounded(1, 1000, default=8)
     merge_periods: float = bounded(0.0, 100.0, default=2.0)
+    device: DeviceSpread = field(default_factory=DeviceSpread)
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
@@ -178,9 +191,35 @@ class OnsetScene:
             raise SceneError(f"{pre}wall.gap_fraction: low {lo:g} above high {hi:g}")
 
     # --- the model -------------------------------------------------------------------------
-    def transducer(self) -> ModalTransducer:
-        """The calibrated modal model."""
-        return ModalTransducer.from_beam(build(self.preset), self.n_modes)
+    def transducer(self, factors: dict[str, float] | None = None) -> ModalTransducer:
+        """The calibrated modal model of the preset, or of a device off it (``factors``: each
+        named parameter's actual / nominal, ``wtml.physics.spread.draw_factors``)."""
+        return ModalTransducer.from_beam(build(self.preset, factors=factors), self.n_modes)
+
+    def calibration(self, model: ModalTransducer) -> tuple[np.ndarray, float]:
+        """What a user measures on the device ``model`` when calibrating it: its T at the
+        probe frequency (complex ``(2, 2)``) and HUE(0) (m/V)."""
+        wh = 2 * np.pi * self.drive.probe_hz
+        return (model.transduction_matrix(np.array([wh]))[0],
+                model.static_tip_displacement_per_volt())
+
+    def device_models(self, n: int, rng: np.random.Generator,
+                      widths: dict[str, float] | None = None
+                      ) -> tuple[list[ModalTransducer], np.ndarray]:
+        """The devices of ``n`` records and which one each record's is, ``(n,)`` int: the
+        preset alone without a spread (nothing drawn from ``rng``), else
+        ``device.devices`` devices drawn from the spread (``widths``: each named parameter's
+        half-width instead of the device block's, e.g. ``DeviceSpread.only``), the records
+        assigned at random; only the devices some record uses are built."""
+        widths = self.device.widths(self.preset) if widths is None else widths
+        if not any(widths.values()):
+            return [self.transducer()], np.zeros(n, int)
+        count = self.device.devices
+        factors = draw_factors(self.preset, widths, count, rng)
+        which = rng.integers(0, count, n)
+        used, which = np.unique(which, return_inverse=True)
+        return [self.transducer({p: float(v[d]) for p, v in factors.items()})
+                for d in used], which
 
     @property
     def n_samples(self) -> int:
@@ -246,9 +285,11 @@ class OnsetScene:
         return intervals(touching, self.acquisition.sample_rate_hz,
                          self.merge_periods / self.drive.probe_hz, self.max_contacts)
 
-    def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64, gaps=None
-                 ) -> dict[str, np.ndarray]:
-        """``n`` records: ``e`` (V) and ``i`` (A) float32 ``(n, n_samples)``; labels ``gap``
+    def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64, gaps=None,
+                 widths: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+        """``n`` records: ``e`` (V) and ``i`` (A) float32 ``(n, n_samples)``; each record's
+        device's calibration ``t_probe`` (complex ``(n, 2, 2)``) and ``hue0`` (m/V, ``(n,)``)
+        (module docstring; ``widths`` as :meth:`device_models`); labels ``gap``
         (m, NaN without a wall), ``onset``, ``detachment`` (s, ``(n, max_contacts)``);
         nuisance ``stiffness`` (every law's k_ref), ``damping``, ``coupling`` and the contact
         law: ``law`` (its code in :data:`~wtml.physics.contact.LAWS`), ``law_n`` (1 for the
@@ -278,41 +319,58 @@ class OnsetScene:
         # follows it, and every law is then stepped implicitly (the switched wall's g is fixed)
         base = a.effects.base_motion(n, len(e), a.sample_rate_hz, rng)
         moving = a.effects.base.enabled
-        model = self.transducer()
-        dt = 1 / a.sample_rate_hz
+        models, which = self.device_models(n, rng, widths)
+        cal = [self.calibration(m) for m in models]
+        draw = {"law": law, "k": k, "c": c, "base": base, "dac": dac, "scale": scale, "mu": mu}
         cur = np.empty((n, self.n_samples), np.float32)
         touching = np.empty((n, self.n_samples), bool)
         for start in range(0, n, batch):
             sl = slice(start, min(n, start + batch))
             # no wall: one far beyond the reach (never touched: exactly the free answer)
             g = np.where(np.isnan(gap[sl]), 1.0, gap[sl])
-            # today's exact switched wall (no friction: a sliding tip is stepped implicitly)
-            linear = (law["law"][sl] == LINEAR) & ~moving & (mu[sl] == 0)
-            for part in (np.flatnonzero(linear), np.flatnonzero(~linear)):
-                if not len(part):
-                    continue
-                rows = np.arange(sl.start, sl.stop)[part]
-                if linear[part[0]]:
-                    wall = Wall(g[part], k[rows], c[rows])
-                else:
-                    mount = law["law_mount_fraction"][rows]
-                    at = g[part, None] + base[rows] if moving else g[part]
-                    wall = ContactWall(at, law["law"][rows], k[rows],
-                                       np.nan_to_num(law["law_delta_ref"][rows], nan=1e-6),
-                                       law["law_n"][rows], law["law_alpha"][rows],
-                                       k[rows] / mount, c[rows], friction=mu[rows],
-                                       slip_speed=w.slip_speed,
-                                       offset=self.contact_offset_m())
-                amp = dac[rows, None] if a.effects.dac.enabled else np.ones((1, 1))
-                out = model.simulate(amp * e, dt, wall, drive_rate=amp * de,
-                                     coupling_scale=scale[rows], record=("i",),
-                                     dtype=np.float64, tones=[(w, amp * x) for w, x, _ in tones])
-                cur[rows] = out["i"][:, n_lead:]
-                touching[rows] = out["contact"][:, n_lead:]
-        e_rec, i_rec = a.record(dac[:, None] * e[None, n_lead:], cur, model.capacitance, rng)
+            # today's exact switched wall (bool: ``~moving`` of a Python bool is an int); with
+            # friction a sliding tip is stepped implicitly
+            linear = (law["law"][sl] == LINEAR) & (not moving) & (mu[sl] == 0)
+            for d, model in enumerate(models):
+                mine = which[sl] == d
+                for part, is_linear in ((linear & mine, True), (~linear & mine, False)):
+                    if part.any():
+                        rows = np.arange(sl.start, sl.stop)[part]
+                        cur[rows], touching[rows] = self._step(
+                            model, rows, g[part], is_linear, draw, (e, de, tones), n_lead)
+        # the converter's e_n through Cp: the devices' mean Cp (they differ by ~1 %)
+        cp = float(np.mean([m.capacitance for m in models]))
+        e_rec, i_rec = a.record(dac[:, None] * e[None, n_lead:], cur, cp, rng)
         onset, detach = self.contacts(touching)
-        return {"e": e_rec, "i": i_rec, "gap": gap, "onset": onset, "detachment": detach,
-                "stiffness": k, "damping": c, "coupling": scale, **law}
+        t_probe = np.array([t for t, _ in cal])[which]
+        hue0 = np.array([h for _, h in cal])[which]
+        return {"e": e_rec, "i": i_rec, "t_probe": t_probe, "hue0": hue0, "gap": gap,
+                "onset": onset, "detachment": detach, "stiffness": k, "damping": c,
+                "coupling": scale, **law}
+
+    def _step(self, model: ModalTransducer, rows: np.ndarray, g: np.ndarray, linear: bool,
+              draw: dict, drive: tuple, n_lead: int) -> tuple[np.ndarray, np.ndarray]:
+        """Step the records ``rows`` (all of one device ``model``; walls at ``g`` m, all on the
+        linear switched wall or all on a :class:`ContactWall`) from rest under ``drive``
+        (``(E, dE/dt, tones)`` with the lead-in); ``draw`` holds every record's nuisance. Returns
+        their current (A) and touching state after the lead-in, each ``(len(rows), n_samples)``."""
+        a, law, k, c = self.acquisition, draw["law"], draw["k"], draw["c"]
+        e, de, tones = drive
+        if linear:
+            wall = Wall(g, k[rows], c[rows])
+        else:
+            mount = law["law_mount_fraction"][rows]
+            at = g[:, None] + draw["base"][rows] if a.effects.base.enabled else g
+            wall = ContactWall(at, law["law"][rows], k[rows],
+                               np.nan_to_num(law["law_delta_ref"][rows], nan=1e-6),
+                               law["law_n"][rows], law["law_alpha"][rows], k[rows] / mount,
+                               c[rows], friction=draw["mu"][rows],
+                               slip_speed=self.wall.slip_speed, offset=self.contact_offset_m())
+        amp = draw["dac"][rows, None] if a.effects.dac.enabled else np.ones((1, 1))
+        out = model.simulate(amp * e, 1 / a.sample_rate_hz, wall, drive_rate=amp * de,
+                             coupling_scale=draw["scale"][rows], record=("i",),
+                             dtype=np.float64, tones=[(w, amp * x) for w, x, _ in tones])
+        return out["i"][:, n_lead:], out["contact"][:, n_lead:]
 
     def draw_laws(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
         """Each record's contact law from the mixture ``wall.law`` and its parameters

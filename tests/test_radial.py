@@ -1,6 +1,7 @@
 """The radial slice: its scene on the beam model, baselines, bound, decoders, export, bench."""
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from wtml.decoders.radial import RadialNet, TorchRadial, load_radial_net
 from wtml.physics import ze_from_zm
 from wtml.runtime.predict import OnnxModel, predict_file
 from wtml.scenes import RadialScene, SceneError, load_scene
-from wtml.scenes.config import build
+from wtml.scenes.config import build, to_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = RADIAL_SMALL
@@ -182,12 +183,16 @@ def test_a_radial_export_without_its_reference_is_a_clear_error(radial_flow, tmp
 
 def test_radial_bench_reports_every_method(radial_flow, tmp_path):
     tmp = radial_flow
+    # the device-spread table's scene: the small scene with configs/scenes/radial_spread's
+    # spread
+    spread = tmp_path / "spread.yaml"
+    widths = load_scene(ROOT / "configs/scenes/radial_spread.yaml").device
+    spread.write_text(json.dumps(to_dict(dataclasses.replace(SMALL, device=widths))))
     report = run_bench(tmp / "data", tmp / "runs/radial/checkpoints/last.ckpt",
                        tmp / "runs/radial_thesis/checkpoints/last.ckpt", tmp / "export/radial",
                        tmp / "export/radial_thesis", tmp_path, invalid_dir=tmp / "invalid",
                        latency_repeats=5, throughput_repeats=1,
-                       spread_scene=ROOT / "configs/scenes/radial_spread.yaml",
-                       spread_samples=20)
+                       spread_scene=spread, spread_samples=20)
     for name in ("thesis 2-10-1 torch", "thesis 2-10-1 ONNX", "ours torch", "ours ONNX",
                  "polynomial 9 in Re Ze", "polynomial 9 in Im Ze", "polynomial 9 in Re Ze/ref",
                  "polynomial 9 in Im Ze/ref", "polynomial Im Ze/ref ONNX", "physics inversion"):
@@ -285,18 +290,19 @@ def test_optimizer_is_checked():
 
 
 def test_spread_table_rows_and_their_numbers():
-    """The device-spread table has the nominal device, the test shard and every parameter of
+    """The device-spread table has the nominal device, the spread and every parameter of
     the scene's spread alone (nothing for a parameter the scene keeps nominal); a row's
     numbers: RMSE, max, in-domain answers within 2σ, flagged share."""
     from wtml.bench.radial import format_spread, spread_row, spread_sets
 
     scene = build(RadialScene, {"samples": 100, "shards": 1,
                                 "device": {"modulus": 0.03, "coupling": 0.01}})
-    sets = spread_sets(scene, {"distance": np.zeros(3)}, 4, 5)
-    assert list(sets) == ["nominal device", "spread (test shard)",
+    sets = spread_sets(scene, {"distance": np.zeros(4)}, {"distance": np.zeros(3)}, 5)
+    assert list(sets) == ["nominal device", "spread",
                           "bimorph.modulus ±3 % alone", "whisker.modulus ±3 % alone",
                           "coupling ±1 % alone"]
-    assert len(sets["nominal device"]["ze"]) == 4 and len(sets["coupling ±1 % alone"]["ze"]) == 5
+    assert len(sets["nominal device"]["distance"]) == 4 and len(sets["spread"]["distance"]) == 3
+    assert len(sets["coupling ±1 % alone"]["ze"]) == 5
     d = np.zeros(4)
     row = spread_row({"distance": np.array([1.0, -3.0, 0.5, 9.0]) * 1e-6,
                       "sigma": np.array([1.0, 1.0, 1.0, np.nan]) * 1e-6,
@@ -307,4 +313,4 @@ def test_spread_table_rows_and_their_numbers():
     plain = spread_row({"distance": np.array([1.0, -1, 1, -1]) * 1e-6}, d)
     assert np.isnan(plain["cover"]) and np.isnan(plain["flagged"])
     text = format_spread({"nominal device": {"ours": row, "inversion": plain}})
-    assert "| nominal device | 4.78 / 9.0, 67 %, 25 % | 1.00 / 1.0 |" in text
+    assert "| nominal device | 4.78 / 9.00, 67 %, 25 % | 1.00 / 1.00 |" in text

@@ -267,9 +267,11 @@ def _spread_table(scene, nominal: dict, methods: list, spread_dir, spread_model_
         where = f"{n_spread} fresh records of `{spread_scene}`"
     else:
         return {}, ""
-    if other.device.none or other.preset != scene.preset:
+    if other.device.none or other.preset != scene.preset \
+            or other.excitation.frequencies_hz != scene.excitation.frequencies_hz:
         raise ValueError(f"the device-spread scene ({spread_dir or spread_scene}) must draw "
-                         f"devices of the {scene.preset} preset from a spread")
+                         f"devices of the {scene.preset} preset from a spread, at the "
+                         f"frequencies {list(scene.excitation.frequencies_hz)} Hz")
     columns = [methods[3]]
     if spread_model_dir is not None and (Path(spread_model_dir) / "model.onnx").is_file():
         columns.append(_named(OnnxModel(Path(spread_model_dir) / "model.onnx", threads),

@@ -113,7 +113,7 @@ class OnnxModel:
         ``"reference"``: radial)."""
         ze = np.asarray(ze)
         if bool(self.references) != (reference is not None):
-            raise InputError(f"{self.name}: needs its {', '.join(self.references)}"
+            raise InputError(f"{self.name}: needs a reference ({', '.join(self.references)})"
                              if reference is None else f"{self.name}: takes no reference")
         if reference is None:
             extra = ()

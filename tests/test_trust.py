@@ -237,8 +237,9 @@ def test_radial_spread_domain_false_alarms_and_detections(radial_spread_domain):
     Not claimed here: contacts 3300-4500 µm on the nominal device. Over the spread, the
     gate's ellipsoid of the inputs spans the devices, and a far contact on one device reads
     like a near-range contact on another (a per-record fit of the full beam physics tells
-    them apart: χ² 4e5 at 3300 µm, not a quadratic gate); measured, the gate alone passes
-    most of them. The exported graph also flags an answer past the range's margin."""
+    them apart: χ² 4e5 at 3300 µm, not a quadratic gate). Measured with this fixture's gate:
+    it flags none of 300 such contacts. What a user of this variant must know; the shipped
+    scene's gate flags them all (above)."""
     scene, gate = radial_spread_domain
     # the held-out devices many (40 × 512): a new device is out of domain whole, so a few
     # hundred of them would count the stated rate in steps of their number

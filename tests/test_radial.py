@@ -314,3 +314,50 @@ def test_spread_table_rows_and_their_numbers():
     assert np.isnan(plain["cover"]) and np.isnan(plain["flagged"])
     text = format_spread({"nominal device": {"ours": row, "inversion": plain}})
     assert "| nominal device | 4.78 / 9.00, 67 %, 25 % | 1.00 / 1.00 |" in text
+
+
+def test_spread_variant_trains_reads_the_reference_and_exports(tmp_path):
+    """configs/radial_spread.yaml on a small scene with a device spread: its net reads the
+    reference's own values besides the ratio (the shipped one-device decoder does not), the
+    answer moves with the reference, and the ONNX graph agrees with torch."""
+    import os
+
+    from wtml.cli import main
+    from wtml.data import generate
+    from wtml.training import cli_main
+
+    spread = load_scene(ROOT / "configs/scenes/radial_spread.yaml").device
+    scene = dataclasses.replace(SMALL, samples=800, shards=4,
+                                device=dataclasses.replace(spread, devices=16))
+    generate(scene, tmp_path / "data", progress=False)
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        cli_main(["fit", "--config", str(ROOT / "configs/radial_spread.yaml"),
+                  "--data.init_args.data_dir", str(tmp_path / "data"),
+                  "--trainer.max_epochs", "2", "--model.init_args.coarse_epochs", "1",
+                  "--trainer.log_every_n_steps", "1"])
+        assert main(["export", "--checkpoint", "runs/radial_spread/checkpoints/last.ckpt",
+                     "--out", "export/radial_spread"]) == 0
+    finally:
+        os.chdir(cwd)
+    net, _ = load_radial_net(str(tmp_path / "runs/radial_spread/checkpoints/last.ckpt"))
+    n = net.n_freq
+    assert net.device and net.refine_mean.shape == (4 * n + 1,)
+    assert net.coarse.feature_mean.shape == (4 * n,)
+    data = load_shards(tmp_path / "data", [3])
+    ze, ref = data["ze"][:64], data["ref"][:64]
+    want = TorchRadial(net).predict(ze, ref)
+    got = OnnxModel(tmp_path / "export/radial_spread/model.onnx").predict(ze, ref)
+    np.testing.assert_allclose(got["distance"], want["distance"], rtol=1e-5, atol=1e-9)
+    other = TorchRadial(net).predict(ze, ref * (1 + 1e-3))
+    assert not np.allclose(other["distance"], want["distance"], rtol=0, atol=1e-9)
+
+
+def test_the_one_device_decoder_reads_the_ratio_only(radial_flow):
+    """The shipped scene has no spread: its decoder's stages read ``ze / ref`` and
+    ``(p, d0)`` alone (the references differ only by their noise)."""
+    net, _ = load_radial_net(str(radial_flow / "runs/radial/checkpoints/last.ckpt"))
+    n = net.n_freq
+    assert not net.device and net.refine_mean.shape == (2 * n + 1,)
+    assert net.coarse.feature_mean.shape == (2 * n,)

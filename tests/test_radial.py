@@ -300,7 +300,7 @@ def test_spread_table_rows_and_their_numbers():
     sets = spread_sets(scene, {"distance": np.zeros(4)}, {"distance": np.zeros(3)}, 5)
     assert list(sets) == ["nominal device", "spread",
                           "bimorph.modulus ±3 % alone", "whisker.modulus ±3 % alone",
-                          "coupling ±1 % alone"]
+                          "coupling ±1 % alone", "spread, whisker measured"]
     assert len(sets["nominal device"]["distance"]) == 4 and len(sets["spread"]["distance"]) == 3
     assert len(sets["coupling ±1 % alone"]["ze"]) == 5
     d = np.zeros(4)

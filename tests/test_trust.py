@@ -548,6 +548,7 @@ def test_the_main_job_summary_states_targets_times_and_places():
               "nominal_spread": {"rmse": 10.0, "cover": float("nan"), "flagged": 1.0},
               "ours_spread": {"rmse": 33e-6, "cover": 0.94, "flagged": 0.002},
               "ours_spread_nominal": {"rmse": 4e-6, "cover": 1.0, "flagged": 0.0},
+              "ours_spread_whisker": {"rmse": 6e-6, "cover": 0.97, "flagged": 0.001},
               "spread_limit": "whisker.modulus ±3 %: 23.3 µm"}
     text = summary({"fluid": fluid, "radial": radial}, stages)
     for needle in ("1.13× the Bayes", "target ≤ 1 %: MISSED", "target ≤ 0.5 %: met",
@@ -562,7 +563,9 @@ def test_the_main_job_summary_states_targets_times_and_places():
                    "RMSE 33.0 µm (target ≤ 5 µm: MISSED), 94 % of in-domain answers within 2σ "
                    "(target ≥ 90 %: met), 0.2 % flagged; on the nominal device 4.0 µm, 100 % "
                    "within 2σ, 0.0 % flagged",
-                   "limited by whisker.modulus ±3 %: 23.3 µm alone"):
+                   "limited by whisker.modulus ±3 %: 23.3 µm alone",
+                   "with the whisker measured (its length, thickness and modulus nominal): "
+                   "6.0 µm, 97 % within 2σ, 0.1 % flagged"):
         assert needle in text, needle
 
 

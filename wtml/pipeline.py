@@ -219,6 +219,10 @@ def _spread_lines(radial: dict) -> list[str]:
             f"answers within 2σ (target ≥ 90 %: {_met(s['cover'] >= 0.9)}), "
             f"{100 * s['flagged']:.1f} % flagged; on the nominal device "
             f"{row(radial['ours_spread_nominal'])}")
+        if "ours_spread_whisker" in radial:
+            lines.append("  the same over the spread with the whisker measured (its length, "
+                         "thickness and modulus nominal): "
+                         + row(radial["ours_spread_whisker"]))
     if radial.get("spread_limit"):
         lines.append(f"  limited by {radial['spread_limit']} alone")
     return lines

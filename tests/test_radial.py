@@ -1,5 +1,7 @@
 """The radial slice: its scene on the beam model, baselines, bound, decoders, export, bench."""
 
+import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +19,7 @@ from wtml.decoders.radial import RadialNet, TorchRadial, load_radial_net
 from wtml.physics import ze_from_zm
 from wtml.runtime.predict import OnnxModel, predict_file
 from wtml.scenes import RadialScene, SceneError, load_scene
-from wtml.scenes.config import build
+from wtml.scenes.config import build, to_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = RADIAL_SMALL
@@ -26,6 +28,10 @@ SMALL = RADIAL_SMALL
 def test_shipped_scenes_load_and_bad_values_are_named(tmp_path):
     scene = load_scene(ROOT / "configs/scenes/radial.yaml")
     assert scene.excitation.frequencies_hz[0] == 420.0 and scene.preset == "micro"
+    assert scene.device.none  # the shipped scene: the preset's own device
+    spread = load_scene(ROOT / "configs/scenes/radial_spread.yaml")
+    assert spread.device.modulus == 0.03 and spread.device.length == 0.005
+    assert dataclasses.replace(spread, name=scene.name, device=scene.device) == scene
     invalid = load_scene(ROOT / "configs/scenes/radial_invalid.yaml")
     assert invalid.contact.distances_um == (500.0, 1500.0, 2500.0)
     bad = tmp_path / "bad.yaml"
@@ -53,10 +59,17 @@ def test_inversion_recovers_noise_free_contacts():
     inv = InversionRadial(scene)
     d = np.array([100e-6, 1234e-6, 3000e-6])  # on the 1 µm grid
     ks = np.geomspace(*scene.contact.stiffness, 17)[[0, 8, 16]]  # on the stiffness grid
-    np.testing.assert_allclose(inv.predict(scene.ze_of(d, ks))["distance"], d, atol=0.05e-6)
+    ref = np.broadcast_to(scene.free_ze(), (3, 1))
+    np.testing.assert_allclose(inv.predict(scene.ze_of(d, ks), ref)["distance"], d,
+                               atol=0.05e-6)
     # between grid points, within one grid step
     off = d + 0.5e-6
-    np.testing.assert_allclose(inv.predict(scene.ze_of(off, ks))["distance"], off, atol=1e-6)
+    np.testing.assert_allclose(inv.predict(scene.ze_of(off, ks), ref)["distance"], off,
+                               atol=1e-6)
+    # a device that differs by a complex gain only: its reference corrects it exactly
+    gain = 1.02 - 0.01j
+    np.testing.assert_allclose(inv.predict(gain * scene.ze_of(d, ks), gain * ref)["distance"],
+                               d, atol=0.05e-6)
 
 
 def test_inversion_grid_start_is_the_least_misfit_table_entry(rng):
@@ -72,10 +85,14 @@ def test_inversion_grid_start_is_the_least_misfit_table_entry(rng):
 
 def test_polynomial_layer_matches_scikit_learn(rng):
     data = SMALL.simulate(2000, rng)
-    poly = PolynomialRadial("imag").fit(data["ze"], data["distance"])
-    layer = StandardPolynomial(9).load_pipeline(poly.model)
-    got = layer(torch.tensor(data["ze"][:, 0].imag, dtype=torch.float32)).double().numpy()
-    np.testing.assert_allclose(got, poly.predict(data["ze"])["distance"], atol=0.05e-6)
+    for reference in (True, False):
+        poly = PolynomialRadial("imag", reference=reference).fit(data["ze"], data["ref"],
+                                                                 data["distance"])
+        x = data["ze"][:, 0] / (data["ref"][:, 0] if reference else 1.0)
+        layer = StandardPolynomial(9).load_pipeline(poly.model)
+        got = layer(torch.tensor(x.imag, dtype=torch.float32)).double().numpy()
+        np.testing.assert_allclose(got, poly.predict(data["ze"], data["ref"])["distance"],
+                                   atol=0.05e-6)
 
 
 def test_crlb_grows_with_noise_at_most_linearly():
@@ -90,8 +107,13 @@ def test_crlb_grows_with_noise_at_most_linearly():
 
 def test_radial_net_options():
     net = RadialNet(5, [8], "sigmoid", uncertainty=False, used_frequencies=1)
-    d, s = net(torch.ones(3, 5), torch.ones(3, 5))
+    d, s = net(*(torch.ones(3, 5) for _ in range(4)))
     assert d.shape == s.shape == (3,) and torch.all(s == 0)
+    # the thesis's net reads Ze alone: its answer ignores the reference
+    thesis = RadialNet(5, [8], "sigmoid", used_frequencies=1, reference=False)
+    ze = torch.rand(3, 5)
+    assert torch.equal(thesis(ze, ze, ze, ze)[0], thesis(ze, ze, 2 * ze, ze)[0])
+    assert not torch.equal(net(ze, ze, ze, ze)[0], net(ze, ze, 2 * ze, ze)[0])
     with pytest.raises(ValueError, match="used_frequencies"):
         RadialNet(5, [8], used_frequencies=6)
     with pytest.raises(ValueError, match="activation"):
@@ -105,30 +127,83 @@ def test_generation_throughput_is_reported():
 
 def test_radial_onnx_matches_torch_and_predict_reads_it(radial_flow, tmp_path):
     tmp = radial_flow
-    ze = load_shards(tmp / "data", [3])["ze"]
+    data = load_shards(tmp / "data", [3])
+    ze, ref = data["ze"], data["ref"]
     for name in ("radial", "radial_thesis"):
         net, _ = load_radial_net(str(tmp / f"runs/{name}/checkpoints/last.ckpt"))
-        ref = TorchRadial(net).predict(ze)
-        got = OnnxModel(tmp / f"export/{name}/model.onnx").predict(ze)
-        np.testing.assert_allclose(got["distance"], ref["distance"], rtol=1e-5, atol=1e-9)
+        want = TorchRadial(net).predict(ze, ref)
+        got = OnnxModel(tmp / f"export/{name}/model.onnx").predict(ze, ref)
+        np.testing.assert_allclose(got["distance"], want["distance"], rtol=1e-5, atol=1e-9)
     poly = OnnxModel(tmp / "export/radial/classical.onnx")
-    assert poly.name == "polynomial 9 in Im Ze ONNX"
-    np.savez(tmp_path / "m.npz", frequency_hz=np.array(SMALL.excitation.frequencies_hz), ze=ze[:2])
-    rows = predict_file(tmp / "export/radial", tmp_path / "m.npz")
+    assert poly.name == "polynomial 9 in Im Ze/ref ONNX"
+    freq = np.array(SMALL.excitation.frequencies_hz)
+    np.savez(tmp_path / "m.npz", frequency_hz=freq, ze=ze[:2])
+    np.savez(tmp_path / "free.npz", frequency_hz=freq, ze=ref[:2])
+    rows = predict_file(tmp / "export/radial", tmp_path / "m.npz", reference=tmp_path / "free.npz")
     assert len(rows) == 2 and "distance_decoder (m)" in rows[0] and "sigma_decoder (m)" in rows[0]
+    # one reference row serves every measurement; the export's own sample reference reads
+    sample = tmp / "export/radial/sample_reference.npz"
+    one = predict_file(tmp / "export/radial", tmp_path / "m.npz", reference=sample)
+    assert len(one) == 2 and all(np.isfinite(r["distance_decoder (m)"]) for r in one)
+
+
+def test_a_radial_export_without_its_reference_is_a_clear_error(radial_flow, tmp_path, capsys):
+    """No --reference, one on another grid or of another row count, and a reference given
+    to an export that takes none: each an InputError naming the flag, never a default."""
+    import json
+
+    import onnx
+
+    from wtml.cli import main
+    from wtml.runtime.predict import InputError
+
+    tmp = radial_flow
+    freq = np.array(SMALL.excitation.frequencies_hz)
+    data = load_shards(tmp / "data", [3])
+    np.savez(tmp_path / "m.npz", frequency_hz=freq, ze=data["ze"][:3])
+    with pytest.raises(InputError, match=r"this radial export needs --reference: the free "
+                                         r"whisker's Ze at 420 Hz \(npz with frequency_hz"):
+        predict_file(tmp / "export/radial", tmp_path / "m.npz")
+    assert main(["predict", "--model", str(tmp / "export/radial"), "--input",
+                 str(tmp_path / "m.npz")]) != 0
+    assert "needs --reference" in capsys.readouterr().err
+    np.savez(tmp_path / "grid.npz", frequency_hz=freq + 1, ze=data["ref"][:3])
+    with pytest.raises(InputError, match=r"--reference .*grid.npz: frequencies"):
+        predict_file(tmp / "export/radial", tmp_path / "m.npz", reference=tmp_path / "grid.npz")
+    np.savez(tmp_path / "rows.npz", frequency_hz=freq, ze=data["ref"][:2])
+    with pytest.raises(InputError, match=r"\(3, 1\) for 3 measurements, got \(2, 1\)"):
+        predict_file(tmp / "export/radial", tmp_path / "m.npz", reference=tmp_path / "rows.npz")
+    with pytest.raises(InputError, match="needs a reference"):
+        OnnxModel(tmp / "export/radial/model.onnx").predict(data["ze"])
+    for name in ("model.onnx", "classical.onnx"):
+        meta = {p.key: p.value for p in onnx.load(str(tmp / "export/radial" / name)).metadata_props}
+        assert list(json.loads(meta["references"])) == ["reference"]
+        assert json.loads(meta["inputs"]) == ["ze_re", "ze_im", "ref_re", "ref_im"]
 
 
 def test_radial_bench_reports_every_method(radial_flow, tmp_path):
     tmp = radial_flow
+    # the device-spread table's scene: the small scene with configs/scenes/radial_spread's
+    # spread
+    spread = tmp_path / "spread.yaml"
+    widths = load_scene(ROOT / "configs/scenes/radial_spread.yaml").device
+    spread.write_text(json.dumps(to_dict(dataclasses.replace(SMALL, device=widths))))
     report = run_bench(tmp / "data", tmp / "runs/radial/checkpoints/last.ckpt",
                        tmp / "runs/radial_thesis/checkpoints/last.ckpt", tmp / "export/radial",
                        tmp / "export/radial_thesis", tmp_path, invalid_dir=tmp / "invalid",
-                       latency_repeats=5, throughput_repeats=1)
+                       latency_repeats=5, throughput_repeats=1,
+                       spread_scene=spread, spread_samples=20)
     for name in ("thesis 2-10-1 torch", "thesis 2-10-1 ONNX", "ours torch", "ours ONNX",
-                 "polynomial 9 in Re Ze", "polynomial 9 in Im Ze", "polynomial Im Ze ONNX",
-                 "physics inversion"):
+                 "polynomial 9 in Re Ze", "polynomial 9 in Im Ze", "polynomial 9 in Re Ze/ref",
+                 "polynomial 9 in Im Ze/ref", "polynomial Im Ze/ref ONNX", "physics inversion"):
         assert f"| {name} |" in report
     assert "d = 1.5 mm" in report and "Generation: beam path" in report
+    # the device-spread table: fresh records of the spread scene (no spread dataset here),
+    # the shipped decoder and its peers; no spread-trained column without its export
+    for row in ("| nominal device |", "| spread |", "| whisker.modulus ±3 % alone |",
+                "| records | ours ONNX | thesis 2-10-1 ONNX | polynomial Im Ze/ref ONNX | "
+                "physics inversion |"):
+        assert row in report, row
     for png in ("error_vs_latency.png", "error_vs_d.png"):
         assert (tmp_path / png).stat().st_size > 10_000
 
@@ -212,3 +287,77 @@ def test_optimizer_is_checked():
         RadialDecoder(refine_hidden=[4], optimizer="lbfgs")
     with pytest.raises(ValueError, match=r"model.weight_decay must be 0 with model.optimizer"):
         RadialDecoder(optimizer="lbfgs", weight_decay=1e-4)
+
+
+def test_spread_table_rows_and_their_numbers():
+    """The device-spread table has the nominal device, the spread and every parameter of
+    the scene's spread alone (nothing for a parameter the scene keeps nominal); a row's
+    numbers: RMSE, max, in-domain answers within 2σ, flagged share."""
+    from wtml.bench.radial import format_spread, spread_row, spread_sets
+
+    scene = build(RadialScene, {"samples": 100, "shards": 1,
+                                "device": {"modulus": 0.03, "coupling": 0.01}})
+    sets = spread_sets(scene, {"distance": np.zeros(4)}, {"distance": np.zeros(3)}, 5)
+    assert list(sets) == ["nominal device", "spread",
+                          "bimorph.modulus ±3 % alone", "whisker.modulus ±3 % alone",
+                          "coupling ±1 % alone", "spread, whisker measured"]
+    assert len(sets["nominal device"]["distance"]) == 4 and len(sets["spread"]["distance"]) == 3
+    assert len(sets["coupling ±1 % alone"]["ze"]) == 5
+    d = np.zeros(4)
+    row = spread_row({"distance": np.array([1.0, -3.0, 0.5, 9.0]) * 1e-6,
+                      "sigma": np.array([1.0, 1.0, 1.0, np.nan]) * 1e-6,
+                      "in_domain": np.array([True, True, True, False])}, d)
+    assert row["rmse"] == pytest.approx(np.sqrt((1 + 9 + 0.25 + 81) / 4) * 1e-6)
+    assert row["max"] == pytest.approx(9e-6)
+    assert row["cover"] == pytest.approx(2 / 3) and row["flagged"] == pytest.approx(0.25)
+    plain = spread_row({"distance": np.array([1.0, -1, 1, -1]) * 1e-6}, d)
+    assert np.isnan(plain["cover"]) and np.isnan(plain["flagged"])
+    text = format_spread({"nominal device": {"ours": row, "inversion": plain}})
+    assert "| nominal device | 4.78 / 9.00, 67 %, 25 % | 1.00 / 1.00 |" in text
+
+
+def test_spread_variant_trains_reads_the_reference_and_exports(tmp_path):
+    """configs/radial_spread.yaml on a small scene with a device spread: its net reads the
+    reference's own values besides the ratio (the shipped one-device decoder does not), the
+    answer moves with the reference, and the ONNX graph agrees with torch."""
+    import os
+
+    from wtml.cli import main
+    from wtml.data import generate
+    from wtml.training import cli_main
+
+    spread = load_scene(ROOT / "configs/scenes/radial_spread.yaml").device
+    scene = dataclasses.replace(SMALL, samples=800, shards=4,
+                                device=dataclasses.replace(spread, devices=16))
+    generate(scene, tmp_path / "data", progress=False)
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        cli_main(["fit", "--config", str(ROOT / "configs/radial_spread.yaml"),
+                  "--data.init_args.data_dir", str(tmp_path / "data"),
+                  "--trainer.max_epochs", "2", "--model.init_args.coarse_epochs", "1",
+                  "--trainer.log_every_n_steps", "1"])
+        assert main(["export", "--checkpoint", "runs/radial_spread/checkpoints/last.ckpt",
+                     "--out", "export/radial_spread"]) == 0
+    finally:
+        os.chdir(cwd)
+    net, _ = load_radial_net(str(tmp_path / "runs/radial_spread/checkpoints/last.ckpt"))
+    n = net.n_freq
+    assert net.device and net.refine_mean.shape == (4 * n + 1,)
+    assert net.coarse.feature_mean.shape == (4 * n,)
+    data = load_shards(tmp_path / "data", [3])
+    ze, ref = data["ze"][:64], data["ref"][:64]
+    want = TorchRadial(net).predict(ze, ref)
+    got = OnnxModel(tmp_path / "export/radial_spread/model.onnx").predict(ze, ref)
+    np.testing.assert_allclose(got["distance"], want["distance"], rtol=1e-5, atol=1e-9)
+    other = TorchRadial(net).predict(ze, ref * (1 + 1e-3))
+    assert not np.allclose(other["distance"], want["distance"], rtol=0, atol=1e-9)
+
+
+def test_the_one_device_decoder_reads_the_ratio_only(radial_flow):
+    """The shipped scene has no spread: its decoder's stages read ``ze / ref`` and
+    ``(p, d0)`` alone (the references differ only by their noise)."""
+    net, _ = load_radial_net(str(radial_flow / "runs/radial/checkpoints/last.ckpt"))
+    n = net.n_freq
+    assert not net.device and net.refine_mean.shape == (2 * n + 1,)
+    assert net.coarse.feature_mean.shape == (2 * n,)

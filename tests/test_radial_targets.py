@@ -26,7 +26,7 @@ def test_default_radial_decoder_meets_the_targets(tmp_path):
     train = load_shards(tmp_path / "data", list(range(scene.shards - 2)))
     test = {k: v[:10000] for k, v in load_shards(tmp_path / "data", [scene.shards - 1]).items()}
     d = test["distance"]
-    out = TorchRadial(net).predict(test["ze"])
+    out = TorchRadial(net).predict(test["ze"], test["ref"])
     err = out["distance"] - d
     crlb = radial_crlb(scene, d, test["stiffness"])
     ratio = np.sqrt(np.mean(err**2) / np.mean(crlb**2))
@@ -35,8 +35,8 @@ def test_default_radial_decoder_meets_the_targets(tmp_path):
         sel = (d >= lo * 1e-6) & (d < hi * 1e-6)
         assert np.sqrt(np.mean(err[sel] ** 2) / np.mean(crlb[sel] ** 2)) <= 1.5, (lo, hi)
     best_poly = min(
-        np.sqrt(np.mean((PolynomialRadial(part).fit(train["ze"], train["distance"])
-                         .predict(test["ze"])["distance"] - d) ** 2))
+        np.sqrt(np.mean((PolynomialRadial(part).fit(train["ze"], train["ref"], train["distance"])
+                         .predict(test["ze"], test["ref"])["distance"] - d) ** 2))
         for part in ("real", "imag"))
     assert best_poly >= 5 * np.sqrt(np.mean(err**2))
     assert abs(np.std(err / out["sigma"]) - 1) < 0.1

@@ -60,13 +60,14 @@ def test_hermite_table_rejects_bad_shapes():
 
 
 def test_contact_table_matches_the_beam_model_between_its_nodes():
-    """Off-grid, the float32 table is within 4e-6 of the noise-free model (noise: 2e-5). The
-    interpolation itself is good to 2.5e-7; the rest is float32's resolution of the position
-    (~2e-10 m at 3 mm, and the steepest tone moves Ze by 1.2 %/µm)."""
+    """Off-grid, the float32 table of the ratio Ze / Ze_free is within 4e-6 of the noise-free
+    model (noise: 2e-5). The interpolation itself is good to 2.5e-7; the rest is float32's
+    resolution of the position (~2e-10 m at 3 mm, and the steepest tone moves Ze by
+    1.2 %/µm)."""
     table = contact_table(SCENE)
     d = np.random.default_rng(0).uniform(0, 3.2e-3, 400).astype(np.float32).astype(float)
     k = np.full_like(d, SCENE.reference_stiffness())
-    ze = SCENE.ze_of(d, k)
+    ze = SCENE.ze_of(d, k) / SCENE.free_ze()
     f_re, f_im, _, _ = table(torch.tensor(d, dtype=torch.float32))
     got = f_re.double().numpy() + 1j * f_im.double().numpy()
     assert np.max(np.abs(got - ze) / np.abs(ze)) < 4e-6
@@ -78,22 +79,32 @@ def _net():
 
 
 def test_residual_is_the_distance_step_at_the_reference_stiffness():
-    """Noise-free Ze at the reference stiffness: p = 0 at the true d, and a start off by δ
-    gives Re p = δ to first order (error O(δ²))."""
+    """Noise-free Ze at the reference stiffness with the nominal device's free reference:
+    p = 0 at the true d, and a start off by δ gives Re p = δ to first order (error O(δ²)).
+    The reference scaled by any complex factor scales Ze alike on a device that only differs
+    by it (a gain): p is unchanged. (6e-9 m, was 2e-9 m with Ze alone: the ratio's table
+    times the float32 reference adds one rounding of Ze's size. Measured: at δ = 0, 2.8e-9 m
+    in float32 and 1.5e-9 m with the same float32 table evaluated in float64, the old form's
+    level; at δ = 0.2 µm, 4.7e-9 m; the noise allows ~4e-7 m.)"""
     net = _net()
     d = np.linspace(100e-6, 3100e-6, 31)
     ze = SCENE.ze_of(d, np.full_like(d, SCENE.reference_stiffness()))
-    re, im = (torch.tensor(a, dtype=torch.float32) for a in (ze.real, ze.imag))
+    ref = np.broadcast_to(SCENE.free_ze(), ze.shape)
     n = N_FREQ
-    for delta, tol in ((0.0, 2e-9), (0.2e-6, 2e-9), (1e-6, 3e-8)):
-        p = net.residual(re, im, torch.tensor(d - delta, dtype=torch.float32)).double().numpy()
-        np.testing.assert_allclose(p[:, :n], delta, atol=tol)
-        np.testing.assert_allclose(p[:, n:2 * n], 0.0, atol=tol)
+    for gain in (1.0, 0.97 + 0.02j):
+        parts = [torch.tensor(p, dtype=torch.float32) for z in (gain * ze, gain * ref)
+                 for p in (z.real, z.imag)]
+        for delta, tol in ((0.0, 6e-9), (0.2e-6, 6e-9), (1e-6, 3e-8)):
+            p = net.residual(*parts, torch.tensor(d - delta, dtype=torch.float32))
+            p = p.double().numpy()
+            np.testing.assert_allclose(p[:, :n], delta, atol=tol)
+            np.testing.assert_allclose(p[:, n:2 * n], 0.0, atol=tol)
+            np.testing.assert_allclose(p[:, 2 * n + 1:3 * n + 1], parts[2].numpy())
 
 
 def test_refined_net_shapes_and_errors():
     net = _net()
-    d, s = net(torch.ones(4, N_FREQ) * 1e5, torch.ones(4, N_FREQ) * 1e5)
+    d, s = net(*(torch.ones(4, N_FREQ) * 1e5 for _ in range(4)))
     assert d.shape == s.shape == (4,) and torch.all(s > 0) and torch.all(torch.isfinite(d))
     with pytest.raises(ValueError, match="frequencies"):
         RefinedRadialNet(N_FREQ + 1, [8], [8], contact_table(SCENE), 3e-6)
@@ -101,6 +112,8 @@ def test_refined_net_shapes_and_errors():
         RefinedRadialNet(N_FREQ, [8], [8], contact_table(SCENE), 0.0)
     with pytest.raises(ValueError, match="used_frequencies"):
         RadialDecoder(refine_hidden=[8], used_frequencies=1)
+    with pytest.raises(ValueError, match="model.reference false applies to a plain RadialNet"):
+        RadialDecoder(refine_hidden=[8], reference=False)
     with pytest.raises(ValueError, match=r"model.table_step_um must be in \(0, 1e4\) µm"):
         RadialDecoder(refine_hidden=[8], table_step_um=0.0)
     with pytest.raises(ValueError, match="model.refine_scale_um"):

@@ -1,6 +1,7 @@
 """A preset's manufacturing spread (wtml/physics/spread.py) and the radial scene drawing its
 devices from it."""
 
+import dataclasses
 
 import numpy as np
 import pytest
@@ -10,6 +11,9 @@ from hypothesis import strategies as st
 from wtml.physics.beam import BeamTransducer
 from wtml.physics.beam_presets import PRESETS, build, device_parameters
 from wtml.physics.spread import DeviceSpread, device_ze, devices, draw_factors
+from wtml.scenes import RadialScene, SceneError
+from wtml.scenes.config import build as build_config
+from wtml.signals import complex_noise
 
 SPREAD = DeviceSpread(length=0.01, thickness=0.01, modulus=0.03, loss_factor=0.25,
                       tan_delta=0.25, coupling=0.03)
@@ -104,4 +108,44 @@ def test_perturbed_devices_are_reciprocal_and_the_batched_path_agrees(seed, pres
             np.testing.assert_allclose(np.linalg.det(tc), 1.0, atol=1e-9)
             np.testing.assert_allclose(ze[sel], tc[..., 0, 1] / tc[..., 1, 1], rtol=1e-10)
 
+
+def test_radial_scene_without_spread_is_the_preset_draw_for_draw():
+    """The default (no spread): ze, distance and stiffness are the preset's, drawn in the
+    order of the scene before the device block existed; the reference is the preset's free
+    Ze with its own noise, drawn last."""
+    scene = build_config(RadialScene, {"samples": 100, "shards": 1})
+    assert scene.device == DeviceSpread() and scene.device.none
+    got = scene.simulate(50, np.random.default_rng(3))
+    rng = np.random.default_rng(3)
+    d = 1e-6 * rng.uniform(*scene.contact.distance_um, 50)
+    k = np.exp(rng.uniform(*np.log(scene.contact.stiffness), 50))
+    ze = complex_noise(scene.ze_of(d, k), scene.noise.ze_relative, rng)
+    ref = complex_noise(np.broadcast_to(scene.free_ze(), ze.shape),
+                        scene.noise.reference_relative, rng)
+    for key, value in (("ze", ze), ("distance", d), ("stiffness", k), ("ref", ref)):
+        np.testing.assert_array_equal(got[key], value)
+
+
+def test_radial_scene_with_spread_draws_devices_per_record():
+    """With the spread on, records share a device only by chance, each record's reference
+    is its own device's free Ze (records of one device: the same reference, to its noise),
+    and a parameter alone moves only what it moves."""
+    scene = build_config(RadialScene, {"samples": 100, "shards": 1,
+                                       "noise": {"reference_relative": 0.0},
+                                       "device": dataclasses.asdict(SPREAD) | {"devices": 5}})
+    data = scene.simulate(200, np.random.default_rng(4))
+    refs = np.unique(data["ref"][:, 0])
+    assert 2 <= len(refs) <= 5
+    nominal = scene.free_ze()
+    assert not np.any(np.all(np.isclose(data["ref"], nominal, rtol=1e-12), -1))
+    alone = scene.simulate(100, np.random.default_rng(5),
+                           widths=SPREAD.only("whisker.modulus", "micro"))
+    # the free Ze hardly sees the whisker's modulus (its first mode is 4× the tones)
+    np.testing.assert_allclose(alone["ref"], np.broadcast_to(nominal, alone["ref"].shape),
+                               rtol=2e-3)
+    bad = {"contact": {"distance_um": [0.0, 4990.0]}, "device": {"length": 0.01}}
+    with pytest.raises(SceneError, match="must stay below the whisker length 4950 µm"):
+        build_config(RadialScene, bad)
+    with pytest.raises(SceneError, match=r"device.modulus: must be in \[0, 0.3\]"):
+        build_config(RadialScene, {"device": {"modulus": 0.5}})
 

@@ -71,9 +71,17 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from wtml.runtime.predict import domain_warning, format_predictions, predict_file, task_of
+    from wtml.runtime.predict import (
+        InputError,
+        domain_warning,
+        format_predictions,
+        predict_file,
+        task_of,
+    )
 
     task = task_of(args.model)
+    if args.reference is not None and task in ("onset", "texture"):
+        raise InputError(f"--reference {args.reference}: this {task} export takes no reference")
     if task == "onset":
         from wtml.runtime.onset import predict_records
 
@@ -83,7 +91,8 @@ def _predict(args: argparse.Namespace) -> int:
 
         rows = texture_records(args.model, args.input)
     else:
-        rows = predict_file(args.model, args.input, calibration=args.calibration)
+        rows = predict_file(args.model, args.input, calibration=args.calibration,
+                            reference=args.reference)
     if args.out:
         with open(args.out, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
@@ -112,7 +121,9 @@ def _bench_radial(args: argparse.Namespace) -> int:
 
     print(run_bench(args.data, args.checkpoint, args.thesis_checkpoint, args.model,
                     args.thesis_model, args.out, invalid_dir=args.invalid,
-                    threads=args.threads, max_samples=args.max_samples))
+                    spread_dir=args.spread_data, spread_model_dir=args.spread_model,
+                    spread_scene=args.spread_scene, threads=args.threads,
+                    max_samples=args.max_samples, spread_samples=args.spread_samples))
     return 0
 
 
@@ -245,6 +256,8 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--calibration", default=None,
                     help="fluid and onset: the device's calibration, .npz with frequency_hz "
                          "and t (its calibrated T there); onset also hue0 (m/V)")
+    pr.add_argument("--reference", default=None,
+                    help="radial exports: the free whisker's Ze of the device (.npz, below)")
     pr.add_argument("--out", default=None,
                     help="write the rows as CSV here (default: print a table)")
     pr.set_defaults(func=_predict)
@@ -265,7 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     br = be_sub.add_parser("radial", help="the radial slice", formatter_class=_Help,
                            description="Every radial method on the test shard: RMSE by range "
                                        "of d against the Cramér-Rao bound, latency and "
-                                       "throughput, invalid contacts.")
+                                       "throughput, invalid contacts; a device-spread "
+                                       "table with the spread-trained variant.")
     _bench_options(br, "radial")
     br.add_argument("--invalid", default="datasets/radial_invalid",
                     help="the invalid-contact dataset (thesis §5.5.4)")
@@ -275,6 +289,16 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the thesis decoder's export folder")
     br.add_argument("--max-samples", type=int, default=10000,
                     help="benchmark the first this many test samples")
+    br.add_argument("--spread-data", default="datasets/radial_spread",
+                    help="the spread-trained decoder's dataset: its test shard is the "
+                         "device-spread table's spread row")
+    br.add_argument("--spread-model", default="export/radial_spread",
+                    help="the spread-trained decoder's export folder (a column where it exists)")
+    br.add_argument("--spread-scene", default="configs/scenes/radial_spread.yaml",
+                    help="without --spread-data's folder, draw the spread's records from this "
+                         "scene file")
+    br.add_argument("--spread-samples", type=int, default=2000,
+                    help="fresh records per parameter-alone row of the device-spread table")
     br.set_defaults(func=_bench_radial)
 
     bo = be_sub.add_parser("onset", help="the contact-onset slice", formatter_class=_Help,

@@ -84,10 +84,11 @@ def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
     return all(hparams.get(key) == value for key, value in wanted.items())
 
 
-def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> Path | None:
-    """A few test-shard measurements as a CSV that ``wtml predict`` reads; for fluid, also
-    their devices' calibrated T as ``calibration.npz`` beside it (``--calibration``), whose
-    path it returns (else None)."""
+def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> dict[str, Path]:
+    """A few test-shard measurements as a CSV that ``wtml predict`` reads, and the reference
+    their export needs beside it: for fluid their devices' calibrated T, ``calibration.npz``
+    (``--calibration``); for radial their devices' free references, ``sample_reference.npz``
+    (``--reference``). Returns ``{keyword: path}`` of that reference (empty for the others)."""
     manifest = read_manifest(data_dir)
     data = load_shards(data_dir, split_shards(manifest["n_shards"], 1, 1)["test"])
     scene = dataset_scene(data_dir)
@@ -103,11 +104,15 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> Path | None:
             for f, z in zip(freq, data["ze"][s], strict=True):
                 w.writerow([s, repr(float(f)), repr(float(z.real)), repr(float(z.imag))]
                            + [repr(float(data[k][s])) for k in truth])
-    if scene.task != "fluid":
-        return None
-    calibration = path.with_name("calibration.npz")
-    np.savez(calibration, frequency_hz=freq, t=data["t"][:n])
-    return calibration
+    if scene.task == "fluid":
+        calibration = path.with_name("calibration.npz")
+        np.savez(calibration, frequency_hz=freq, t=data["t"][:n])
+        return {"calibration": calibration}
+    if scene.task == "radial":
+        reference = path.with_name("sample_reference.npz")
+        np.savez(reference, frequency_hz=freq, ze=data["ref"][:n])
+        return {"reference": reference}
+    return {}
 
 
 def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
@@ -141,10 +146,10 @@ def _export_and_predict(stages: Stages, slice_: str, ckpt: Path, model: Path,
     for kind, path in export_model(ckpt, model).items():
         print(f"{kind}: {path}")
     sample = model / "sample_input.csv"
-    calibration = write_sample_csv(data, sample)
-    flag = f" --calibration {calibration}" if calibration else ""
+    references = write_sample_csv(data, sample)
+    flag = "".join(f" --{key} {path}" for key, path in references.items())
     stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}{flag}")
-    rows = predict_file(model, sample, calibration=calibration)
+    rows = predict_file(model, sample, **references)
     print(format_predictions(rows))
     warning = domain_warning(rows)
     if warning:
@@ -168,28 +173,61 @@ def run_fluid(stages: Stages, *, max_epochs: int | None = None) -> dict:
 
 
 def run_radial(stages: Stages, *, max_epochs: int | None = None) -> dict:
-    """The radial slice end to end; returns its bench summary."""
+    """The radial slice end to end (the shipped decoder on the preset's device, and the
+    variant trained over the device spread); returns its bench summary."""
     from wtml.bench.radial import run_bench
 
     data, invalid = Path("datasets/radial"), Path("datasets/radial_invalid")
+    spread = Path("datasets/radial_spread")
     manifest = _generate(stages, "radial", "configs/scenes/radial.yaml", data)
     _generate(stages, "radial", "configs/scenes/radial_invalid.yaml", invalid)
+    spread_manifest = _generate(stages, "radial", "configs/scenes/radial_spread.yaml", spread)
     ckpts = {}
-    for name in ("radial", "radial_thesis"):
-        ckpts[name] = _train(stages, "radial", f"configs/{name}.yaml", data,
-                             manifest["scene_hash"], max_epochs)
+    for name in ("radial", "radial_thesis", "radial_spread"):
+        on = (spread, spread_manifest) if name == "radial_spread" else (data, manifest)
+        ckpts[name] = _train(stages, "radial", f"configs/{name}.yaml", on[0],
+                             on[1]["scene_hash"], max_epochs)
         if name == "radial_thesis":
             stages.begin("radial", "export radial_thesis",
                          f"wtml export --checkpoint {ckpts[name]} --out export/{name}")
             export_model(ckpts[name], Path("export") / name)
         else:
-            _export_and_predict(stages, "radial", ckpts[name], Path("export/radial"), data)
+            _export_and_predict(stages, "radial", ckpts[name], Path("export") / name, on[0])
     bench = Path("runs/radial/bench")
     stages.begin("radial", "bench", f"wtml bench radial --out {bench}")
     print(run_bench(data, ckpts["radial"], ckpts["radial_thesis"], "export/radial",
-                    "export/radial_thesis", bench, invalid_dir=invalid))
+                    "export/radial_thesis", bench, invalid_dir=invalid, spread_dir=spread,
+                    spread_model_dir="export/radial_spread"))
     stages.end()
     return json.loads((bench / "summary.json").read_text())
+
+
+def _spread_lines(radial: dict) -> list[str]:
+    """The radial summary's device-spread lines (none for a summary without them)."""
+    if "nominal_spread" not in radial:
+        return []
+
+    def row(r: dict) -> str:
+        cover = "" if r["cover"] != r["cover"] else f", {100 * r['cover']:.0f} % within 2σ"
+        return f"{1e6 * r['rmse']:.1f} µm{cover}, {100 * r['flagged']:.1f} % flagged"
+
+    lines = ["  over the device spread: ours (the preset's device) "
+             + row(radial["nominal_spread"])]
+    s = radial.get("ours_spread")
+    if s:
+        lines.append(
+            f"  ours spread-trained (configs/radial_spread.yaml): RMSE {1e6 * s['rmse']:.1f} µm "
+            f"(target ≤ 5 µm: {_met(s['rmse'] <= 5e-6)}), {100 * s['cover']:.0f} % of in-domain "
+            f"answers within 2σ (target ≥ 90 %: {_met(s['cover'] >= 0.9)}), "
+            f"{100 * s['flagged']:.1f} % flagged; on the nominal device "
+            f"{row(radial['ours_spread_nominal'])}")
+        if "ours_spread_whisker" in radial:
+            lines.append("  the same over the spread with the whisker measured (its length, "
+                         "thickness and modulus nominal): "
+                         + row(radial["ours_spread_whisker"]))
+    if radial.get("spread_limit"):
+        lines.append(f"  limited by {radial['spread_limit']} alone")
+    return lines
 
 
 def _met(ok: bool) -> str:
@@ -244,7 +282,7 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
     if radial:
         ours, inv = radial["ours_onnx"], radial["inversion"]
         lines += [
-            "radial (first test samples, ours ONNX):",
+            "radial (ours ONNX; nominal device):",
             f"  RMSE {1e6 * ours['rmse']:.2f} µm = {ours['ratio']:.2f}× the CRLB, worst 800 µm "
             f"range {radial['worst_range_ratio']:.2f}× (target ≤ 1.5×: "
             f"{_met(max(ours['ratio'], radial['worst_range_ratio']) <= 1.5)})",
@@ -253,6 +291,7 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
             f"converged physics inversion {1e6 * inv['rmse']:.2f} µm at "
             f"{radial['inversion_latency_s'] / radial['ours_onnx_latency_s']:.0f}× the latency",
             f"  in-domain test rows flagged: {100 * radial['false_alarm']:.2f} %",
+            *_spread_lines(radial),
             "  report runs/radial/bench/report.md, plots runs/radial/bench/error_vs_latency.png "
             "and runs/radial/bench/error_vs_d.png",
             f"  time: {stages.line('radial')}"]

@@ -1,8 +1,13 @@
-"""Radial-location baselines, with the decoders' predict interface (``{"distance": m}``).
+"""Radial-location baselines, with the decoders' predict interface
+(``predict(ze, ref) -> {"distance": m}``, ``ref`` the device's free reference Ze).
 
 - :class:`PolynomialRadial`: the thesis's 9th-degree polynomials of d in Re Ze or in Im Ze
-  at the first frequency (scikit-learn: standardise, polynomial features, least squares).
-- :class:`InversionRadial`: the physics inversion. The forward model (the scene's beam model)
+  at the first frequency (scikit-learn: standardise, polynomial features, least squares),
+  by default of the ratio ``ze / ref`` instead (the contact's change against the device's
+  free whisker), which removes the part of the device's spread the free Ze shows.
+- :class:`InversionRadial`: the physics inversion on the nominal device (the preset), of the
+  measurement corrected by the reference: ``ze × Ze_free(preset) / ref``, i.e. the ratio to
+  the free Ze fitted by the preset's ratio. The forward model (the scene's beam model)
   is tabulated once on a grid of d and of the contact stiffness (the nuisance is estimated
   jointly); each measurement starts from the grid point of least relative misfit, then a
   damped, bounded least-squares solve in (d, 1/k) on the beam model itself
@@ -22,30 +27,34 @@ from sklearn.preprocessing import PolynomialFeatures, StandardScaler
 
 
 class PolynomialRadial:
-    """d as a polynomial of one part of Ze at the first frequency.
+    """d as a polynomial of one part of Ze (or of ``ze / ref``) at the first frequency.
 
     Args:
         part: ``"real"`` or ``"imag"``.
         degree: polynomial degree (the thesis: 9).
+        reference: of the ratio ``ze / ref`` (default); ``False``: of Ze itself, the thesis's
+            polynomial (the nominal device assumed; ``ref`` is ignored).
     """
 
-    def __init__(self, part: str, degree: int = 9) -> None:
+    def __init__(self, part: str, degree: int = 9, reference: bool = True) -> None:
         if part not in ("real", "imag"):
             raise ValueError(f"part must be 'real' or 'imag', got {part!r}")
-        self.part, self.name = part, f"polynomial {degree} in {'Re' if part == 'real' else 'Im'} Ze"
+        self.part, self.reference = part, reference
+        self.name = (f"polynomial {degree} in {'Re' if part == 'real' else 'Im'} "
+                     f"{'Ze/ref' if reference else 'Ze'}")
         self.model = make_pipeline(StandardScaler(), PolynomialFeatures(degree),
                                    LinearRegression())
 
-    def _x(self, ze: np.ndarray) -> np.ndarray:
-        z = np.asarray(ze)[:, 0]
+    def _x(self, ze: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        z = np.asarray(ze)[:, 0] / (np.asarray(ref)[:, 0] if self.reference else 1.0)
         return (z.real if self.part == "real" else z.imag)[:, None]
 
-    def fit(self, ze: np.ndarray, distance: np.ndarray) -> PolynomialRadial:
-        self.model.fit(self._x(ze), distance)
+    def fit(self, ze: np.ndarray, ref: np.ndarray, distance: np.ndarray) -> PolynomialRadial:
+        self.model.fit(self._x(ze, ref), distance)
         return self
 
-    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
-        return {"distance": self.model.predict(self._x(ze))}
+    def predict(self, ze: np.ndarray, ref: np.ndarray) -> dict[str, np.ndarray]:
+        return {"distance": self.model.predict(self._x(ze, ref))}
 
 
 class InversionRadial:
@@ -75,6 +84,7 @@ class InversionRadial:
         # units of one residual component's noise std, sigma/sqrt(2)
         self.lnk_mid, self.lnk_std = self.lnk_range.mean(), np.ptp(self.lnk_range) / np.sqrt(12)
         self.noise = max(scene.noise.ze_relative, 1e-12) / np.sqrt(2)
+        self.free = scene.free_ze(self.transducer)  # the preset's, (n_freq,)
 
     def _residual(self, ze: np.ndarray, d: np.ndarray, c: np.ndarray) -> np.ndarray:
         """Relative misfit (Re, Im per frequency) at distance ``d`` (m) and contact compliance
@@ -100,15 +110,16 @@ class InversionRadial:
             d[s:s + chunk], lnk[s:s + chunk] = self.table_d[best], self.table_lnk[best]
         return d, lnk
 
-    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
+    def predict(self, ze: np.ndarray, ref: np.ndarray) -> dict[str, np.ndarray]:
         """MAP in (d, c = 1/k) by Levenberg–Marquardt from :meth:`start`, vectorised over
-        measurements. In the compliance c, Ze is nearly linear (the contact is a Möbius
-        function of k, ``1/(c + g)`` with the whisker's own compliance g ≫ c), where in ln k
-        undamped steps overshoot; the bound's Gaussian prior on ln k keeps the flat direction
+        measurements, of ``ze × Ze_free / ref`` (module docstring) on the preset. In the
+        compliance c, Ze is nearly linear (the contact is a Möbius function of k,
+        ``1/(c + g)`` with the whisker's own compliance g ≫ c), where in ln k undamped steps
+        overshoot; the bound's Gaussian prior on ln k keeps the flat direction
         of a stiff contact well posed. Each measurement has its own damping λ (scaled by
         diag(JᵀJ)): a step is kept only where it lowers the cost (then λ/3), else λ×4; steps
         are clipped to the scene's ranges. Stops when no measurement moves d by over 1 nm."""
-        ze = np.asarray(ze)
+        ze = np.asarray(ze) * self.free / np.asarray(ref)
         d, lnk = self.start(ze)
         c, c_range = np.exp(-lnk), np.exp(-self.lnk_range[::-1])
         r = self._residual(ze, d, c)

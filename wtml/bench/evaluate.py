@@ -48,7 +48,8 @@ def evaluate(checkpoint: str | Path, data_dir: str | Path) -> str:
     train = load_shards(data_dir, split["train"])
     d, crlb = test["distance"], radial_crlb(scene, test["distance"], test["stiffness"])
     results = []
-    for p in (TorchRadial(net), PolynomialRadial("imag").fit(train["ze"], train["distance"])):
-        err = p.predict(test["ze"])["distance"] - d
+    for p in (TorchRadial(net),
+              PolynomialRadial("imag").fit(train["ze"], train["ref"], train["distance"])):
+        err = p.predict(test["ze"], test["ref"])["distance"] - d
         results.append({"name": p.name, "rows": range_rows(err, d, crlb)})
     return f"RMSE (µm) by range of d and RMSE / CRLB, on {where}\n\n" + format_ranges(results)

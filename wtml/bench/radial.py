@@ -1,12 +1,21 @@
-"""``wtml bench radial``: every radial method on one held-out set (the first ``max_samples``
-of the test shard, 10000 by default), in one run.
+"""``wtml bench radial``: every radial method on the nominal device and over the device's
+manufacturing spread, in one run.
 
-Thesis decoder (2-10-1 sigmoid) and ours, each in torch and ONNX; the polynomials in Re Ze and
-Im Ze (numpy, and Im Ze as the exported classical ONNX); the physics inversion (a converged,
-damped and bounded solve on the beam model). For each:
+Thesis decoder (2-10-1 sigmoid on Ze alone) and ours, each in torch and ONNX; the polynomials
+in Re and Im of Ze (the thesis's) and of Ze / ref (numpy, and Im Ze / ref as the exported
+classical ONNX); the physics inversion
+(a converged, damped and bounded solve on the preset's beam model, of Ze corrected by the
+reference). Each reads the measurement and the device's free reference. On the first
+``max_samples`` of the test shard (10000 by default; the shipped scene: the preset's device):
 RMSE, max error and RMSE / CRLB by range of d, p50 latency at batch 1 and throughput at batch
-4096; the invalid-contact variant (thesis §5.5.4); generation throughput of the beam path
-against the 2×2 path. Writes ``report.md``, ``error_vs_latency.png`` and ``error_vs_d.png``.
+4096. The device-spread table (:func:`run_bench`'s ``spread_*``): the shipped decoder, the
+spread-trained one, the thesis decoder, the classical ONNX and the inversion on the nominal
+device, over the spread and with each parameter of the spread alone (``spread_samples``
+each): RMSE, max error, the share of in-domain answers within 2σ and the share flagged out of
+domain; the parameter alone that costs the spread decoder most is what a user must measure
+better. Then the invalid-contact variant (thesis §5.5.4) and the generation throughput of the
+beam path against the 2×2 path. Writes ``report.md``, ``error_vs_latency.png`` and
+``error_vs_d.png``.
 """
 
 from __future__ import annotations
@@ -72,13 +81,77 @@ def generation_throughput(scene, n: int = 20000) -> dict[str, float]:
     return {"beam": beam, "matrix": matrix}
 
 
+def spread_sets(scene, nominal: dict, spread: dict, n_each: int) -> dict[str, dict]:
+    """The device-spread table's record sets: ``"nominal device"`` (``nominal``: records of
+    the preset's device), ``"spread"`` (``spread``: records over the spread of ``scene``, a
+    scene with a device spread), one per parameter of that spread with a nonzero width,
+    alone, and, where the whisker has tolerances, ``"spread, whisker measured"``: every
+    parameter but the whisker's (``n_each`` fresh records each). The whisker's length and
+    bending stiffness set what a contact on its shaft reads (the clamped span's EI/(L - d)³
+    and mass) and the free reference hardly shows them, so that row is what a user who
+    measures the whisker gets."""
+    rng = np.random.default_rng([scene.seed, 10**6 + 2])
+    sets = {"nominal device": nominal, "spread": spread}
+    widths = scene.device.widths(scene.preset)
+    for name, width in widths.items():
+        if width:
+            sets[f"{name} ±{100 * width:g} % alone"] = scene.simulate(
+                n_each, rng, widths=scene.device.only(name, scene.preset))
+    if any(w and name.startswith("whisker.") for name, w in widths.items()):
+        sets["spread, whisker measured"] = scene.simulate(
+            n_each, rng, widths={p: 0.0 if p.startswith("whisker.") else w
+                                 for p, w in widths.items()})
+    return sets
+
+
+def spread_row(pred: dict, d: np.ndarray) -> dict:
+    """RMSE and max error (m) of ``pred["distance"]`` against ``d``; where the method has a
+    domain gate, the flagged share, and where it has a std, the share of in-domain answers
+    within 2σ (NaN where not applicable)."""
+    err = pred["distance"] - d
+    inside = pred.get("in_domain", np.ones(len(d), bool))
+    sigma = pred.get("sigma")
+    cover = (float(np.mean(np.abs(err[inside]) <= 2 * sigma[inside]))
+             if sigma is not None and inside.any() and np.any(sigma > 0) else float("nan"))
+    return {"rmse": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
+            "cover": cover,
+            "flagged": float(1 - inside.mean()) if "in_domain" in pred else float("nan")}
+
+
+def format_spread(table: dict[str, dict[str, dict]]) -> str:
+    """The device-spread table: one row per record set, per method RMSE / max (µm), within
+    2σ and flagged (%)."""
+    methods = list(next(iter(table.values())))
+    lines = ["| records | " + " | ".join(methods) + " |", "|---|" + "---|" * len(methods)]
+
+    def pct(x: float) -> str:
+        return "" if np.isnan(x) else f", {100 * x:.0f} %"
+
+    def um(x: float) -> str:
+        return f"{1e6 * x:.2f}" if x < 1e-3 else f"{1e6 * x:.3g}"
+
+    for name, row in table.items():
+        cells = [f"{um(r['rmse'])} / {um(r['max'])}{pct(r['cover'])}{pct(r['flagged'])}"
+                 for r in row.values()]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_dir, out, *,
-              invalid_dir=None, threads: int = 2, latency_repeats: int = 2000,
-              throughput_repeats: int = 30, max_samples: int = 10000) -> str:
-    """Run the radial benchmark on the first ``max_samples`` of the test shard; returns the
-    report (also written under ``out``)."""
-    if max_samples < 1:
-        raise ValueError(f"max_samples must be >= 1, got {max_samples}")
+              invalid_dir=None, spread_dir=None, spread_model_dir=None, spread_scene=None,
+              threads: int = 2, latency_repeats: int = 2000, throughput_repeats: int = 30,
+              max_samples: int = 10000, spread_samples: int = 2000) -> str:
+    """Run the radial benchmark (module docstring); returns the report (also written under
+    ``out``).
+
+    The device-spread table draws its devices from the scene of ``spread_dir`` (the
+    spread-trained decoder's dataset: its test shard is the table's "spread" row) or, where
+    that folder does not exist, from the scene file ``spread_scene`` (fresh records); with
+    neither, there is no device-spread table. ``spread_model_dir``: the spread-trained
+    decoder's export, a column of that table where it exists."""
+    for name, value in (("max_samples", max_samples), ("spread_samples", spread_samples)):
+        if value < 1:
+            raise ValueError(f"{name} must be >= 1, got {value}")
     torch.set_num_threads(threads)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -87,7 +160,8 @@ def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_d
     split = split_shards(manifest["n_shards"], 1, 1)
     train, test = load_shards(data_dir, split["train"]), load_shards(data_dir, split["test"])
     n_test = len(test["distance"])
-    ze, d, k = (test[key][:max_samples] for key in ("ze", "distance", "stiffness"))
+    test = {key: test[key][:max_samples] for key in ("ze", "ref", "distance", "stiffness")}
+    ze, ref, d, k = (test[key] for key in ("ze", "ref", "distance", "stiffness"))
     crlb = radial_crlb(scene, d, k)
     ours, _ = load_radial_net(str(checkpoint))
     thesis, _ = load_radial_net(str(thesis_checkpoint))
@@ -96,28 +170,33 @@ def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_d
         _named(OnnxModel(Path(thesis_model_dir) / "model.onnx", threads), "thesis 2-10-1 ONNX"),
         TorchRadial(ours, "ours torch"),
         _named(OnnxModel(Path(model_dir) / "model.onnx", threads), "ours ONNX"),
-        PolynomialRadial("real").fit(train["ze"], train["distance"]),
-        PolynomialRadial("imag").fit(train["ze"], train["distance"]),
-        _named(OnnxModel(Path(model_dir) / "classical.onnx", threads), "polynomial Im Ze ONNX"),
+        *(PolynomialRadial(part, reference=reference).fit(train["ze"], train["ref"],
+                                                          train["distance"])
+          for reference in (False, True) for part in ("real", "imag")),
+        _named(OnnxModel(Path(model_dir) / "classical.onnx", threads),
+               "polynomial Im Ze/ref ONNX"),
         InversionRadial(scene),
     ]
-    big = np.resize(ze, (4096, ze.shape[1]))
+    big = tuple(np.resize(x, (4096, ze.shape[1])) for x in (ze, ref))
     results = []
     for m in methods:
-        pred = m.predict(ze)
+        pred = m.predict(ze, ref)
         if m is methods[3]:  # ours ONNX: its graph's domain gate, on this in-domain test set
             false_alarm = float(1 - pred["in_domain"].mean())
         err = pred["distance"] - d
         results.append({"name": m.name, "err": err, "rows": range_rows(err, d, crlb),
-                        "latency": latency_p50(m, ze[:1], latency_repeats),
+                        "latency": latency_p50(m, (ze[:1], ref[:1]), latency_repeats),
                         "throughput": throughput(m, big, throughput_repeats)})
+    spread, spread_source = _spread_table(
+        scene, test, methods, spread_dir, spread_model_dir, spread_scene, threads, len(d),
+        spread_samples)
     gen = generation_throughput(scene)
     best_poly = min(r["rows"][-1]["rmse"] for r in results if r["name"].startswith("polynomial"))
     lines = [
         "# wtml bench radial", "",
         f"Dataset `{data_dir}` (scene `{manifest['scene_hash'][:12]}`), test shard(s) "
         f"{split['test']}, the first {len(d)} of its {n_test} samples; {scene.preset} preset "
-        f"(beam model) at "
+        f"(device: {_spread_text(scene)}; beam model) at "
         f"{list(scene.excitation.frequencies_hz)} Hz; noise {scene.noise.ze_relative:g} "
         f"relative on Ze; contact stiffness {scene.contact.stiffness[0]:g}–"
         f"{scene.contact.stiffness[1]:g} N/m (log-uniform nuisance).",
@@ -136,6 +215,11 @@ def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_d
                      f"{a['ratio']:.2f} | {best_poly / a['rmse']:.2f}× | "
                      f"{1e6 * r['latency']:.1f} µs | {r['throughput']:.3g} /s |")
     lines += ["", "## RMSE by range of d (µm) and RMSE / CRLB", "", format_ranges(results)]
+    spread_summary = {}
+    if spread:
+        spread_summary = _spread_summary(spread)
+        lines += ["", "## Device spread", "", spread_source, "", format_spread(spread), "",
+                  *_spread_verdict(spread_summary)]
     inv, ours_onnx = results[-1], results[3]
     lines += ["", f"The physics inversion (grid start, then Levenberg–Marquardt in (d, 1/k) on "
               f"the beam model) costs {1e3 * inv['latency']:.1f} ms at batch 1 and "
@@ -155,6 +239,7 @@ def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_d
     report = "\n".join(lines)
     (out / "report.md").write_text(report)
     summary = {"ours_onnx": ours_onnx["rows"][-1], "inversion": inv["rows"][-1],
+               "spread": spread, **spread_summary,
                "best_polynomial_rmse": best_poly, "ours_onnx_latency_s": ours_onnx["latency"],
                "inversion_latency_s": inv["latency"], "false_alarm": false_alarm,
                "worst_range_ratio": max(r["ratio"] for r in ours_onnx["rows"][:-1]),
@@ -162,6 +247,112 @@ def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_d
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     _plots(results, d, crlb, out)
     return report
+
+
+NOMINAL_ONNX, SPREAD_ONNX = "ours ONNX", "ours spread ONNX"
+"""The device-spread table's names of the shipped (nominal) decoder and the spread-trained
+one."""
+
+
+def _spread_table(scene, nominal: dict, methods: list, spread_dir, spread_model_dir,
+                  spread_scene, threads: int, n_spread: int, n_each: int
+                  ) -> tuple[dict[str, dict[str, dict]], str]:
+    """The device-spread table (``{records: {method: spread_row}}``, empty without a spread
+    scene) and the sentence that says where its records come from. Methods: the shipped
+    decoder's ONNX, the spread-trained one's where its export exists, the thesis decoder's
+    ONNX, the classical ONNX and the physics inversion (on the preset's beam model, of Ze
+    corrected by the reference)."""
+    if spread_dir is not None and Path(spread_dir).is_dir():
+        other = dataset_scene(spread_dir)
+        shards = split_shards(read_manifest(spread_dir)["n_shards"], 1, 1)["test"]
+        records = load_shards(spread_dir, shards)
+        records = {key: records[key][:n_spread] for key in ("ze", "ref", "distance")}
+        where = f"the first {n_spread} records of `{spread_dir}`'s test shard(s) {shards}"
+    elif spread_scene is not None:
+        from wtml.scenes import load_scene
+
+        other = load_scene(spread_scene)
+        records = other.simulate(n_spread, np.random.default_rng([other.seed, 10**6 + 3]))
+        where = f"{n_spread} fresh records of `{spread_scene}`"
+    else:
+        return {}, ""
+    if other.device.none or other.preset != scene.preset \
+            or other.excitation.frequencies_hz != scene.excitation.frequencies_hz:
+        raise ValueError(f"the device-spread scene ({spread_dir or spread_scene}) must draw "
+                         f"devices of the {scene.preset} preset from a spread, at the "
+                         f"frequencies {list(scene.excitation.frequencies_hz)} Hz")
+    columns = [methods[3]]
+    if spread_model_dir is not None and (Path(spread_model_dir) / "model.onnx").is_file():
+        columns.append(_named(OnnxModel(Path(spread_model_dir) / "model.onnx", threads),
+                              SPREAD_ONNX))
+    columns += [methods[1], methods[8], methods[9]]
+    sets = spread_sets(other, nominal, records, n_each)
+    table = {name: {m.name: spread_row(m.predict(s["ze"], s["ref"]), s["distance"])
+                    for m in columns}
+             for name, s in sets.items()}
+    source = (f"Devices drawn from the manufacturing spread (relative half-widths of uniform "
+              f"tolerance bands): {_spread_text(other)}; each record's free Ze is its "
+              f"reference (noise {other.noise.reference_relative:g}). Rows: the nominal "
+              f"device (the first table's records), the spread ({where}), each parameter "
+              f"alone ({n_each} fresh records each). Per method: RMSE / max error (µm), the "
+              f"share of in-domain answers within 2σ (decoders with a std), the share flagged "
+              f"out of domain (ONNX graphs). `{NOMINAL_ONNX}` is the shipped decoder, trained "
+              f"on the preset's device; `{SPREAD_ONNX}` the one trained over the spread.")
+    return table, source
+
+
+def _spread_summary(spread: dict[str, dict[str, dict]]) -> dict:
+    """The summary's device-spread entries: each decoder's row over the spread and on the
+    nominal device, and the parameter alone that costs the spread decoder (else the shipped
+    one) most."""
+    out = {"nominal_spread": spread["spread"][NOMINAL_ONNX]}
+    best = SPREAD_ONNX if SPREAD_ONNX in spread["spread"] else NOMINAL_ONNX
+    if best == SPREAD_ONNX:
+        out["ours_spread"] = spread["spread"][SPREAD_ONNX]
+        out["ours_spread_nominal"] = spread["nominal device"][SPREAD_ONNX]
+        if "spread, whisker measured" in spread:
+            out["ours_spread_whisker"] = spread["spread, whisker measured"][SPREAD_ONNX]
+    alone = {name: row[best] for name, row in spread.items() if "alone" in name}
+    if alone:
+        limit = max(alone, key=lambda name: alone[name]["rmse"])
+        out["spread_limit"] = f"{limit.removesuffix(' alone')}: {1e6 * alone[limit]['rmse']:.1f} µm"
+    return out
+
+
+def _spread_verdict(s: dict) -> list[str]:
+    """The device-spread table's closing lines."""
+    def row(r: dict) -> str:
+        cover = "" if np.isnan(r["cover"]) else f", {100 * r['cover']:.0f} % within 2σ"
+        return f"{1e6 * r['rmse']:.2f} µm{cover}, {100 * r['flagged']:.1f} % flagged"
+
+    lines = [f"The shipped decoder over the spread: {row(s['nominal_spread'])} (it knows the "
+             f"preset's device only; its gate flags other devices)."]
+    if "ours_spread" in s:
+        o = s["ours_spread"]
+        lines.append(f"The spread-trained decoder over the spread: {row(o)} (targets: ≤ 5 µm "
+                     f"{_met(o['rmse'] <= 5e-6)}, ≥ 90 % within 2σ "
+                     f"{_met(o['cover'] >= 0.9)}); on the nominal device "
+                     f"{row(s['ours_spread_nominal'])}"
+                     + (f"; over the spread with the whisker measured (its tolerances off) "
+                        f"{row(s['ours_spread_whisker'])}" if "ours_spread_whisker" in s
+                        else "") + ".")
+    if "spread_limit" in s:
+        lines.append(f"The parameter that limits it, alone: {s['spread_limit']}: what a user "
+                     f"must measure better.")
+    return lines
+
+
+def _met(ok: bool) -> str:
+    return "met" if ok else "MISSED"
+
+
+def _spread_text(scene) -> str:
+    s = scene.device
+    if s.none:
+        return "the preset's own, no spread"
+    return ", ".join(f"{c.replace('_', ' ')} ±{100 * getattr(s, c):g} %"
+                     for c in ("length", "thickness", "modulus", "loss_factor", "tan_delta",
+                               "coupling")) + f" ({s.devices} devices per shard)"
 
 
 def _named(model: OnnxModel, name: str) -> OnnxModel:
@@ -175,7 +366,7 @@ def _invalid(invalid_dir, models) -> str:
                                         np.unique(data["distance"])) + " |",
              "|---|" + "---|" * len(np.unique(data["distance"]))]
     for m in models:
-        pred = m.predict(data["ze"])["distance"]
+        pred = m.predict(data["ze"], data["ref"])["distance"]
         cells = []
         for v in np.unique(data["distance"]):
             sel = data["distance"] == v

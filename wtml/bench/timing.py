@@ -12,27 +12,30 @@ import time
 import numpy as np
 
 
-def _median_call(predictor, ze: np.ndarray, repeats: int, warmup: int, budget_s: float
-                 ) -> float:
+def _median_call(predictor, ze, repeats: int, warmup: int, budget_s: float) -> float:
+    args = ze if isinstance(ze, tuple) else (ze,)
     start = time.perf_counter()
     for _ in range(warmup):
-        predictor.predict(ze)
+        predictor.predict(*args)
         if time.perf_counter() - start > budget_s / 3:
             break
     times: list[float] = []
     start = time.perf_counter()
     while len(times) < repeats and (not times or time.perf_counter() - start < budget_s):
         t0 = time.perf_counter()
-        predictor.predict(ze)
+        predictor.predict(*args)
         times.append(time.perf_counter() - t0)
     return float(np.median(times))
 
 
-def latency_p50(predictor, ze_one: np.ndarray, repeats: int, budget_s: float = 3.0) -> float:
-    """Median seconds of one ``predict`` call at batch 1 (after 20 warm-up calls)."""
+def latency_p50(predictor, ze_one, repeats: int, budget_s: float = 3.0) -> float:
+    """Median seconds of one ``predict`` call at batch 1 (after 20 warm-up calls);
+    ``ze_one`` an array, or a tuple of the predictor's arguments (e.g. ``(ze, ref)``)."""
     return _median_call(predictor, ze_one, repeats, 20, budget_s)
 
 
-def throughput(predictor, ze_batch: np.ndarray, repeats: int, budget_s: float = 3.0) -> float:
-    """Samples per second at the batch size of ``ze_batch`` (median over the calls)."""
-    return len(ze_batch) / _median_call(predictor, ze_batch, repeats, 1, budget_s)
+def throughput(predictor, ze_batch, repeats: int, budget_s: float = 3.0) -> float:
+    """Samples per second at the batch size of ``ze_batch`` (an array or a tuple of
+    arguments, as for :func:`latency_p50`; median over the calls)."""
+    n = len(ze_batch[0] if isinstance(ze_batch, tuple) else ze_batch)
+    return n / _median_call(predictor, ze_batch, repeats, 1, budget_s)

@@ -52,9 +52,10 @@ def onset_calibration(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
 
 
 def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor, ...]:
-    """The input tensors and the targets, float32: ``(ze_re, ze_im, targets)`` for radial,
-    ``(ze_re, ze_im, t_re, t_im, targets)`` for fluid (each record's calibrated T, ``(n,
-    n_freq, 4)`` flattened as t11, t12, t21, t22), ``(e, i, targets)`` (V, A; NaN-padded
+    """The input tensors and the targets, float32: ``(ze_re, ze_im, ref_re, ref_im,
+    targets)`` for radial (``ref``: the free whisker's Ze of the record's device, the user's
+    reference), ``(ze_re, ze_im, t_re, t_im, targets)`` for fluid (each record's calibrated T,
+    ``(n, n_freq, 4)`` flattened as t11, t12, t21, t22), ``(e, i, targets)`` (V, A; NaN-padded
     targets: gap m, onsets s, detachments s) for texture, and for onset also each record's
     calibration after ``e, i`` (:func:`onset_calibration`); targets as in ``TARGETS``."""
     if task == "onset":
@@ -67,6 +68,11 @@ def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor
                                "by an older wtml; generate it again")
         t = arrays["t"].reshape(*arrays["t"].shape[:-2], 4)
         inputs = (arrays["ze"].real, arrays["ze"].imag, t.real, t.imag)
+    elif task == "radial":
+        if "ref" not in arrays:
+            raise DatasetError("a radial dataset without each record's free reference ('ref'): "
+                               "made by an older wtml; generate it again")
+        inputs = (arrays["ze"].real, arrays["ze"].imag, arrays["ref"].real, arrays["ref"].imag)
     else:
         inputs = (arrays["ze"].real, arrays["ze"].imag)
     return tuple(torch.tensor(a, dtype=torch.float32) for a in (*inputs, TARGETS[task](arrays)))

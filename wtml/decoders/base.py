@@ -60,7 +60,7 @@ class DecoderModule(L.LightningModule, ABC):
     @abstractmethod
     def loss(self, batch) -> torch.Tensor:
         """The training loss of a batch ``(*inputs, targets)`` (``ze_re, ze_im`` and the task's
-        references, or ``e, i``)."""
+        references: ``t_re, t_im`` for fluid, ``ref_re, ref_im`` for radial; or ``e, i``)."""
 
     @abstractmethod
     def net_shape(self) -> dict:

@@ -1,8 +1,10 @@
 """Checkpoint -> ONNX: the decoder and, beside it, the classical path as its own graph.
 
-Both graphs take ``ze_re, ze_im`` (float32, ``(batch, n_freq)``, Ω, dynamic batch; fluid: also
-the user's calibrated T as ``t_re, t_im``, ``(batch, n_freq, 4)``, named in the metadata's
-``references``) and return
+Both graphs take ``ze_re, ze_im`` (float32, ``(batch, n_freq)``, Ω, dynamic batch) and what
+the task's metadata's ``references`` names: fluid the user's calibrated T as ``t_re, t_im``,
+``(batch, n_freq, 4)``; radial ``ref_re, ref_im``, ``(batch, n_freq)``, the free whisker's Ze
+of the user's device at the same tones (a sample ``sample_reference.npz`` of the nominal
+device is written beside them). They return
 the task's outputs (``scene.OUTPUTS``), each ``(batch,)``: fluid ``eta`` (Pa·s) and ``rho``
 (kg/m³); radial ``distance`` (m from the tip) and ``sigma`` (m, the decoder's own
 uncertainty; 0 where it has none), then ``in_domain`` (bool) and ``domain_score`` (float,
@@ -11,7 +13,8 @@ is part of both graphs. The decoder's ``in_domain`` also requires its answer ins
 trained range; the classical graph's judges the input only (its answers are checked against
 the physically possible range by ``wtml predict``). The fluid classical graph is the thesis's
 closed form, calibrated T -> Zm -> band least squares; the radial one is the thesis's
-classical decoder, the 9th-degree polynomial of d in Im Ze. The metadata of each model
+classical decoder, the 9th-degree polynomial of d in Im Ze, of the ratio to the reference
+(``wtml.baselines.radial.PolynomialRadial``). The metadata of each model
 carries what a device needs: names and units, the frequency grid, the scene and its hash,
 the trained domain and its measured false-alarm rate, the package version. A device needs
 onnxruntime only.
@@ -41,9 +44,17 @@ INPUTS = ("ze_re", "ze_im")
 FLUID_INPUTS = (*INPUTS, "t_re", "t_im")
 """The fluid graphs' inputs: Ze and the user's calibrated T, ``(batch, n_freq, 4)`` flattened
 as (t11, t12, t21, t22)."""
-FLUID_REFERENCES = {"calibration": "the device's calibrated T (whisker with its sphere) at the "
-                                   "sweep frequencies, measured with the calibration loads of "
-                                   "physics.md §4: inputs t_re, t_im"}
+RADIAL_INPUTS = (*INPUTS, "ref_re", "ref_im")
+"""The radial graphs' inputs: Ze and the free whisker's Ze of the same device, ``(batch,
+n_freq)``."""
+REFERENCES = {
+    "fluid": {"calibration": "the device's calibrated T (whisker with its sphere) at the "
+                             "sweep frequencies, measured with the calibration loads of "
+                             "physics.md §4: inputs t_re, t_im"},
+    "radial": {"reference": "the free (untouched) whisker's Ze of this device at the "
+                            "model's frequencies, measured when it is set up "
+                            "(ref_re, ref_im; wtml predict --reference)"}}
+"""What each task's export needs besides the measurement (the metadata's ``references``)."""
 GATE_OUTPUTS = ("in_domain", "domain_score")
 FRESH_SAMPLES = 20000
 """Fresh samples of the scene (not the training data) on which the exported decoder's
@@ -75,16 +86,20 @@ class ClassicalFluidNet(nn.Module):
 
 
 class PolynomialNet(nn.Module):
-    """A fitted ``PolynomialRadial`` as a graph: ``(distance, zeros)`` from Ze."""
+    """A fitted ``PolynomialRadial`` as a graph: ``(distance, zeros)`` from Ze and the
+    reference."""
 
     def __init__(self, poly) -> None:
         super().__init__()
-        self.part = poly.part
+        self.part, self.reference = poly.part, poly.reference
         self.poly = StandardPolynomial(poly.model.steps[1][1].degree).load_pipeline(poly.model)
 
-    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor]:
-        y = self.poly((ze_re if self.part == "real" else ze_im)[:, 0])
+    def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, ref_re: torch.Tensor,
+                ref_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        from wtml.decoders.radial import ratio
+
+        z = ratio(ze_re, ze_im, ref_re, ref_im) if self.reference else (ze_re, ze_im)
+        y = self.poly(z[0 if self.part == "real" else 1][:, 0])
         return y, torch.zeros_like(y)
 
 
@@ -158,7 +173,7 @@ def domain_metadata(scene, false_alarm: float, n_fresh: int) -> dict:
 
 def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     """Write ``model.onnx`` (decoder) and ``classical.onnx`` for the checkpoint's task into
-    ``out``; returns the paths.
+    ``out`` (radial: and ``sample_reference.npz``); returns the paths.
 
     Raises:
         CheckpointError: the checkpoint is missing, unreadable, unsafe or not wtml's.
@@ -190,30 +205,35 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
         from wtml.baselines.radial import PolynomialRadial
 
         train = scene.simulate(20000, np.random.default_rng([scene.seed, 10**6]))
-        classical = PolynomialNet(PolynomialRadial("imag").fit(train["ze"], train["distance"]))
-        label = "polynomial 9 in Im Ze"  # fitted on 20000 fresh samples of the scene
+        poly = PolynomialRadial("imag").fit(train["ze"], train["ref"], train["distance"])
+        classical = PolynomialNet(poly)
+        label = poly.name  # fitted on 20000 fresh samples of the scene
     fresh = scene.simulate(FRESH_SAMPLES, np.random.default_rng([scene.seed, 10**6 + 1]))
     inputs, widths = INPUTS, None
+    fresh_inputs = (fresh["ze"].real, fresh["ze"].imag)
     if task == "fluid":
         inputs, widths = FLUID_INPUTS, (len(freq),) * 2 + ((len(freq), 4),) * 2
-        fresh_inputs = (fresh["ze"].real, fresh["ze"].imag, *flat_parts(fresh["t"]))
-    else:
-        fresh_inputs = (fresh["ze"].real, fresh["ze"].imag)
+        fresh_inputs += flat_parts(fresh["t"])
+    elif task == "radial":
+        inputs = RADIAL_INPUTS
+        fresh_inputs += (fresh["ref"].real, fresh["ref"].imag)
     domain = domain_metadata(scene, false_alarm_rate(decoder, *fresh_inputs), FRESH_SAMPLES)
     meta = {
         "wtml_version": __version__,
         "task": task,
         "inputs": json.dumps(list(inputs)),
+        "references": json.dumps(REFERENCES.get(task, {})),
         "outputs": json.dumps(list(scene.OUTPUTS)),
-        "units": json.dumps(scene.UNITS | {"ze_re": "ohm", "ze_im": "ohm"}),
+        "units": json.dumps(scene.UNITS | {name: "ohm" for name in inputs}),
         "frequency_hz": json.dumps(freq.tolist()),
         "scene": json.dumps(module.scene, sort_keys=True),
         "scene_hash": config_hash(scene),
         "domain": json.dumps(domain),
     }
-    if task == "fluid":
-        meta["references"] = json.dumps(FLUID_REFERENCES)
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
+    if task == "radial":  # the nominal device's free Ze, noise-free: a --reference example
+        paths["sample reference"] = out / "sample_reference.npz"
+        np.savez(paths["sample reference"], frequency_hz=freq, ze=scene.free_ze())
     n_freq = len(freq)
     _export(decoder, n_freq, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"},
             inputs, widths)

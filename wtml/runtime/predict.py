@@ -32,6 +32,9 @@ model's metadata; another grid is refused, never interpolated):
         ze_real and ze_imag; or the raw signals of a stepped sweep: e and i, each
         (n_freq, n_t) or (n, n_freq, n_t), in V and A, sampled at sample_rate_hz
         (phasors are fitted by least squares at each grid frequency).
+--reference (radial models: required): the free (untouched) whisker's Ze of the device,
+  taken when it is set up, on the same grid: .npz with frequency_hz (n_freq,) and ze
+  (complex, (n_freq,) for every measurement, or (n, n_freq) one per measurement).
 Fluid models return eta (Pa*s) and rho (kg/m^3); radial models distance (m from the tip)
 and sigma (m, the decoder's std; NaN out of domain).
 Fluid models also need the device's calibration (--calibration): .npz with frequency_hz
@@ -104,11 +107,23 @@ class OnnxModel:
         out["domain_score"] = values[-1].astype(float)
         return out
 
-    def predict(self, ze: np.ndarray, t: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """On Ze (complex ``(n, n_freq)``) and, for a model that needs a calibration, the
-        calibrated T (complex ``(n, n_freq, 2, 2)``)."""
+    def predict(self, ze: np.ndarray, reference: np.ndarray | None = None
+                ) -> dict[str, np.ndarray]:
+        """The graph on Ze (complex ``(n, n_freq)``) and, for a model that needs one (its
+        metadata's ``references``), its reference: the calibrated T (complex ``(n, n_freq, 2,
+        2)``, ``"calibration"``: fluid) or the free whisker's Ze (complex ``(n, n_freq)``,
+        ``"reference"``: radial)."""
         ze = np.asarray(ze)
-        return self.run(ze.real, ze.imag, *(() if t is None else flat_parts(t)))
+        if bool(self.references) != (reference is not None):
+            raise InputError(f"{self.name}: needs a reference ({', '.join(self.references)})"
+                             if reference is None else f"{self.name}: takes no reference")
+        if reference is None:
+            extra = ()
+        elif "calibration" in self.references:
+            extra = flat_parts(reference)
+        else:
+            extra = (np.asarray(reference).real, np.asarray(reference).imag)
+        return self.run(ze.real, ze.imag, *extra)
 
 
 def _npz_signals(path: Path, data, freq: np.ndarray) -> np.ndarray:
@@ -248,6 +263,39 @@ def read_calibration(path: str | Path | None, frequency_hz: np.ndarray, n: int) 
     if not np.all(np.isfinite(t)):
         raise InputError(f"{path}: t is NaN or inf")
     return np.broadcast_to(t, (n, freq.size, 2, 2))
+def read_reference(path: str | Path | None, model: OnnxModel, n: int) -> np.ndarray | None:
+    """The free reference a radial export needs, complex ``(n, n_freq)`` (one row is
+    broadcast to all ``n`` measurements), or None for an export that needs none.
+
+    Raises:
+        InputError: the export needs a reference and none is given (naming ``--reference``),
+            or one is given that it does not take; the file unreadable, without
+            ``frequency_hz`` and ``ze``, on another grid, of another row count, NaN or inf.
+    """
+    freq = model.frequency_hz
+    if "reference" not in model.references:
+        if path is not None:
+            raise InputError(f"--reference {path}: this {model.task} export takes no reference")
+        return None
+    if path is None:
+        raise InputError(f"this {model.task} export needs --reference: the free whisker's Ze at "
+                         f"{', '.join(f'{f:g}' for f in freq)} Hz (npz with frequency_hz and "
+                         "ze), measured on the device when it is set up")
+    path = Path(path)
+    if path.suffix != ".npz" or not path.is_file():
+        raise InputError(f"--reference {path}: no such .npz file (frequency_hz and ze)")
+    got, ref = _from_npz(path)
+    ref = np.atleast_2d(ref)
+    if got.shape != freq.shape or not np.allclose(got, freq, rtol=1e-9):
+        raise InputError(f"--reference {path}: frequencies {got.tolist()} Hz are not the "
+                         f"model's {freq.tolist()} Hz")
+    if ref.ndim != 2 or ref.shape[-1] != freq.size or len(ref) not in (1, n):
+        raise InputError(f"--reference {path}: ze must have shape ({freq.size},), "
+                         f"(1, {freq.size}) or ({n}, {freq.size}) for {n} measurements, "
+                         f"got {ref.shape}")
+    if not np.all(np.isfinite(ref)):
+        raise InputError(f"--reference {path}: ze is NaN or inf")
+    return np.broadcast_to(ref, (n, freq.size))
 
 
 def load_export(model_dir: str | Path) -> tuple[OnnxModel, OnnxModel]:
@@ -277,19 +325,29 @@ def impossible(model: OnnxModel, predictions: dict[str, np.ndarray]) -> dict[str
 
 
 def predict_file(model_dir: str | Path, input_path: str | Path, *,
-                 calibration: str | Path | None = None) -> list[dict]:
+                 calibration: str | Path | None = None,
+                 reference: str | Path | None = None) -> list[dict]:
     """Decoder and classical predictions side by side, one row per measurement: ``sample``,
     ``in_domain``, ``domain_score``, ``{output}_{decoder|classical} ({unit})`` and ``flags``
     (module docstring). ``calibration``: the device's calibrated T (npz, see
-    :data:`INPUT_FORMATS`), which a fluid export needs (:class:`InputError` without it)."""
+    :data:`INPUT_FORMATS`), which a fluid export needs (:class:`InputError` without it);
+    ``reference``: the free reference file a radial export needs (:func:`read_reference`)."""
     decoder, classical = load_export(model_dir)
     ze = read_input(input_path, decoder.frequency_hz)
-    t = (read_calibration(calibration, decoder.frequency_hz, len(ze))
-         if "calibration" in decoder.references else None)
+    if "calibration" in decoder.references:
+        if reference is not None:
+            raise InputError(f"--reference {reference}: this {decoder.task} export takes no "
+                             "reference (it takes --calibration)")
+        extra = read_calibration(calibration, decoder.frequency_hz, len(ze))
+    else:
+        if calibration is not None:
+            raise InputError(f"--calibration {calibration}: this {decoder.task} export takes "
+                             "no calibration")
+        extra = read_reference(reference, decoder, len(ze))
     rows: list[dict] = [{"sample": k} for k in range(len(ze))]
     flags: list[list[str]] = [[] for _ in rows]
     for label, model in (("decoder", decoder), ("classical", classical)):
-        pred = model.predict(ze, t)
+        pred = model.predict(ze, extra)
         if label == "decoder":
             for k, row in enumerate(rows):
                 row["in_domain"] = bool(pred["in_domain"][k])

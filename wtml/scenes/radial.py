@@ -12,6 +12,15 @@ but not rigid, and its stiffness shifts Ze by more than the noise), and complex 
 on Ze. The invalid-contact variant
 (§5.5.4: a protrusion touching the shaft while the tip is free) is the same physics at the
 thesis's three distances: ``contact.distances_um: [500, 1500, 2500]``.
+
+The device (issue 21): with a ``device:`` block (``wtml.physics.spread.DeviceSpread``, relative
+half-widths of uniform tolerance bands; all zero by default, the preset itself) each record's
+transducer is drawn from the preset's manufacturing spread (``device.devices`` devices per
+simulated batch, records assigned at random), and each record also carries ``ref``: the free
+(untouched) whisker's Ze of its device at the same tones, the reference a user measures when
+the device is set up, with its own measurement noise (``noise.reference_relative``). With no
+spread the records' ``ze``, ``distance`` and ``stiffness`` are those of the preset alone, draw
+for draw.
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ import numpy as np
 
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import PRESETS, build
+from wtml.physics.spread import DeviceSpread, device_ze, devices, draw_factors
 from wtml.scenes.config import SceneError, bounded, one_of
 from wtml.signals import complex_noise
 
@@ -58,9 +68,14 @@ class ContactSpec:
 
 @dataclass(frozen=True)
 class RadialNoise:
-    """Relative std of the complex Gaussian noise on each Ze."""
+    """Relative std of the complex Gaussian noise on each Ze (``ze_relative``) and on each
+    free-whisker reference (``reference_relative``: the same lock-in at set-up, averaged 100×
+    as long as a contact's measurement since it is taken once, hence 10× less noise; the
+    ratio of the two then carries 1.005× the contact's noise, so the Cramér–Rao bound of a
+    known device still holds)."""
 
     ze_relative: float = bounded(0.0, 0.1, default=2e-5)
+    reference_relative: float = bounded(0.0, 0.1, default=2e-6)
 
 
 @dataclass(frozen=True)
@@ -81,18 +96,20 @@ class RadialScene:
     excitation: ToneSpec = field(default_factory=ToneSpec)
     contact: ContactSpec = field(default_factory=ContactSpec)
     noise: RadialNoise = field(default_factory=RadialNoise)
+    device: DeviceSpread = field(default_factory=DeviceSpread)
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
         if self.shards > self.samples:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
-        whisker = 1e6 * self.whisker_length_m()
+        whisker = 1e6 * self.whisker_length_m() * (1 - self.device.length)
         for key, values in (("distance_um", self.contact.distance_um),
                             ("distances_um", self.contact.distances_um)):
             if values and max(values) >= whisker:
                 raise SceneError(f"{pre}contact.{key}: must stay below the whisker length "
-                                 f"{whisker:g} µm, got {max(values):g}")
+                                 f"{whisker:g} µm (its shortest in device.length), got "
+                                 f"{max(values):g}")
 
     def whisker_length_m(self) -> float:
         """Length of the preset's whisker (its last beam segment), m."""
@@ -130,14 +147,36 @@ class RadialScene:
                                            stiffness)
         return t[..., 0, 1] / t[..., 1, 1]
 
-    def simulate(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """``n`` samples: ``ze`` (n, n_freq) complex Ω, target ``distance`` (n,) in m,
-        nuisance ``stiffness`` (n,) in N/m."""
+    def free_ze(self, transducer=None) -> np.ndarray:
+        """Noise-free Ze (Ω) of the preset with its tip free, ``(n_freq,)``."""
+        t = (transducer or self.transducer()).transduction_matrix(self.excitation.omega)
+        return t[:, 0, 1] / t[:, 1, 1]
+
+    def simulate(self, n: int, rng: np.random.Generator, *,
+                 widths: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+        """``n`` samples: ``ze`` (n, n_freq) complex Ω, the reference ``ref`` (n, n_freq)
+        complex Ω (the free whisker's Ze of the record's device), target ``distance`` (n,)
+        in m, nuisance ``stiffness`` (n,) in N/m (module docstring). ``widths``: the spread's
+        half-width per named parameter instead of the device block's (e.g. one parameter
+        alone: ``DeviceSpread.only``)."""
         c = self.contact
         if c.distances_um:
             d = 1e-6 * rng.choice(np.asarray(c.distances_um), n)
         else:
             d = 1e-6 * rng.uniform(*c.distance_um, n)
         k = np.exp(rng.uniform(*np.log(c.stiffness), n))
-        ze = complex_noise(self.ze_of(d, k), self.noise.ze_relative, rng)
-        return {"ze": ze, "distance": d, "stiffness": k}
+        widths = self.device.widths(self.preset) if widths is None else widths
+        if not any(widths.values()):
+            tr = self.transducer()
+            ze = self.ze_of(d, k, tr)
+            ref = np.broadcast_to(self.free_ze(tr), ze.shape)
+        else:
+            count = self.device.devices
+            factors = draw_factors(self.preset, widths, count, rng)
+            which = rng.integers(0, count, n)
+            free, ze = device_ze(devices(self.preset, factors), self.excitation.omega, which, d,
+                                 k)
+            ref = free[which]
+        ze = complex_noise(ze, self.noise.ze_relative, rng)
+        ref = complex_noise(ref, self.noise.reference_relative, rng)
+        return {"ze": ze, "ref": ref, "distance": d, "stiffness": k}

@@ -55,7 +55,8 @@ class StreamingOnset(nn.Module):
             raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
         self.net, self.gate, self.chunk_frames = net, gate, int(chunk_frames)
         self.convs = [m for m in net.body if isinstance(m, CausalConv)]
-        self.sizes = [3] + [m.conv.in_channels * m.pad for m in self.convs] + [13]
+        self.sizes = ([3] + [m.conv.in_channels * m.pad for m in self.convs]
+                      + [net.frames.state_size, 13])
         self.state_size = sum(self.sizes)
         # the running sums of |E_H| and |I_H| add each frame's deviation from the training
         # records' mean level, so float32 rounding scales with the deviations, not the level
@@ -74,9 +75,10 @@ class StreamingOnset(nn.Module):
     def forward(self, e: torch.Tensor, i: torch.Tensor, state: torch.Tensor
                 ) -> tuple[torch.Tensor, ...]:
         parts = torch.split(state, self.sizes, 1)
-        prev, buffers, pool = parts[0], parts[1:-1], parts[-1]
+        prev, buffers, mains, pool = parts[0], parts[1:-2], parts[-2], parts[-1]
         net = self.net
-        f = net.frames(e, i)  # (batch, chunk_frames, 5)
+        # (batch, chunk_frames, 5), the mains lines' running sums from the frames so far
+        f, mains = net.frames.running(e, i, pool[:, 8], mains)
         first = pool[:, 8] == 0  # no frame before this chunk
 
         def running(op, old, new):
@@ -127,5 +129,6 @@ class StreamingOnset(nn.Module):
         inside = (score <= 1.0) & self.gate.outputs_in_range((gap, sd))
         sd = torch.where(inside, sd, torch.full_like(sd, float("nan")))
         new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i], -1)
+        carried += [] if mains is None else [mains]
         next_state = torch.cat([f[:, -1, :3], *carried, new_pool], 1)
         return prob, off_margin, p["touch"], gap, sd, next_state, inside, score

@@ -393,9 +393,35 @@ class OnsetNet(nn.Module):
     def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
         p = self.per_frame(e, i)
         g, sd, off = self.pooled(p)
-        prob = torch.sigmoid(p["contact"])
+        n = e.shape[0]
+        prob, _, _ = confirm(torch.sigmoid(p["contact"]), p["touch"],
+                             torch.zeros(n, CONFIRM_FRAMES), torch.zeros(n))
         gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
         return gap, sd, prob, off_margin, p["touch"]
+
+
+CONFIRM_FRAMES = 4
+"""Frames before a frame in which a touch (Zm's step over the threshold) confirms its contact
+probability (:func:`confirm`; the runtime looks as far back for the onset,
+:data:`wtml.runtime.onset.TOUCH_LOOKBACK`)."""
+
+
+def confirm(prob: torch.Tensor, touch: torch.Tensor, past: torch.Tensor, seen: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The contact probabilities a record reports: none until its first contact is confirmed,
+    a frame whose probability passes 0.5 with a touch (``touch >= 1``) in it or in the
+    :data:`CONFIRM_FRAMES` frames before; from then on the net's. (On a noisy acquisition
+    the net's probability near the whisk's far end rises towards 0.5 on free whisking, where
+    Zm steps no more than the noise; a wall's first contact always steps it.) Causal:
+    ``past`` ``(batch, CONFIRM_FRAMES)`` the touches before the first frame and ``seen``
+    ``(batch,)`` the confirmations before it (zeros at a record's start) -> the reported
+    probabilities ``(batch, n)``, the last touches and the confirmations after."""
+    x = torch.cat([past, touch], 1)
+    near = fn.max_pool1d(x[:, None], CONFIRM_FRAMES + 1, stride=1)[:, 0]  # (batch, n)
+    hit = ((prob > 0.5) & (near >= 1)).to(prob.dtype)
+    count = seen[:, None] + torch.cumsum(hit, 1)
+    return (prob * (count > 0).to(prob.dtype), x[:, x.shape[1] - CONFIRM_FRAMES:],
+            count[:, -1])
 
 
 def answer(g, sd, top, p: dict, off) -> tuple[torch.Tensor, ...]:

@@ -49,7 +49,7 @@ def test_a_record_without_hum_keeps_its_frames(quiet):
     whisk's cubic shape within a frame (the fit takes up to t²) resembles the 50 Hz line's
     there (~1e-4 V), and the noise (1 µV on e, 1 pA on i). Measured: u_L by up to 1.4 nm in
     the first turn of the lines' phases (42 frames), 0.47 nm after (median 0.04 nm; the
-    location target is 100 nm), Zm by up to 5.7e-4 of its largest level, and free
+    location target is 100 nm), Zm by up to 6.8e-4 of its largest level, and free
     whisking's Zm steps (what the touch rule reads) stay at the quiet ~1e-7."""
     scene, rec = quiet
     plain = _frames(scene, rec["e"], rec["i"], mains=False)
@@ -138,7 +138,7 @@ def test_bench_top_first_touch_steps_stand_above_free_whisking(quiet):
     """With the shipped bench-top acquisition (converter, ADC floor, hum, DAC, drift), a
     linear wall's first touch (both whisk cycles, walls across the range) steps Zm by more
     than 1.5 times the largest step of the 40 frames of free whisking before it, and by a
-    median of more than 8 times (measured 2.0-24.6, median ~11); without the lines removed
+    median of more than 8 times (measured 2.4-26, median 16); without the lines removed
     the steps before it are as large as the touch's (median ratio ~1). On the ideal
     acquisition every first touch is 30 times (tests/test_onset.py)."""
     scene, _ = quiet

@@ -94,12 +94,15 @@ def test_thesis_pipeline_lands_just_beyond_the_wall_without_noise(scene):
 
 @pytest.fixture(scope="module")
 def onset_export(tmp_path_factory, scene):
-    """A tiny onset flow: generate, train 3 epochs, export."""
+    """A tiny onset flow: generate, train 3 epochs, export. Its acquisition is the shipped
+    scene's (bench-top), which the ``scene`` fixture's records also have."""
     import yaml
 
     root = tmp_path_factory.mktemp("onset")
     cfg = root / "scene.yaml"
+    shipped = yaml.safe_load((ROOT / "configs/scenes/onset.yaml").read_text())
     cfg.write_text(yaml.safe_dump({"name": "onset", "task": "onset", **SMALL,
+                                   "acquisition": shipped["acquisition"],
                                    "wall": {"free_fraction": 0.25}}))
     data, run, model = root / "data", root / "run", root / "export"
     subprocess.run([sys.executable, "-m", "wtml.cli", "generate", "--config", str(cfg),

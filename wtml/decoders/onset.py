@@ -8,7 +8,10 @@ The graph takes the raw records and computes its own features per probe period (
    the whisking ramp, which would otherwise leak into the probe's phasor): the whisking
    position ``u_L = HUE(0) e_L`` and the probe phasors
    ``E_H, I_H``, then ``Zm = (t22 E_H - t12 I_H)/(t11 I_H - t21 E_H)`` through the
-   calibrated T at the probe frequency (real arithmetic, exportable).
+   calibrated T at the probe frequency (real arithmetic, exportable). Before that, the mains
+   lines (hum at 50 or 60 Hz and harmonics) are taken out of each frame's fit, estimated
+   causally from the fits' residuals (:class:`MainsLines`), and Zm uses the probe voltage's
+   running mean over the record (the drive's, unchanged by a contact).
 2. A causal temporal convolution over the frames (dilated, so it sees ~60 frames back: the
    400 Hz mode rings for ~40 ms), fed the normalised frames, u_L's step and Zm's step from
    the frame before (compressed by asinh on the scale of free whisking's frame-to-frame
@@ -20,22 +23,23 @@ The graph takes the raw records and computes its own features per probe period (
    each frame near an edge says where the wall is relative to the whisking position, which
    accounts for the tip touching on the probe's peaks before u_L reaches g (§10). g's
    variance is the same weighted mean of the frames' variances.
-4. Timing. The first touch, on a probe peak, shows in its own frame as a step of Zm from
-   the frame before (5e-6 N·s/m and more, where free whisking's frames differ by ~1e-7):
-   the output ``touch`` is that step's size over a threshold, twice free whisking's largest
-   step on the training data (:func:`touch_threshold`). A contact is a run of frames whose contact
-   probability passes 0.5 (labels: the frames that hold a touching instant) and it starts
-   on the first frame, from a few before the run up to its first such frame, whose
-   ``touch`` is >= 1 (:func:`wtml.runtime.onset.contacts_from`). (Taking the onset from the
-   trajectory instead, the first frame whose reach passes a learned level, needs that level
-   to ~10 nm: the frames' reach brackets are 0.09-0.19 µm wide and the true level is often
-   within 10 nm of an edge; the main job's small training got it to 34 nm, and every miss
-   was one probe period early or late.) A first touch that only grazes its probe peak
-   (a few nm) steps Zm no more than free whisking does, and the onset is then called one
-   frame late. A contact ends on the last frame whose reach on the probe peaks, ``u_L + |u_H|``
-   (``|u_H| = |E_H| / (ωH |t12|)``, the calibrated free-tip response, known per frame to
-   ~1e-12 m from e alone), passes the detachment level, which the net estimates; the
-   output ``detach_margin`` is reach minus that level per frame (m).
+4. Timing. The first touch, on a probe peak, shows in its own frame as a step of Zm from the frame
+   before (4e-6 N·s/m and more, where free whisking's frames differ by ~1e-7 on a quiet acquisition
+   and ~6e-7 on the bench-top one): the output ``touch`` is that step's size over a threshold fitted
+   to the training data's acquisition (:func:`touch_threshold`: between free whisking's steps just
+   before each onset and the first touches'). A record reports contacts only once one is confirmed
+   by a touch (:func:`confirm`). A contact is a run of frames whose contact probability passes 0.5
+   (labels: the frames that hold a touching instant) and it starts on the first frame, from a few
+   before the run up to its first such frame, whose ``touch`` is >= 1
+   (:func:`wtml.runtime.onset.contacts_from`). (Taking the onset from the trajectory instead, the
+   first frame whose reach passes a learned level, needs that level to ~10 nm: the frames' reach
+   brackets are 0.09-0.19 µm wide and the true level is often within 10 nm of an edge; the main
+   job's small training got it to 34 nm, and every miss was one probe period early or late.) A first
+   touch that only grazes its probe peak (a few nm) steps Zm no more than free whisking does, and
+   the onset is then called one frame late. A contact ends on the last frame whose reach on the
+   probe peaks, ``u_L + |u_H|`` (``|u_H| = |E_H| / (ωH |t12|)``, the calibrated free-tip response,
+   known per frame to ~1e-12 m from e alone), passes the detachment level, which the net estimates;
+   the output ``detach_margin`` is reach minus that level per frame (m).
 
 Outputs (each ``(batch,)`` unless said): ``gap`` and ``sigma`` (m, NaN in a record without
 contact: :func:`answer` decides wall and contacts together), ``contact`` (``(batch,
@@ -200,7 +204,9 @@ class ProbeFrames(nn.Module):
         t_probe: complex T at the probe frequency ``(2, 2)``.
         hue0: HUE(0), m/V.
         mains: the mains lines removed from both channels' frames (:class:`MainsLines`,
-            one per channel: e's ungated, i's gated), or None.
+            one per channel: e's ungated, i's gated), or None. With them, Zm is taken through
+            the probe voltage's running mean over the record so far (a running sum a stream
+            carries), not each frame's.
         free_below: u_L (m) below which the tip cannot touch (the scene's nearest wall less
             the probe's reach): i's mains lines are estimated on those frames only.
     """
@@ -219,8 +225,9 @@ class ProbeFrames(nn.Module):
 
     @property
     def state_size(self) -> int:
-        """The running sums a stream carries for the mains lines (both channels)."""
-        return 0 if self.mains is None else sum(m.size for m in self.mains)
+        """The running sums a stream carries: the mains lines' (both channels) and the probe
+        voltage's phasor (2)."""
+        return 0 if self.mains is None else sum(m.size for m in self.mains) + 2
 
     def fit(self, x: torch.Tensor, mains: MainsLines | None = None,
             start: torch.Tensor | None = None, sums: torch.Tensor | None = None,
@@ -264,14 +271,23 @@ class ProbeFrames(nn.Module):
                 start = torch.zeros_like(e[:, 0])
             if sums is None:
                 sums = torch.zeros(e.shape[0], self.state_size, dtype=e.dtype)
-            half = self.mains[0].size
+            half, end = self.mains[0].size, self.state_size - 2
             fe, after_e = self.fit(e, self.mains[0], start, sums[:, :half])
             free = (self.hue0 * fe[:, 0] < self.free_below).to(e.dtype)
-            fi, after_i = self.fit(i * s, self.mains[1], start, sums[:, half:], free)
-            after = torch.cat([after_e, after_i], 1)
+            fi, after_i = self.fit(i * s, self.mains[1], start, sums[:, half:end], free)
+            # the probe voltage is the drive's (a contact does not change it): Zm takes its
+            # running mean over the record so far, not each frame's, whose ADC noise made
+            # ~40 % of free whisking's Zm steps (median 6.9e-7 -> 5.5e-7 N·s/m)
+            total = sums[:, None, end:] + torch.cumsum(fe[:, 1:].transpose(1, 2), 1)
+            k = start[:, None] + torch.arange(fe.shape[2], dtype=e.dtype)[None] + 1
+            probe = (total / k[..., None]).transpose(1, 2)
+            after = torch.cat([after_e, after_i, total[:, -1]], 1)
         # x = c cos + s sin = Re(X e^{jωt}) with X = c - j s
         e_re, e_im, i_re, i_im = fe[:, 1], -fe[:, 2], fi[:, 1], -fi[:, 2]
-        zm_re, zm_im = self.zm(e_re, e_im, i_re, i_im)
+        if self.mains is None:
+            zm_re, zm_im = self.zm(e_re, e_im, i_re, i_im)
+        else:
+            zm_re, zm_im = self.zm(probe[:, 0], -probe[:, 1], i_re, i_im)
         return torch.stack([self.hue0 * fe[:, 0], zm_re, zm_im,
                             torch.sqrt(e_re * e_re + e_im * e_im),
                             torch.sqrt(i_re * i_re + i_im * i_im) / s], -1), after
@@ -545,7 +561,9 @@ class OnsetDecoder(DecoderModule):
             towards the middle of its brackets (:func:`detach_brackets`).
         mains_lines: remove the mains lines (the scene's ``acquisition.effects.hum``
             frequency and its harmonics' count, whether or not the scene simulates hum) from
-            each probe frame's fit, estimated causally in the graph (:class:`MainsLines`).
+            each probe frame's fit, estimated causally in the graph (:class:`MainsLines`),
+            and take Zm through the probe voltage's running mean over the record (the
+            drive's, which a contact does not change) rather than each frame's.
         lr, weight_decay: as every decoder.
     """
 

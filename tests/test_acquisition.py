@@ -186,15 +186,16 @@ def test_base_motion_moves_the_onset_wall_and_texture_refuses_it():
 
 
 def test_shipped_scenes_are_bench_top_and_the_probe_band_noise_is_the_budget():
-    """The shipped texture scenes switch every effect on but the base; the onset scenes leave
-    every effect off in training, at bench-top levels for their bench's transfer table; the
+    """The shipped texture and onset scenes switch every effect on but the base (the onset
+    decoder removes the mains lines in its graph and fits its touch threshold to the noise,
+    tests/test_mains_lines.py; before, the onset scenes trained with every effect off); the
     current channel's
     added noise in 320-520 Hz (the probe band) is the I–V converter's density integrated
     plus the ADC floor's share (10 %), far below the probe's current; the records are the
     same from the same seed."""
     for name in ("onset", "onset_full", "texture", "texture_fepa"):
         fx = load_scene(ROOT / f"configs/scenes/{name}.yaml").acquisition.effects
-        off = set(fx.NAMES) if name.startswith("onset") else {"base"}
+        off = {"base"}
         assert [getattr(fx, n).enabled for n in fx.NAMES] == [n not in off for n in fx.NAMES]
     scene = dataclasses.replace(load_scene(ROOT / "configs/scenes/onset.yaml"),
                                 calibration_error=0.0, device=DeviceSpread())  # Cp nominal

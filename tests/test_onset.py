@@ -108,12 +108,15 @@ def test_thesis_pipeline_lands_just_beyond_the_wall_without_noise(scene):
 
 @pytest.fixture(scope="module")
 def onset_export(tmp_path_factory, scene):
-    """A tiny onset flow: generate, train 3 epochs, export."""
+    """A tiny onset flow: generate, train 3 epochs, export. Its acquisition is the shipped
+    scene's (bench-top), which the ``scene`` fixture's records also have."""
     import yaml
 
     root = tmp_path_factory.mktemp("onset")
     cfg = root / "scene.yaml"
+    shipped = yaml.safe_load((ROOT / "configs/scenes/onset.yaml").read_text())
     cfg.write_text(yaml.safe_dump({"name": "onset", "task": "onset", **SMALL,
+                                   "acquisition": shipped["acquisition"],
                                    "wall": {"free_fraction": 0.25}}))
     data, run, model = root / "data", root / "run", root / "export"
     subprocess.run([sys.executable, "-m", "wtml.cli", "generate", "--config", str(cfg),
@@ -231,10 +234,14 @@ def test_a_first_touch_shows_in_its_own_frame_as_a_step_of_zm(scene):
     whisking before it, for linear walls across the range (and the penetrations of the first
     probe peak that they get). The softer laws of the mixture (a power law's tangent vanishes
     at a graze) step Zm less at their first touch; the bench's transfer table shows the
-    decoder's onsets on each law alone."""
+    decoder's onsets on each law alone. On the ideal acquisition: the shipped scene's
+    bench-top one (converter noise, ADC floor, hum) raises free whisking's steps, and its
+    first touches stand 2-25 times above them (tests/test_mains_lines.py)."""
     from wtml.decoders.onset import OnsetDecoder, OnsetNet, frame_period
 
-    scene = dataclasses.replace(scene, wall=dataclasses.replace(scene.wall, law={"linear": 1.0}))
+    a = scene.acquisition
+    scene = dataclasses.replace(scene, wall=dataclasses.replace(scene.wall, law={"linear": 1.0}),
+                                acquisition=dataclasses.replace(a, effects=a.effects.only()))
     amp = scene.whisk_amplitude_m()
     rec = scene.simulate(12, np.random.default_rng(12),
                          gaps=np.linspace(0.1, 0.9, 12) * amp)

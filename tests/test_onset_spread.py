@@ -108,7 +108,8 @@ def test_each_record_carries_the_calibration_of_the_device_it_was_simulated_with
 
     quiet = dataclasses.replace(
         shipped, calibration_error=0.0,
-        acquisition=dataclasses.replace(shipped.acquisition, e_noise_v=0.0, i_noise_a=0.0),
+        acquisition=dataclasses.replace(shipped.acquisition, e_noise_v=0.0, i_noise_a=0.0,
+                                        effects=shipped.acquisition.effects.only()),
         wall=dataclasses.replace(shipped.wall, free_fraction=1.0))
     rec = quiet.simulate(4, np.random.default_rng(3))
     assert np.ptp(rec["hue0"]) / rec["hue0"].mean() > 0.01

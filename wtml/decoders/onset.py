@@ -11,7 +11,10 @@ The graph takes the raw records and computes its own features per probe period (
    calibrated T at the probe frequency (real arithmetic, exportable). T at the probe and
    HUE(0) are the user's calibration of their own device: inputs of the graph (``t_re``,
    ``t_im`` ``(batch, 4)``, ``hue0`` ``(batch,)`` m/V; :data:`CALIBRATION`), never constants
-   of the preset, so the decoder maps each device through its own T.
+   of the preset, so the decoder maps each device through its own T. Before that, the mains
+   lines (hum at 50 or 60 Hz and harmonics) are taken out of each frame's fit, estimated
+   causally from the fits' residuals (:class:`MainsLines`), and Zm uses the probe voltage's
+   running mean over the record (the drive's, unchanged by a contact).
 2. A causal temporal convolution over the frames (dilated, so it sees ~60 frames back: the
    400 Hz mode rings for ~40 ms), fed the normalised frames, u_L's step and Zm's step from
    the frame before (compressed by asinh on the scale of free whisking's frame-to-frame
@@ -23,22 +26,23 @@ The graph takes the raw records and computes its own features per probe period (
    each frame near an edge says where the wall is relative to the whisking position, which
    accounts for the tip touching on the probe's peaks before u_L reaches g (§10). g's
    variance is the same weighted mean of the frames' variances.
-4. Timing. The first touch, on a probe peak, shows in its own frame as a step of Zm from
-   the frame before (5e-6 N·s/m and more, where free whisking's frames differ by ~1e-7):
-   the output ``touch`` is that step's size over a threshold, twice free whisking's largest
-   step on the training data (:func:`touch_threshold`). A contact is a run of frames whose contact
-   probability passes 0.5 (labels: the frames that hold a touching instant) and it starts
-   on the first frame, from a few before the run up to its first such frame, whose
-   ``touch`` is >= 1 (:func:`wtml.runtime.onset.contacts_from`). (Taking the onset from the
-   trajectory instead, the first frame whose reach passes a learned level, needs that level
-   to ~10 nm: the frames' reach brackets are 0.09-0.19 µm wide and the true level is often
-   within 10 nm of an edge; the main job's small training got it to 34 nm, and every miss
-   was one probe period early or late.) A first touch that only grazes its probe peak
-   (a few nm) steps Zm no more than free whisking does, and the onset is then called one
-   frame late. A contact ends on the last frame whose reach on the probe peaks, ``u_L + |u_H|``
-   (``|u_H| = |E_H| / (ωH |t12|)``, the calibrated free-tip response, known per frame to
-   ~1e-12 m from e alone), passes the detachment level, which the net estimates; the
-   output ``detach_margin`` is reach minus that level per frame (m).
+4. Timing. The first touch, on a probe peak, shows in its own frame as a step of Zm from the frame
+   before (4e-6 N·s/m and more, where free whisking's frames differ by ~1e-7 on a quiet acquisition
+   and ~6e-7 on the bench-top one): the output ``touch`` is that step's size over a threshold fitted
+   to the training data's acquisition (:func:`touch_threshold`: between free whisking's steps just
+   before each onset and the first touches'). A record reports contacts only once one is confirmed
+   by a touch (:func:`confirm`). A contact is a run of frames whose contact probability passes 0.5
+   (labels: the frames that hold a touching instant) and it starts on the first frame, from a few
+   before the run up to its first such frame, whose ``touch`` is >= 1
+   (:func:`wtml.runtime.onset.contacts_from`). (Taking the onset from the trajectory instead, the
+   first frame whose reach passes a learned level, needs that level to ~10 nm: the frames' reach
+   brackets are 0.09-0.19 µm wide and the true level is often within 10 nm of an edge; the main
+   job's small training got it to 34 nm, and every miss was one probe period early or late.) A first
+   touch that only grazes its probe peak (a few nm) steps Zm no more than free whisking does, and
+   the onset is then called one frame late. A contact ends on the last frame whose reach on the
+   probe peaks, ``u_L + |u_H|`` (``|u_H| = |E_H| / (ωH |t12|)``, the calibrated free-tip response,
+   known per frame to ~1e-12 m from e alone), passes the detachment level, which the net estimates;
+   the output ``detach_margin`` is reach minus that level per frame (m).
 
 Inputs: ``e`` (V), ``i`` (A) ``(batch, n_samples)`` and the calibration ``t_re, t_im,
 hue0``. The whisking amplitude of the nominal device (``amp``) is the unit of the net's
@@ -81,17 +85,131 @@ whisking amplitude (13 nm at the defaults: quadratic below, linear above), so th
 steep down to the scale of its brackets' edges."""
 
 
-def frame_basis(period: int) -> np.ndarray:
+def frame_basis(period: int, full: bool = False) -> np.ndarray:
     """Rows that take ``(e_L, cos-coefficient, sin-coefficient)`` out of one probe period of
     ``period`` samples by least squares on ``[1, t, t², cos, sin]`` (t centred), shape
-    ``(3, period)``."""
+    ``(3, period)`` (``full``: all five coefficients' rows and the basis, ``(5, period)`` and
+    ``(period, 5)``)."""
     t = np.arange(period) - (period - 1) / 2
     w = 2 * np.pi / period
     n = np.arange(period)
     basis = np.stack([np.ones(period), t / period, (t / period) ** 2,
                       np.cos(w * n), np.sin(w * n)], 1)
     pinv = np.linalg.pinv(basis)
-    return pinv[[0, 3, 4]]
+    return (pinv, basis) if full else pinv[[0, 3, 4]]
+
+
+HUM_RIDGE = 0.1
+"""The mains estimate's ridge, per line in units of that line's information in one frame (the
+diagonal of one frame's normal matrix): it keeps the first frames' estimate near zero (the
+fundamental is nearly a parabola over a frame, so one frame hardly tells it from the whisk),
+and shrinks each line by ``HUM_RIDGE / (n + HUM_RIDGE)`` after n frames."""
+
+
+class MainsLines(nn.Module):
+    """The mains lines' (hum's) share of each probe frame's fit, estimated causally.
+
+    Over one frame the fit ``[1, t, t², cos ωH t, sin ωH t]`` takes the whisking ramp and the
+    probe exactly, and leaves in its residual what else the frame holds; a line at
+    ``h f_m`` (hum) leaves a known shape there and leaks a known amount into the fitted
+    (level, cos, sin). So the hum's amplitudes (per harmonic, cos and sin at absolute time)
+    are a least-squares fit to the residuals of every frame so far: the normal equations'
+    right side is a running sum (carried by a stream). The estimate at frame k uses frames
+    ``<= k`` only, so the offline graph and the streaming one agree, and it is subtracted from
+    each frame's fit as the leak it makes.
+
+    Ungated (the voltage channel, which a contact does not change), every frame counts and the
+    normal matrix depends only on the frame count: its inverse is a table (frames beyond it:
+    the last entry scaled by the count, the matrix growing linearly once the lines' phases have
+    gone round). Gated (the current channel), only the frames a caller marks free count (a
+    contact's current leaves residuals of its own, which biased the lines' estimate on every
+    frame after the first contact: free whisking's Zm steps before a second-cycle onset rose
+    from 1.5e-6 to 6.4e-6 N·s/m), and the matrix is taken as its average over the lines'
+    phases times the count (block diagonal: exact over whole turns of the phases, 42 frames at
+    50 Hz and a 420 Hz probe), with the ridge fading over the first turn.
+
+    Args:
+        period: samples per frame (probe period).
+        frame_hz: frames per second (the probe frequency).
+        mains_hz: the mains frequency (50 or 60 Hz).
+        harmonics: how many lines, ``h = 1 .. harmonics`` (each below the probe).
+        table: frames in the inverse table (a record's frames at the scene's length).
+        gated: estimate from the frames marked free only (see above).
+    """
+
+    def __init__(self, period: int, frame_hz: float, mains_hz: float, harmonics: int,
+                 table: int, gated: bool = False) -> None:
+        super().__init__()
+        if harmonics < 1 or harmonics * mains_hz >= frame_hz:
+            raise ConfigError(f"mains lines: {harmonics} harmonics of {mains_hz:g} Hz must "
+                              f"lie below the probe's {frame_hz:g} Hz")
+        pinv, basis = frame_basis(period, full=True)
+        q = np.eye(period) - basis @ pinv  # the frame fit's residual operator
+        tau = np.arange(period)
+        omega = 2 * np.pi * mains_hz * np.arange(1, harmonics + 1) / (frame_hz * period)
+        g0 = np.concatenate([np.stack([np.cos(o * tau), np.sin(o * tau)], 1) for o in omega], 1)
+        m = g0.T @ q @ g0
+        self.register_buffer("residual", torch.tensor(q @ g0, dtype=torch.float32))
+        self.register_buffer("leak", torch.tensor((pinv[[0, 3, 4]] @ g0).T,
+                                                  dtype=torch.float32))
+        cycles = mains_hz * np.arange(1, harmonics + 1) / frame_hz  # per frame
+        self.register_buffer("cycles", torch.tensor(cycles, dtype=torch.float32))
+        k = np.arange(table)[:, None] * cycles
+        c, s = np.cos(2 * np.pi * k), np.sin(2 * np.pi * k)
+        rot = np.zeros((table, 2 * harmonics, 2 * harmonics))
+        for h in range(harmonics):  # local (cos, sin) rows from absolute (cos, sin) columns
+            rot[:, 2 * h, 2 * h], rot[:, 2 * h, 2 * h + 1] = c[:, h], s[:, h]
+            rot[:, 2 * h + 1, 2 * h], rot[:, 2 * h + 1, 2 * h + 1] = -s[:, h], c[:, h]
+        self.gated = bool(gated)
+        diag = np.repeat([np.trace(m[2 * h:2 * h + 2, 2 * h:2 * h + 2]) / 2
+                          for h in range(harmonics)], 2)
+        if self.gated:
+            self.register_buffer("diag", torch.tensor(diag, dtype=torch.float32))
+            self.turn = float(np.ceil(5 * frame_hz / mains_hz))  # frames for the ridge to fade
+        else:
+            gram = (np.cumsum(np.einsum("kai,ab,kbj->kij", rot, m, rot), 0)
+                    + HUM_RIDGE * np.diag(diag))
+            self.register_buffer("inverse", torch.tensor(np.linalg.inv(gram),
+                                                         dtype=torch.float32))
+        self.lines = 2 * harmonics
+        self.size = self.lines + int(self.gated)  # gated: the count of free frames too
+
+    def rotation(self, k: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """cos and sin of each line's phase at the start of frames ``k`` (float), ``(..., H)``."""
+        a = 2 * np.pi * torch.remainder(k[..., None] * self.cycles, 1.0)
+        return torch.cos(a), torch.sin(a)
+
+    def forward(self, d: torch.Tensor, start: torch.Tensor, sums: torch.Tensor,
+                free: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Frames ``d`` ``(batch, n, period)`` (less their first sample), the index of the
+        first (``(batch,)`` float), the running sums before it ``(batch, size)`` and, gated,
+        which frames count (``free``, ``(batch, n)`` 0/1) -> the lines' leak into each frame's
+        (level, cos, sin) ``(batch, n, 3)`` and the sums after the last frame."""
+        n = d.shape[1]
+        k = start[:, None] + torch.arange(n, dtype=d.dtype)[None]  # (batch, n)
+        c, s = self.rotation(k)
+        p = (d @ self.residual).unflatten(-1, (-1, 2))  # local (cos, sin) per line
+        v = torch.stack([c * p[..., 0] - s * p[..., 1], s * p[..., 0] + c * p[..., 1]], -1)
+        v = v.flatten(2)
+        if self.gated:
+            v = v * free[..., None]
+        total = sums[:, None, :self.lines] + torch.cumsum(v, 1)  # (batch, n, 2H)
+        if self.gated:
+            count = sums[:, None, self.lines] + torch.cumsum(free, 1)  # (batch, n)
+            # the ridge fades over the first turn of the phases, where the matrix is not yet
+            # its phase average
+            ridge = HUM_RIDGE * (1 + torch.relu(self.turn - count))
+            theta = total / ((count + ridge)[..., None] * self.diag)
+            after = torch.cat([total[:, -1], count[:, -1:]], 1)
+        else:
+            at = torch.clamp(k, max=float(len(self.inverse) - 1))
+            grow = torch.clamp(len(self.inverse) / (k + 1), max=1.0)
+            theta = (self.inverse[at.long()] @ total[..., None])[..., 0] * grow[..., None]
+            after = total[:, -1]
+        theta = theta.unflatten(-1, (-1, 2))
+        local = torch.stack([c * theta[..., 0] + s * theta[..., 1],
+                             -s * theta[..., 0] + c * theta[..., 1]], -1)
+        return local.flatten(2) @ self.leak, after
 
 
 class ProbeFrames(nn.Module):
@@ -104,17 +222,37 @@ class ProbeFrames(nn.Module):
     Args:
         period: samples per probe period (an integer: the scene's rate is a multiple of the
             probe frequency).
+        mains: the mains lines removed from both channels' frames (:class:`MainsLines`,
+            one per channel: e's ungated, i's gated), or None. With them, Zm is taken through
+            the probe voltage's running mean over the record so far (a running sum a stream
+            carries), not each frame's.
+        free_below: u_L (m) below which the tip cannot touch (the scene's nearest wall less
+            the probe's reach): i's mains lines are estimated on those frames only.
     """
 
-    def __init__(self, period: int) -> None:
+    def __init__(self, period: int, mains: tuple[MainsLines, MainsLines] | None = None,
+                 free_below: float = 0.0) -> None:
         super().__init__()
+        self.free_below = float(free_below)
         self.period = int(period)
         self.register_buffer("basis", torch.tensor(frame_basis(self.period).T,
                                                    dtype=torch.float32))
         self.zm = ZmFromEI()
+        self.mains = None if mains is None else nn.ModuleList(mains)
 
-    def fit(self, x: torch.Tensor) -> torch.Tensor:
-        """``(batch, n_samples)`` -> ``(batch, 3, n_frames)``: frame level, cos, sin.
+    @property
+    def state_size(self) -> int:
+        """The running sums a stream carries: the mains lines' (both channels) and the probe
+        voltage's phasor (2)."""
+        return 0 if self.mains is None else sum(m.size for m in self.mains) + 2
+
+    def fit(self, x: torch.Tensor, mains: MainsLines | None = None,
+            start: torch.Tensor | None = None, sums: torch.Tensor | None = None,
+            free: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """``(batch, n_samples)`` -> ``(batch, 3, n_frames)``: frame level, cos, sin, less the
+        mains lines' leak (``mains``, from frame ``start`` with running ``sums`` and, gated,
+        the frames that count, ``free``; see :class:`MainsLines`), and the sums after the last
+        frame (None without lines).
 
         Each frame is fitted relative to its first sample (exact in float32), so rounding
         scales with the signal's change within a frame, not with its level: the whisking
@@ -123,22 +261,58 @@ class ProbeFrames(nn.Module):
         n = x.shape[1] // self.period
         frames = x[:, :n * self.period].unflatten(1, (n, self.period))
         first = frames[..., :1]
-        fit = ((frames - first) @ self.basis).transpose(1, 2)
-        return fit + torch.cat([first[..., 0][:, None], torch.zeros_like(fit[:, 1:])], 1)
+        d = frames - first
+        fit, after = d @ self.basis, None
+        if mains is not None:
+            leak, after = mains(d, start, sums, free)
+            fit = fit - leak
+        fit = fit.transpose(1, 2)
+        return (fit + torch.cat([first[..., 0][:, None], torch.zeros_like(fit[:, 1:])], 1),
+                after)
 
     def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
                 t_im: torch.Tensor, hue0: torch.Tensor) -> torch.Tensor:
+        return self.running(e, i, t_re, t_im, hue0)[0]
+
+    def running(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
+                t_im: torch.Tensor, hue0: torch.Tensor, start: torch.Tensor | None = None,
+                sums: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The frames of ``(e, i)`` with the calibration ``t_re, t_im, hue0`` (as
+        :meth:`forward`) whose first is frame ``start`` of its record (``(batch,)`` float;
+        default 0) with the mains lines' running sums before it (``(batch, state_size)``;
+        default zeros), and those sums after its last frame (None without mains lines)."""
         s = ZmFromEI.I_SCALE
-        fe, fi = self.fit(e), self.fit(i * s)
+        if self.mains is None:
+            (fe, _), (fi, _) = self.fit(e), self.fit(i * s)
+            after = None
+        else:
+            if start is None:
+                start = torch.zeros_like(e[:, 0])
+            if sums is None:
+                sums = torch.zeros(e.shape[0], self.state_size, dtype=e.dtype)
+            half, end = self.mains[0].size, self.state_size - 2
+            fe, after_e = self.fit(e, self.mains[0], start, sums[:, :half])
+            free = (hue0[:, None] * fe[:, 0] < self.free_below).to(e.dtype)
+            fi, after_i = self.fit(i * s, self.mains[1], start, sums[:, half:end], free)
+            # the probe voltage is the drive's (a contact does not change it): Zm takes its
+            # running mean over the record so far, not each frame's, whose ADC noise made
+            # ~40 % of free whisking's Zm steps (median 6.9e-7 -> 5.5e-7 N·s/m)
+            total = sums[:, None, end:] + torch.cumsum(fe[:, 1:].transpose(1, 2), 1)
+            k = start[:, None] + torch.arange(fe.shape[2], dtype=e.dtype)[None] + 1
+            probe = (total / k[..., None]).transpose(1, 2)
+            after = torch.cat([after_e, after_i, total[:, -1]], 1)
         # x = c cos + s sin = Re(X e^{jωt}) with X = c - j s
         e_re, e_im, i_re, i_im = fe[:, 1], -fe[:, 2], fi[:, 1], -fi[:, 2]
-        zm_re, zm_im = self.zm(e_re, e_im, i_re, i_im, t_re, t_im)
-        mag_e = torch.sqrt(e_re * e_re + e_im * e_im)
+        # Zm through each record's own T, from the probe voltage's running mean with the
+        # mains lines (the drive's), else from each frame's
+        pe_re, pe_im = (e_re, e_im) if self.mains is None else (probe[:, 0], -probe[:, 1])
+        zm_re, zm_im = self.zm(pe_re, pe_im, i_re, i_im, t_re, t_im)
         y_free = torch.sqrt((t_re[:, 3:] * t_re[:, 3:] + t_im[:, 3:] * t_im[:, 3:])
                             / (t_re[:, 1:2] * t_re[:, 1:2] + t_im[:, 1:2] * t_im[:, 1:2]))
-        free = (s * y_free * mag_e).clamp_min(1e-30)  # µA
-        return torch.stack([hue0[:, None] * fe[:, 0], zm_re, zm_im, mag_e,
-                            torch.sqrt(i_re * i_re + i_im * i_im) / free], -1)
+        free = (s * y_free * torch.sqrt(pe_re * pe_re + pe_im * pe_im)).clamp_min(1e-30)  # µA
+        return torch.stack([hue0[:, None] * fe[:, 0], zm_re, zm_im,
+                            torch.sqrt(e_re * e_re + e_im * e_im),
+                            torch.sqrt(i_re * i_re + i_im * i_im) / free], -1), after
 
 
 class RecordSummary(nn.Module):
@@ -286,9 +460,35 @@ class OnsetNet(nn.Module):
                 t_im: torch.Tensor, hue0: torch.Tensor) -> tuple[torch.Tensor, ...]:
         p = self.per_frame(e, i, t_re, t_im, hue0)
         g, sd, off = self.pooled(p)
-        prob = torch.sigmoid(p["contact"])
+        n = e.shape[0]
+        prob, _, _ = confirm(torch.sigmoid(p["contact"]), p["touch"],
+                             torch.zeros(n, CONFIRM_FRAMES), torch.zeros(n))
         gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
         return gap, sd, prob, off_margin, p["touch"]
+
+
+CONFIRM_FRAMES = 4
+"""Frames before a frame in which a touch (Zm's step over the threshold) confirms its contact
+probability (:func:`confirm`; the runtime looks as far back for the onset,
+:data:`wtml.runtime.onset.TOUCH_LOOKBACK`)."""
+
+
+def confirm(prob: torch.Tensor, touch: torch.Tensor, past: torch.Tensor, seen: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The contact probabilities a record reports: none until its first contact is confirmed,
+    a frame whose probability passes 0.5 with a touch (``touch >= 1``) in it or in the
+    :data:`CONFIRM_FRAMES` frames before; from then on the net's. (On a noisy acquisition
+    the net's probability near the whisk's far end rises towards 0.5 on free whisking, where
+    Zm steps no more than the noise; a wall's first contact always steps it.) Causal:
+    ``past`` ``(batch, CONFIRM_FRAMES)`` the touches before the first frame and ``seen``
+    ``(batch,)`` the confirmations before it (zeros at a record's start) -> the reported
+    probabilities ``(batch, n)``, the last touches and the confirmations after."""
+    x = torch.cat([past, touch], 1)
+    near = fn.max_pool1d(x[:, None], CONFIRM_FRAMES + 1, stride=1)[:, 0]  # (batch, n)
+    hit = ((prob > 0.5) & (near >= 1)).to(prob.dtype)
+    count = seen[:, None] + torch.cumsum(hit, 1)
+    return (prob * (count > 0).to(prob.dtype), x[:, x.shape[1] - CONFIRM_FRAMES:],
+            count[:, -1])
 
 
 def answer(g, sd, top, p: dict, off) -> tuple[torch.Tensor, ...]:
@@ -332,19 +532,41 @@ def onset_frames(targets: torch.Tensor, n_frames: int, frame_s: float, max_conta
 
 
 def touch_threshold(step: np.ndarray, targets: np.ndarray, frame_s: float, max_contacts: int,
-                    before: int = 40, factor: float = 2.0) -> float:
-    """The size of Zm's frame-to-frame step (N·s/m) that marks a first touch: ``factor``
-    times the largest step over free whisking, the ``before`` frames ahead of each training
-    onset. (A first touch steps Zm by 1e-6 N·s/m and more in 97 % of the scene's records,
-    where free whisking's largest step is ~2.5e-7; placing the threshold from the free side
-    keeps it clear of the grazes, some of which step Zm no more than free whisking.)
+                    lookback: int | None = None, grid: int = 400) -> float:
+    """The size of Zm's frame-to-frame step (N·s/m) that marks a first touch, chosen on the
+    training data for the rule that uses it (:func:`wtml.runtime.onset.contacts_from`: the
+    first frame over it, from ``lookback`` frames ahead of a contact up to the contact).
+    Each training onset is called on its own frame iff its step reaches the threshold and
+    none of the ``lookback`` frames of free whisking before it does; the threshold is the
+    geometric middle of the widest stretch of a log grid (``grid`` points over the steps'
+    range) where the most onsets are called right. So it follows the acquisition: on a quiet
+    one, free whisking's steps are ~1e-7 N·s/m and a first touch's 1e-6 and more; with the
+    converter's noise and the ADC floor the free steps reach a few 1e-6, and the threshold
+    moves up to where a few grazes are given up rather than calling noise.
     ``step`` ``(n, n_frames)`` the steps' size, targets as :func:`frame_labels`; 1.0
     without an onset."""
+    if lookback is None:
+        from wtml.runtime.onset import TOUCH_LOOKBACK as lookback
     on = targets[:, 1:1 + max_contacts]
-    free = [step[r, j - before:j].max()
-            for r, k in zip(*np.nonzero(np.isfinite(on)), strict=True)
-            for j in [int(on[r, k] // frame_s)] if before <= j < step.shape[1]]
-    return factor * float(max(free)) if free else 1.0
+    first, ahead = [], []
+    for r, k in zip(*np.nonzero(np.isfinite(on)), strict=True):
+        j = int(on[r, k] // frame_s)
+        if lookback <= j < step.shape[1]:
+            first.append(step[r, j])
+            ahead.append(step[r, j - lookback:j].max())
+    first, ahead = np.asarray(first), np.asarray(ahead)
+    values = np.concatenate([first, ahead])
+    values = values[values > 0]
+    if not len(values):
+        return 1.0
+    levels = np.geomspace(values.min(), values.max(), grid)
+    right = ((first[:, None] >= levels) & (ahead[:, None] < levels)).sum(0)
+    best = right == right.max()
+    # the widest run of the best levels: its geometric middle
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], best.astype(int), [0]])))
+    runs = edges.reshape(-1, 2)
+    lo, hi = runs[np.argmax(runs[:, 1] - runs[:, 0])]
+    return float(np.sqrt(levels[lo] * levels[hi - 1]))
 
 
 def detach_brackets(targets: torch.Tensor, reach: torch.Tensor, frame_s: float,
@@ -388,13 +610,18 @@ class OnsetDecoder(DecoderModule):
         location_weight: weight of the location's Gaussian NLL.
         timing_weight: weight of the detachment level's log-cosh loss (:data:`LEVEL_SCALE`),
             towards the middle of its brackets (:func:`detach_brackets`).
+        mains_lines: remove the mains lines (the scene's ``acquisition.effects.hum``
+            frequency and its harmonics' count, whether or not the scene simulates hum) from
+            each probe frame's fit, estimated causally in the graph (:class:`MainsLines`),
+            and take Zm through the probe voltage's running mean over the record (the
+            drive's, which a contact does not change) rather than each frame's.
         lr, weight_decay: as every decoder.
     """
 
     def __init__(self, channels: int = 32, dilations: list[int] | None = None,
                  contact_weight: float = 30.0, onset_weight: float = 10.0,
-                 location_weight: float = 1.0, timing_weight: float = 1.0, lr: float = 3e-3,
-                 weight_decay: float = 1e-5) -> None:
+                 location_weight: float = 1.0, timing_weight: float = 1.0,
+                 mains_lines: bool = True, lr: float = 3e-3, weight_decay: float = 1e-5) -> None:
         super().__init__(lr, weight_decay)
         dilations = [1, 2, 4, 8, 16] if dilations is None else list(dilations)
         if not 1 <= channels <= 1024:
@@ -410,9 +637,22 @@ class OnsetDecoder(DecoderModule):
         self.save_hyperparameters()
         self.register_buffer("offsets", torch.zeros(2))
 
-    @staticmethod
-    def _frames(scene) -> ProbeFrames:
-        return ProbeFrames(frame_period(scene))
+    def _frames(self, scene) -> ProbeFrames:
+        period = frame_period(scene)
+        mains = None
+        if self.hparams.get("mains_lines", False):
+            hum = scene.acquisition.effects.hum  # the lab's mains, whether or not simulated
+            lines = [MainsLines(period, scene.drive.probe_hz, hum.mains_hz,
+                                1 + len(hum.harmonics), scene.n_samples // period,
+                                gated=gated) for gated in (False, True)]
+            mains = (lines[0], lines[1])
+        # the tip cannot touch while u_L is below the nearest wall less twice the probe's
+        # reach on it (the nominal free tip's |u_H| = |E_H| / (ωH |t12|); a device of the
+        # spread differs by a few %)
+        wh = 2 * np.pi * scene.drive.probe_hz
+        t12 = scene.transducer().transduction_matrix(np.array([wh]))[0, 0, 1]
+        reach = scene.drive.probe_v / (wh * abs(t12))
+        return ProbeFrames(period, mains, free_below=scene.gap_range_m()[0] - 2 * reach)
 
     def domain_features(self, scene) -> tuple[nn.Module, int]:
         return RecordSummary(self._frames(scene)), 3 + RecordSummary.N_DEVICE

@@ -7,7 +7,10 @@ Everything the offline graph computes over a whole record is causal or a running
 - u_L's and Zm's steps need the previous frame's u_L and Zm;
 - each causal convolution needs its last ``(kernel - 1) dilation`` inputs;
 - each softmax pooling is a running (max, Σ exp, Σ exp·x[, Σ exp·σ²]), merged chunk by chunk;
-- the domain gate's record summary is running sums, a maximum and a minimum.
+- the domain gate's record summary is running sums, a maximum and a minimum;
+- the mains lines' estimate (:class:`~wtml.decoders.onset.MainsLines`) is running sums;
+- a contact's confirmation (:func:`~wtml.decoders.onset.confirm`) needs the last few touches
+  and whether one was confirmed before.
 
 So after the last chunk of a record, the running ``gap``, ``sigma``, levels and domain score
 equal the offline graph's (to float32 rounding), and the per-frame contact probabilities of
@@ -25,7 +28,14 @@ import torch
 from torch import nn
 
 from wtml.decoders.domain import DomainGate
-from wtml.decoders.onset import CausalConv, OnsetNet, RecordSummary, answer
+from wtml.decoders.onset import (
+    CONFIRM_FRAMES,
+    CausalConv,
+    OnsetNet,
+    RecordSummary,
+    answer,
+    confirm,
+)
 
 POOLS = (("vote", "est", "log_sd", 0), ("vote_off", "est_off", None, 4))
 """The two softmax poolings: vote, estimate, (for g) the log std, and where their running
@@ -57,7 +67,8 @@ class StreamingOnset(nn.Module):
             raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
         self.net, self.gate, self.chunk_frames = net, gate, int(chunk_frames)
         self.convs = [m for m in net.body if isinstance(m, CausalConv)]
-        self.sizes = [3] + [m.conv.in_channels * m.pad for m in self.convs] + [13]
+        self.sizes = ([3] + [m.conv.in_channels * m.pad for m in self.convs]
+                      + [net.frames.state_size, CONFIRM_FRAMES + 1, 13])
         self.state_size = sum(self.sizes)
         # the running sums of |E_H| and |I_H| add each frame's deviation from the training
         # records' mean level, so float32 rounding scales with the deviations, not the level
@@ -76,9 +87,11 @@ class StreamingOnset(nn.Module):
     def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor,
                 hue0: torch.Tensor, state: torch.Tensor) -> tuple[torch.Tensor, ...]:
         parts = torch.split(state, self.sizes, 1)
-        prev, buffers, pool = parts[0], parts[1:-1], parts[-1]
+        prev, buffers, mains, confirmed, pool = (parts[0], parts[1:-3], parts[-3], parts[-2],
+                                                 parts[-1])
         net = self.net
-        f = net.frames(e, i, t_re, t_im, hue0)  # (batch, chunk_frames, 5)
+        # (batch, chunk_frames, 5), the mains lines' running sums from the frames so far
+        f, mains = net.frames.running(e, i, t_re, t_im, hue0, pool[:, 8], mains)
         first = pool[:, 8] == 0  # no frame before this chunk
 
         def running(op, old, new):
@@ -114,7 +127,8 @@ class StreamingOnset(nn.Module):
             else:
                 pooled.append(mean)
             merged += sums
-        prob = torch.sigmoid(p["contact"])
+        prob, past, seen = confirm(torch.sigmoid(p["contact"]), p["touch"],
+                                   confirmed[:, :CONFIRM_FRAMES], confirmed[:, CONFIRM_FRAMES])
         top = torch.maximum(pool[:, 7], prob.amax(-1))
         count = pool[:, 8] + f.shape[1]
         sum_e = pool[:, 9] + (f[..., 3] - self.level_e).sum(-1)
@@ -131,5 +145,6 @@ class StreamingOnset(nn.Module):
         inside = (score <= 1.0) & self.gate.outputs_in_range((gap, sd))
         sd = torch.where(inside, sd, torch.full_like(sd, float("nan")))
         new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i], -1)
+        carried += ([] if mains is None else [mains]) + [past, seen[:, None]]
         next_state = torch.cat([f[:, -1, :3], *carried, new_pool], 1)
         return prob, off_margin, p["touch"], gap, sd, next_state, inside, score

@@ -28,6 +28,9 @@ from wtml.training import cli_main, duration
 TRANSFER_RECORDS = 4
 """Fresh records per row of the time-domain benches' transfer tables in the main job (a small
 version: their benches' defaults are the full tables)."""
+DEVICE_RECORDS = 16
+"""Fresh records per row of the texture bench's device-spread table in the main job (its rows
+are paired: the same specimens and nuisance on every device)."""
 INDEPENDENT_RECORDS = 4
 """Records of the independent simulator in the main job's onset transfer table."""
 
@@ -265,7 +268,9 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
 def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: Path,
                                 data: Path, predict_records) -> dict:
     """Export a time-domain slice, write two test records as ``model/rec.npz`` (e, i,
-    sample_rate_hz), print ``wtml predict`` on them; returns the test shard."""
+    sample_rate_hz) and, where the records carry their device's calibrated T, its
+    ``model/cal.npz`` (frequency_hz, t), print ``wtml predict`` on them; returns the test
+    shard."""
     stages.begin(slice_, f"export {model.name}",
                  f"wtml export --checkpoint {ckpt} --out {model}")
     for kind, path in export_model(ckpt, model).items():
@@ -274,8 +279,14 @@ def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: 
     sample = model / "rec.npz"
     np.savez(sample, e=test["e"][:2], i=test["i"][:2],
              sample_rate_hz=dataset_scene(data).acquisition.sample_rate_hz)
-    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}")
-    print(format_predictions(predict_records(model, sample)))
+    extra, option = {}, ""
+    if "t" in test:  # the graph takes the device's calibration
+        extra["calibration"] = model / "cal.npz"
+        option = f" --calibration {extra['calibration']}"
+        np.savez(extra["calibration"], t=test["t"][:2],
+                 frequency_hz=dataset_scene(data).calibration_hz)
+    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}{option}")
+    print(format_predictions(predict_records(model, sample, **extra)))
     return test
 
 
@@ -372,8 +383,10 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
                                for g, d in zip(test["grade"][:2], test["grain_m"][:2],
                                                strict=True)))
     stages.begin("texture", "bench", f"wtml bench texture --out {bench} "
-                                     f"--transfer-records {TRANSFER_RECORDS}")
-    report = run_bench(data, fepa, ckpt, model, bench, transfer_records=TRANSFER_RECORDS)
+                                     f"--transfer-records {TRANSFER_RECORDS} "
+                                     f"--device-records {DEVICE_RECORDS}")
+    report = run_bench(data, fepa, ckpt, model, bench, transfer_records=TRANSFER_RECORDS,
+                       device_records=DEVICE_RECORDS)
     print(report.split("\n\nConfusion matrices")[0])
     stages.end()
     return json.loads((bench / "summary.json").read_text())
@@ -413,8 +426,25 @@ def _texture_lines(s: dict, stages: Stages) -> list[str]:
         f"{1e3 * peer['latency_s']:.0f} ms); {short['window_s']:g} s windows "
         f"{100 * short['accuracy']:.1f} %",
         *_texture_transfer_lines(s["transfer"]),
+        *_texture_device_lines(s),
         "  report runs/texture/bench/report.md, plots runs/texture/bench/*.png",
         f"  time: {stages.line('texture')}"]
+
+
+def _texture_device_lines(s: dict) -> list[str]:
+    """The decoder on the nominal device, over the trained spread and on the class that
+    limits it (target: error rate within 1.5× the nominal one)."""
+    from wtml.bench.texture_transfer import DEVICE_TARGET
+
+    rows, v = s["device_spread"], s["device_verdict"]
+    dec = [r["methods"][0] for r in rows]
+    limit = next(r for r in rows if r["name"] == v["limit"])
+    return [f"  device spread ({rows[0]['records']} fresh records per row, paired): nominal "
+            f"device {100 * dec[0]['accuracy']:.1f} %, {rows[1]['name']} "
+            f"{100 * dec[1]['accuracy']:.1f} % ({100 * dec[1].get('flagged', 0):.0f} % "
+            f"flagged; error {v['ratios'][1]:.2f}× the nominal, target ≤ {DEVICE_TARGET:g}×: "
+            f"{_met(v['met'])}); limited by {limit['name'].removesuffix(' alone')}: "
+            f"{100 * limit['methods'][0]['accuracy']:.1f} % alone"]
 
 
 def _texture_transfer_lines(rows: list[dict]) -> list[str]:

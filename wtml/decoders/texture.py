@@ -13,7 +13,8 @@ its own features, so a device feeds it what its ADC gives:
    interpolated to ω by the polynomial through those points): ``F = t22 E - t12 I``,
    ``V = -t21 E + t11 I``, ``Zm = F/V`` (the thesis's cues); the current's harmonics
    relative to its fundamental; and the residual of the fit (what the harmonics do not
-   explain: the asperities' broadband part), its RMS and that of its differences at lags 1-32 samples (a coarse spectrum), relative to |I|.
+   explain: the asperities' broadband part), its RMS and that of its differences at lags
+   1-32 samples (a coarse spectrum), relative to |I|.
 2. A standardised MLP with two heads: grade logits (the thesis's five grades) and the mean
    and log std of ln(grain size / 1 m).
 
@@ -171,7 +172,8 @@ class WhiskFeatures(nn.Module):
     ``(batch, N_FEATURES)``: see the module docstring. Columns: ω/ω_ref, ln|E|, ln|I|,
     ln|F|, ln|V|, Re Zm/z, Im Zm/z (z = :attr:`Z_REF`), Re and Im of
     ``I_k conj(E/|E|)^k / |I|`` for k = 2..3 (harmonics in the drive's phase, the same for
-    any window start), ln of the residual's RMS and of its differences' at :data:`LAGS`, relative to |I|. :meth:`cues` gives the thesis's four."""
+    any window start), ln of the residual's RMS and of its differences' at :data:`LAGS`,
+    relative to |I|. :meth:`cues` gives the thesis's four."""
 
     N_FEATURES = 7 + 2 * (HARMONICS - 1) + 1 + len(LAGS)
     Z_REF = 1e-3

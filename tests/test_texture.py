@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from wtml.decoders.texture import ModalT, WhiskFeatures, cholesky_solve
+from wtml.decoders.texture import CalibratedT, ModalT, WhiskFeatures, cholesky_solve
+from wtml.physics.twoport import flat_parts
 from wtml.fidelity import format_texture, texture_fidelity
 from wtml.scenes import load_scene
 from wtml.scenes.texture import TextureScene
@@ -36,6 +37,29 @@ def test_graph_t_is_the_modal_models(scene):
     np.testing.assert_allclose(got, t, rtol=1e-5)
 
 
+def test_calibrated_t_interpolates_the_users_t_to_the_measured_omega(scene):
+    """T on the scene's five calibration frequencies (the graph's input), interpolated in the
+    graph to ω anywhere on the whisking range and a little beyond it, is the modal model's T
+    at ω to float32 rounding (1e-5 of each element's largest value): the graph needs no
+    model of the device, only its calibration. Each sample gets its own T."""
+    grid = scene.calibration_hz
+    assert grid[0] < scene.drive.whisk_hz[0] and grid[-1] > scene.drive.whisk_hz[1]
+    w = 2 * np.pi * np.array([34.6, 35.0, 35.73, 36.0, 36.41, 37.0, 37.4])
+    models = [scene.transducer(), scene.transducer({"bimorph.modulus": 1.03,
+                                                    "loss_factor": 0.75})]
+    t_re, t_im = flat_parts(np.stack([scene.calibrated_t(models[k % 2]) for k in range(7)]))
+    parts = [p.double().numpy() for p in CalibratedT(grid)(
+        torch.tensor(w, dtype=torch.float32), torch.tensor(t_re), torch.tensor(t_im))]
+    got = np.stack([parts[2 * k] + 1j * parts[2 * k + 1] for k in range(4)], 1)
+    want = np.stack([models[k % 2].transduction_matrix(w[k]).reshape(4) for k in range(7)])
+    scale = np.abs(want).max(0)
+    assert np.all(np.abs(got - want) <= 1e-5 * scale)
+    # and the two devices' T differ by far more than that: the input matters
+    other = np.stack([models[(k + 1) % 2].transduction_matrix(w[k]).reshape(4)
+                      for k in range(7)])
+    assert np.all(np.abs(other - want).max(0) > 1e-2 * scale)
+
+
 def test_features_recover_a_tone_and_are_the_same_for_any_window_start(scene):
     """A drive of 9 V at 35.7 Hz and a current with two harmonics: ω to 1e-6, and the
     features of two windows a non-integer number of cycles apart agree."""
@@ -44,14 +68,16 @@ def test_features_recover_a_tone_and_are_the_same_for_any_window_start(scene):
     w = 2 * np.pi * 35.7
     e = 9 * np.sin(w * t + 0.3)
     i = 2e-5 * np.cos(w * t + 1.0) + 1e-6 * np.cos(3 * w * t + 0.2) + 3e-7 * np.sin(2 * w * t)
-    feats = WhiskFeatures(scene.transducer(), rate)
+    feats = WhiskFeatures(scene.calibration_hz, rate)
     n = 12800
     x = torch.tensor(np.stack([e[:n], e[5000:5000 + n]]), dtype=torch.float32)
     y = torch.tensor(np.stack([i[:n], i[5000:5000 + n]]), dtype=torch.float32)
     omega, ce, ci, _ = feats.fit(x, y)
     np.testing.assert_allclose(omega.numpy(), w, rtol=1e-6)
     np.testing.assert_allclose(torch.hypot(ce[:, 1], ce[:, 2]).numpy(), 9, rtol=1e-5)
-    f = feats(x, y).numpy()
+    t_re, t_im = (torch.tensor(np.stack([p, p])) for p in
+                  flat_parts(scene.calibrated_t(scene.transducer())))
+    f = feats(x, y, t_re, t_im).numpy()
     np.testing.assert_allclose(f[0, :11], f[1, :11], atol=2e-3)
 
 
@@ -84,6 +110,92 @@ def test_scene_records_and_labels(scene):
     assert d["e"].shape == (5, small.n_samples) and d["i"].dtype == np.float32
     np.testing.assert_array_equal(d["grade"], np.arange(5))
     assert np.all(np.isfinite(d["i"])) and np.all(d["rms_speed"] > 0.05)
+
+
+ISSUE_SPREAD = {"length": 0.005, "thickness": 0.005, "modulus": 0.03, "loss_factor": 0.25,
+                "tan_delta": 0.25, "coupling": 0.03}
+
+
+def _short(scene, **device):
+    """The scene with 0.1 s records (0.2 s lead-in) and the device spread ``device``."""
+    from dataclasses import replace
+
+    from wtml.physics.spread import DeviceSpread
+
+    return replace(scene, specimens_per_grade=1, device=DeviceSpread(**device),
+                   drive=replace(scene.drive, record_s=0.1, lead_s=0.2))
+
+
+def test_zero_spread_is_the_preset_bit_for_bit(scene):
+    """All widths zero (the default, whatever ``devices``) draws nothing: the records are the
+    preset's, bit for bit (checked against the code before the device block at the commit
+    that added it), and every record's T is the preset's calibrated T."""
+    nominal = _short(scene)
+    zero = _short(scene, devices=7)
+    a, b = nominal.simulate(6, np.random.default_rng(3)), zero.simulate(6, np.random.default_rng(3))
+    for key in ("e", "i", "t", "rms_speed", "coupling"):
+        np.testing.assert_array_equal(a[key], b[key])
+    preset = nominal.calibrated_t(nominal.transducer())
+    assert a["t"].shape == (6, len(nominal.calibration_hz), 2, 2)
+    np.testing.assert_array_equal(a["t"], np.broadcast_to(preset, a["t"].shape))
+
+
+def test_each_record_carries_its_drawn_devices_calibrated_t(scene, monkeypatch):
+    """The devices a spread scene draws are the ones simulated and the T each record carries
+    is its own device's (the decoder's input); the drawn devices differ from the preset by
+    the stated tolerances; the specimens and nuisance are those of the nominal device's
+    records (the draw comes after them). And the physics: through its own T a record's e and i
+    give the tip speed the simulation had (1 s lead-in: the 36 Hz mode's transient gone),
+    where the preset's T misses it."""
+    from wtml.decoders.texture import WhiskFeatures
+    from wtml.scenes.texture import TextureScene
+
+    from dataclasses import replace
+
+    quiet = _short(scene, **ISSUE_SPREAD)
+    quiet = replace(quiet, drive=replace(quiet.drive, record_s=0.25, lead_s=1.0))
+
+    from wtml.signals.acquisition import AcquisitionEffects
+
+    quiet = replace(quiet, calibration_error=0.0, acquisition=replace(
+        quiet.acquisition, effects=AcquisitionEffects().only()))
+    drawn = {}
+    original = TextureScene.devices
+
+    def spy(self, n, rng):
+        drawn["models"], drawn["index"] = original(self, n, rng)
+        return drawn["models"], drawn["index"]
+
+    monkeypatch.setattr(TextureScene, "devices", spy)
+    rec = quiet.simulate(6, np.random.default_rng(4))
+    models, index = drawn["models"], drawn["index"]
+    assert len(models) == 6 and sorted(index.tolist()) == list(range(6))
+    for r in range(6):
+        np.testing.assert_array_equal(rec["t"][r], quiet.calibrated_t(models[index[r]]))
+    preset = quiet.transducer()
+    ratio = np.array([m.omega_n[0] / preset.omega_n[0] for m in models])
+    assert np.all(np.abs(ratio - 1) < 0.03) and np.ptp(ratio) > 1e-3  # √(±3 % modulus) ...
+    monkeypatch.undo()
+    nominal = replace(quiet, device=replace(quiet.device, **dict.fromkeys(ISSUE_SPREAD, 0.0)))
+    same = nominal.simulate(6, np.random.default_rng(4))
+    for key in ("grade", "mu", "whisk_v", "whisk_hz", "normal_force", "angle"):
+        np.testing.assert_array_equal(rec[key], same[key])
+
+    feats = WhiskFeatures(quiet.calibration_hz, quiet.acquisition.sample_rate_hz)
+
+    def speed(t):
+        t_re, t_im = (torch.tensor(x) for x in flat_parts(t))
+        _, (_, _, v_re, v_im, _, _), _ = feats.cues(torch.tensor(rec["e"]),
+                                                    torch.tensor(rec["i"]), t_re, t_im)
+        return np.hypot(v_re.double().numpy(), v_im.double().numpy()) / np.sqrt(2)
+
+    own = speed(rec["t"]) / rec["rms_speed"] - 1
+    wrong = speed(np.broadcast_to(quiet.calibrated_t(preset), rec["t"].shape)) / rec[
+        "rms_speed"] - 1
+    # measured: own within 0.96 % (the harmonics' share of the RMS speed), the preset's T
+    # 5.7 % off at worst
+    assert np.all(np.abs(own) < 0.015), own
+    assert np.abs(wrong).max() > 3 * np.abs(own).max(), (own, wrong)
 
 
 SMALL = {"samples": 30, "shards": 3, "specimens_per_grade": 2}

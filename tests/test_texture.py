@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from wtml.decoders.texture import CalibratedT, ModalT, WhiskFeatures, cholesky_solve
-from wtml.physics.twoport import flat_parts
 from wtml.fidelity import format_texture, texture_fidelity
+from wtml.physics.twoport import flat_parts
 from wtml.scenes import load_scene
 from wtml.scenes.texture import TextureScene
 
@@ -147,10 +147,10 @@ def test_each_record_carries_its_drawn_devices_calibrated_t(scene, monkeypatch):
     records (the draw comes after them). And the physics: through its own T a record's e and i
     give the tip speed the simulation had (1 s lead-in: the 36 Hz mode's transient gone),
     where the preset's T misses it."""
+    from dataclasses import replace
+
     from wtml.decoders.texture import WhiskFeatures
     from wtml.scenes.texture import TextureScene
-
-    from dataclasses import replace
 
     quiet = _short(scene, **ISSUE_SPREAD)
     quiet = replace(quiet, drive=replace(quiet.drive, record_s=0.25, lead_s=1.0))
@@ -213,7 +213,8 @@ def texture_export(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("texture")
     cfg = root / "scene.yaml"
-    cfg.write_text(yaml.safe_dump({"name": "texture", "task": "texture", **SMALL}))
+    cfg.write_text(yaml.safe_dump({"name": "texture", "task": "texture", **SMALL,
+                                   "device": ISSUE_SPREAD}))
     data, run, model = root / "data", root / "run", root / "export"
     for args in (["-m", "wtml.cli", "generate", "--config", str(cfg), "--out", str(data)],
                  ["train.py", "fit", "--config", "configs/texture.yaml",
@@ -227,7 +228,9 @@ def texture_export(tmp_path_factory):
 
 def test_exported_graphs_match_torch_and_compute_the_features_once(texture_export, scene):
     """The ONNX decoder against the torch net and gate each computing their own features,
-    and the ONNX thesis cues against torch; the gate and both nets share one feature layer."""
+    on records of devices drawn from the spread, each window through its own device's T (the
+    graph's t_re, t_im), and the ONNX thesis cues against torch; the gate and both nets share
+    one feature layer. The export says which reference it needs, and where."""
     from dataclasses import replace
 
     from wtml.baselines.texture_classical import ClassicalTexture
@@ -239,13 +242,27 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     graph = Gated(module.net, module.gate, (1,)).eval()
     assert graph.shared and module.gate.features is module.net.features
     n = module._n
-    rec = replace(scene, **SMALL).simulate(5, np.random.default_rng(7))
+    spread = replace(scene, **SMALL)
+    assert not spread.device.none  # the shipped scene's tolerances
+    rec = spread.simulate(5, np.random.default_rng(7))
+    assert len({rec["t"][r].tobytes() for r in range(5)}) == 5  # a device per record
     e, i = rec["e"][:, :n], rec["i"][:, :n]
+    t_re, t_im = flat_parts(rec["t"])
     with torch.no_grad():
-        et, it = torch.tensor(e), torch.tensor(i)
-        grain, _, prob = module.net(et, it)  # features computed by the net itself
-        score = module.gate(et, it)  # and again by the gate
-    dec = OnnxModel(texture_export["model"] / "model.onnx").run(e, i)
+        et, it, tr, ti = (torch.tensor(x) for x in (e, i, t_re, t_im))
+        grain, _, prob = module.net(et, it, tr, ti)  # features computed by the net itself
+        score = module.gate(et, it, tr, ti)  # and again by the gate
+        # the same windows through the preset's T: another answer (T is used)
+        nominal = torch.tensor(np.broadcast_to(t_re[:1], t_re.shape).copy())
+        other = module.gate.features(et, it, nominal, torch.tensor(
+            np.broadcast_to(t_im[:1], t_im.shape).copy()))
+        assert (other - module.gate.features(et, it, tr, ti)).abs().amax() > 1e-3
+    onnx = OnnxModel(texture_export["model"] / "model.onnx")
+    assert json.loads(onnx.metadata["inputs"]) == ["e", "i", "t_re", "t_im"]
+    assert "calibration" in onnx.references
+    np.testing.assert_allclose(json.loads(onnx.metadata["calibration_hz"]),
+                               spread.calibration_hz)
+    dec = onnx.run(e, i, t_re, t_im)
     np.testing.assert_allclose(dec["grain"], grain.numpy(), rtol=1e-4)
     np.testing.assert_allclose(dec["probabilities"], prob.numpy(), atol=1e-5)
     np.testing.assert_allclose(dec["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
@@ -255,31 +272,40 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     from wtml.runtime.export import _export
 
     fit = replace(scene, specimens_per_grade=1).simulate(5, np.random.default_rng(9))
-    classical = ClassicalTexture.fit(module.net.features, fit["e"], fit["i"], fit["grade"],
-                                     fit["grain_m"], n)
+    classical = ClassicalTexture.fit(module.net.features, fit["e"], fit["i"], fit["t"],
+                                     fit["grade"], fit["grain_m"], n)
     cl_graph = Gated(classical, module.gate.inputs_only()).eval()
     assert cl_graph.shared
     path = texture_export["model"].parent / "classical_test.onnx"
-    _export(cl_graph, n, path, {"outputs": json.dumps(list(scene.OUTPUTS))}, ("e", "i"),
-            optimize=False)
+    k = len(spread.calibration_hz)
+    _export(cl_graph, n, path, {"outputs": json.dumps(list(scene.OUTPUTS))},
+            ("e", "i", "t_re", "t_im"), (n, n, (k, 4), (k, 4)), optimize=False)
     import onnxruntime as ort
 
     session = ort.InferenceSession(str(path))
     cl = dict(zip((o.name for o in session.get_outputs()),
-                  session.run(None, {"e": e, "i": i}), strict=True))
+                  session.run(None, {"e": e, "i": i, "t_re": t_re, "t_im": t_im}),
+                  strict=True))
     with torch.no_grad():
-        ref = classical(et, it)
+        ref = classical(et, it, tr, ti)
     np.testing.assert_allclose(cl["grain"], ref[0].numpy(), rtol=1e-4)
     np.testing.assert_allclose(cl["probabilities"], ref[2].numpy(), atol=1e-4)
     np.testing.assert_allclose(cl["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
 
 def test_predict_prints_grades_per_record(texture_export, scene, tmp_path):
+    from wtml.runtime.predict import InputError
     from wtml.runtime.texture import predict_records
 
     rec = scene.simulate(2, np.random.default_rng(8))
-    path = tmp_path / "rec.npz"
+    path, cal = tmp_path / "rec.npz", tmp_path / "cal.npz"
     np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
-    rows = predict_records(texture_export["model"], path)
+    with pytest.raises(InputError, match="needs --calibration"):
+        predict_records(texture_export["model"], path)  # never a default device
+    np.savez(cal, frequency_hz=scene.calibration_hz[:-1], t=rec["t"][:, :-1])
+    with pytest.raises(InputError, match="is not the model's"):
+        predict_records(texture_export["model"], path, calibration=cal)
+    np.savez(cal, frequency_hz=scene.calibration_hz, t=rec["t"])
+    rows = predict_records(texture_export["model"], path, calibration=cal)
     assert [(r["record"], r["method"]) for r in rows] == [
         (0, "decoder"), (1, "decoder"), (0, "classical"), (1, "classical")]
     for r in rows:

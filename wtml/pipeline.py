@@ -438,13 +438,15 @@ def _texture_device_lines(s: dict) -> list[str]:
 
     rows, v = s["device_spread"], s["device_verdict"]
     dec = [r["methods"][0] for r in rows]
-    limit = next(r for r in rows if r["name"] == v["limit"])
+    limit = next((r for r in rows if r["name"] == v["limit"]), None)
     return [f"  device spread ({rows[0]['records']} fresh records per row, paired): nominal "
             f"device {100 * dec[0]['accuracy']:.1f} %, {rows[1]['name']} "
             f"{100 * dec[1]['accuracy']:.1f} % ({100 * dec[1].get('flagged', 0):.0f} % "
             f"flagged; error {v['ratios'][1]:.2f}× the nominal, target ≤ {DEVICE_TARGET:g}×: "
-            f"{_met(v['met'])}); limited by {limit['name'].removesuffix(' alone')}: "
-            f"{100 * limit['methods'][0]['accuracy']:.1f} % alone"]
+            f"{_met(v['met'])}); "
+            + (f"limited by {limit['name'].removesuffix(' alone')}: "
+               f"{100 * limit['methods'][0]['accuracy']:.1f} % alone" if limit
+               else "no class alone below the nominal device")]
 
 
 def _texture_transfer_lines(rows: list[dict]) -> list[str]:

@@ -120,11 +120,13 @@ def device_verdict(rows: list[dict]) -> dict:
     """The decoder's (the first method's) error rate on each row over the nominal row's
     (``ratios``; the nominal error floored at one window), whether the trained spread's row
     meets :data:`DEVICE_TARGET` (``met``) and the one-at-a-time row with the largest error
-    (``limit``, its name)."""
+    (``limit``, its name; None where none is above the nominal row's)."""
     err = [1 - r["methods"][0]["accuracy"] for r in rows]
     floor = 1 / rows[0]["methods"][0]["windows"]
     ratios = [e / max(err[0], floor) for e in err]
     alone = [k for k, r in enumerate(rows) if r["name"].endswith(" alone")]
     limit = max(alone, key=lambda k: err[k]) if alone else None
+    if limit is not None and err[limit] <= err[0]:
+        limit = None  # no class alone costs the decoder anything
     return {"ratios": ratios, "met": bool(ratios[1] <= DEVICE_TARGET) if len(rows) > 1 else None,
             "limit": None if limit is None else rows[limit]["name"]}

@@ -112,13 +112,13 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
     T at the export's ``calibration_hz`` (npz with ``frequency_hz`` and ``t``, complex ``(K,
     2, 2)`` or one per record ``(n, K, 2, 2)``), which the graph needs (:class:`InputError`
     without it, never a default device)."""
-    from wtml.runtime.predict import load_export, read_calibration
+    from wtml.runtime.predict import InputError, load_export, read_calibration
 
     decoder, classical = load_export(model_dir)
     meta = decoder.metadata
     window = json.loads(meta["n_samples"])
     if "calibration_hz" not in meta:
-        raise ValueError(f"{model_dir}: a texture export without calibration_hz in its "
+        raise InputError(f"{model_dir}: a texture export without calibration_hz in its "
                          "metadata (made by an older wtml, before the calibrated T was an "
                          "input); export it again")
     freq = np.array(json.loads(meta["calibration_hz"]))

@@ -85,6 +85,7 @@ def test_texture_device_rows_are_the_nominal_device_the_spread_and_each_class_al
     seen = []
     out = run_variants(rows, 3, 5, lambda r: seen.append(r) or [{"name": "x"}], paired=True)
     assert [r["name"] for r in out] == [v.name for v in rows]
+    assert seen[0]["grade"].tolist() == [0, 1, 2]  # a record per grade, not the first grade
     nominal = short.calibrated_t(short.transducer())
     np.testing.assert_array_equal(seen[0]["t"], np.broadcast_to(nominal, seen[0]["t"].shape))
     for rec in seen[1:]:

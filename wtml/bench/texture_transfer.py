@@ -50,7 +50,9 @@ def texture_variants(scene) -> list[Variant]:
 def device_variants(scene) -> list[Variant]:
     """The device-spread table's rows: the nominal device, the trained spread, and each class
     of :data:`~wtml.physics.spread.CLASSES` alone at the trained width (issue 21's,
-    :data:`REFERENCE_SPREAD`, where the scene trains on none)."""
+    :data:`REFERENCE_SPREAD`, where the scene trains on none). A row of n records has n // 5
+    specimens of each grade (the scene's own count would give a few records the first grades
+    only)."""
     spread = REFERENCE_SPREAD if scene.device.none else scene.device
     sets = [("nominal device", DeviceSpread(devices=spread.devices)),
             ("devices of the trained spread" if not scene.device.none
@@ -59,8 +61,13 @@ def device_variants(scene) -> list[Variant]:
               DeviceSpread(devices=spread.devices, **{cls: getattr(spread, cls)}))
              for cls in CLASSES if getattr(spread, cls) > 0]
     scenes = [(label, dataclasses.replace(scene, device=device)) for label, device in sets]
+
+    def make(s, n: int, rng):  # n // 5 specimens per grade: every grade, each record its own
+        per = max(1, n // len(s.grade_table))
+        return dataclasses.replace(s, specimens_per_grade=per).simulate(n, rng)
+
     return [Variant(label, "nominal" if s.device.none else "spread",
-                    lambda n, rng, s=s: s.simulate(n, rng)) for label, s in scenes]
+                    lambda n, rng, s=s: make(s, n, rng)) for label, s in scenes]
 
 
 def scorer(methods: dict[str, Callable], windows: Callable[[dict], tuple]

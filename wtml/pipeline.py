@@ -444,8 +444,9 @@ def _texture_device_lines(s: dict) -> list[str]:
             f"{100 * dec[1]['accuracy']:.1f} % ({100 * dec[1].get('flagged', 0):.0f} % "
             f"flagged; error {v['ratios'][1]:.2f}× the nominal, target ≤ {DEVICE_TARGET:g}×: "
             f"{_met(v['met'])}); "
-            + (f"limited by {limit['name'].removesuffix(' alone')}: "
-               f"{100 * limit['methods'][0]['accuracy']:.1f} % alone" if limit
+            + (f"worst class alone {limit['name'].removesuffix(' alone')}: "
+               f"{100 * limit['methods'][0]['accuracy']:.1f} % (paired rows; compare with "
+               "their intervals in the report)" if limit
                else "no class alone below the nominal device")]
 
 

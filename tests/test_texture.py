@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from wtml.decoders.texture import ModalT, WhiskFeatures, cholesky_solve
+from wtml.decoders.texture import CalibratedT, ModalT, WhiskFeatures, cholesky_solve
 from wtml.fidelity import format_texture, texture_fidelity
+from wtml.physics.twoport import flat_parts
 from wtml.scenes import load_scene
 from wtml.scenes.texture import TextureScene
 
@@ -36,6 +37,29 @@ def test_graph_t_is_the_modal_models(scene):
     np.testing.assert_allclose(got, t, rtol=1e-5)
 
 
+def test_calibrated_t_interpolates_the_users_t_to_the_measured_omega(scene):
+    """T on the scene's five calibration frequencies (the graph's input), interpolated in the
+    graph to ω anywhere on the whisking range and a little beyond it, is the modal model's T
+    at ω to float32 rounding (1e-5 of each element's largest value): the graph needs no
+    model of the device, only its calibration. Each sample gets its own T."""
+    grid = scene.calibration_hz
+    assert grid[0] < scene.drive.whisk_hz[0] and grid[-1] > scene.drive.whisk_hz[1]
+    w = 2 * np.pi * np.array([34.6, 35.0, 35.73, 36.0, 36.41, 37.0, 37.4])
+    models = [scene.transducer(), scene.transducer({"bimorph.modulus": 1.03,
+                                                    "loss_factor": 0.75})]
+    t_re, t_im = flat_parts(np.stack([scene.calibrated_t(models[k % 2]) for k in range(7)]))
+    parts = [p.double().numpy() for p in CalibratedT(grid)(
+        torch.tensor(w, dtype=torch.float32), torch.tensor(t_re), torch.tensor(t_im))]
+    got = np.stack([parts[2 * k] + 1j * parts[2 * k + 1] for k in range(4)], 1)
+    want = np.stack([models[k % 2].transduction_matrix(w[k]).reshape(4) for k in range(7)])
+    scale = np.abs(want).max(0)
+    assert np.all(np.abs(got - want) <= 1e-5 * scale)
+    # and the two devices' T differ by far more than that: the input matters
+    other = np.stack([models[(k + 1) % 2].transduction_matrix(w[k]).reshape(4)
+                      for k in range(7)])
+    assert np.all(np.abs(other - want).max(0) > 1e-2 * scale)
+
+
 def test_features_recover_a_tone_and_are_the_same_for_any_window_start(scene):
     """A drive of 9 V at 35.7 Hz and a current with two harmonics: ω to 1e-6, and the
     features of two windows a non-integer number of cycles apart agree."""
@@ -44,14 +68,16 @@ def test_features_recover_a_tone_and_are_the_same_for_any_window_start(scene):
     w = 2 * np.pi * 35.7
     e = 9 * np.sin(w * t + 0.3)
     i = 2e-5 * np.cos(w * t + 1.0) + 1e-6 * np.cos(3 * w * t + 0.2) + 3e-7 * np.sin(2 * w * t)
-    feats = WhiskFeatures(scene.transducer(), rate)
+    feats = WhiskFeatures(scene.calibration_hz, rate)
     n = 12800
     x = torch.tensor(np.stack([e[:n], e[5000:5000 + n]]), dtype=torch.float32)
     y = torch.tensor(np.stack([i[:n], i[5000:5000 + n]]), dtype=torch.float32)
     omega, ce, ci, _ = feats.fit(x, y)
     np.testing.assert_allclose(omega.numpy(), w, rtol=1e-6)
     np.testing.assert_allclose(torch.hypot(ce[:, 1], ce[:, 2]).numpy(), 9, rtol=1e-5)
-    f = feats(x, y).numpy()
+    t_re, t_im = (torch.tensor(np.stack([p, p])) for p in
+                  flat_parts(scene.calibrated_t(scene.transducer())))
+    f = feats(x, y, t_re, t_im).numpy()
     np.testing.assert_allclose(f[0, :11], f[1, :11], atol=2e-3)
 
 
@@ -86,6 +112,92 @@ def test_scene_records_and_labels(scene):
     assert np.all(np.isfinite(d["i"])) and np.all(d["rms_speed"] > 0.05)
 
 
+ISSUE_SPREAD = {"length": 0.005, "thickness": 0.005, "modulus": 0.03, "loss_factor": 0.25,
+                "tan_delta": 0.25, "coupling": 0.03}
+
+
+def _short(scene, **device):
+    """The scene with 0.1 s records (0.2 s lead-in) and the device spread ``device``."""
+    from dataclasses import replace
+
+    from wtml.physics.spread import DeviceSpread
+
+    return replace(scene, specimens_per_grade=1, device=DeviceSpread(**device),
+                   drive=replace(scene.drive, record_s=0.1, lead_s=0.2))
+
+
+def test_zero_spread_is_the_preset_bit_for_bit(scene):
+    """All widths zero (the default, whatever ``devices``) draws nothing: the records are the
+    preset's, bit for bit (checked against the code before the device block at the commit
+    that added it), and every record's T is the preset's calibrated T."""
+    nominal = _short(scene)
+    zero = _short(scene, devices=7)
+    a, b = nominal.simulate(6, np.random.default_rng(3)), zero.simulate(6, np.random.default_rng(3))
+    for key in ("e", "i", "t", "rms_speed", "coupling"):
+        np.testing.assert_array_equal(a[key], b[key])
+    preset = nominal.calibrated_t(nominal.transducer())
+    assert a["t"].shape == (6, len(nominal.calibration_hz), 2, 2)
+    np.testing.assert_array_equal(a["t"], np.broadcast_to(preset, a["t"].shape))
+
+
+def test_each_record_carries_its_drawn_devices_calibrated_t(scene, monkeypatch):
+    """The devices a spread scene draws are the ones simulated and the T each record carries
+    is its own device's (the decoder's input); the drawn devices differ from the preset by
+    the stated tolerances; the specimens and nuisance are those of the nominal device's
+    records (the draw comes after them). And the physics: through its own T a record's e and i
+    give the tip speed the simulation had (1 s lead-in: the 36 Hz mode's transient gone),
+    where the preset's T misses it."""
+    from dataclasses import replace
+
+    from wtml.decoders.texture import WhiskFeatures
+    from wtml.scenes.texture import TextureScene
+
+    quiet = _short(scene, **ISSUE_SPREAD)
+    quiet = replace(quiet, drive=replace(quiet.drive, record_s=0.25, lead_s=1.0))
+
+    from wtml.signals.acquisition import AcquisitionEffects
+
+    quiet = replace(quiet, calibration_error=0.0, acquisition=replace(
+        quiet.acquisition, effects=AcquisitionEffects().only()))
+    drawn = {}
+    original = TextureScene.devices
+
+    def spy(self, n, rng):
+        drawn["models"], drawn["index"] = original(self, n, rng)
+        return drawn["models"], drawn["index"]
+
+    monkeypatch.setattr(TextureScene, "devices", spy)
+    rec = quiet.simulate(6, np.random.default_rng(4))
+    models, index = drawn["models"], drawn["index"]
+    assert len(models) == 6 and sorted(index.tolist()) == list(range(6))
+    for r in range(6):
+        np.testing.assert_array_equal(rec["t"][r], quiet.calibrated_t(models[index[r]]))
+    preset = quiet.transducer()
+    ratio = np.array([m.omega_n[0] / preset.omega_n[0] for m in models])
+    assert np.all(np.abs(ratio - 1) < 0.03) and np.ptp(ratio) > 1e-3  # √(±3 % modulus) ...
+    monkeypatch.undo()
+    nominal = replace(quiet, device=replace(quiet.device, **dict.fromkeys(ISSUE_SPREAD, 0.0)))
+    same = nominal.simulate(6, np.random.default_rng(4))
+    for key in ("grade", "mu", "whisk_v", "whisk_hz", "normal_force", "angle"):
+        np.testing.assert_array_equal(rec[key], same[key])
+
+    feats = WhiskFeatures(quiet.calibration_hz, quiet.acquisition.sample_rate_hz)
+
+    def speed(t):
+        t_re, t_im = (torch.tensor(x) for x in flat_parts(t))
+        _, (_, _, v_re, v_im, _, _), _ = feats.cues(torch.tensor(rec["e"]),
+                                                    torch.tensor(rec["i"]), t_re, t_im)
+        return np.hypot(v_re.double().numpy(), v_im.double().numpy()) / np.sqrt(2)
+
+    own = speed(rec["t"]) / rec["rms_speed"] - 1
+    wrong = speed(np.broadcast_to(quiet.calibrated_t(preset), rec["t"].shape)) / rec[
+        "rms_speed"] - 1
+    # measured: own within 0.96 % (the harmonics' share of the RMS speed), the preset's T
+    # 5.7 % off at worst
+    assert np.all(np.abs(own) < 0.015), own
+    assert np.abs(wrong).max() > 3 * np.abs(own).max(), (own, wrong)
+
+
 SMALL = {"samples": 30, "shards": 3, "specimens_per_grade": 2}
 
 
@@ -101,7 +213,8 @@ def texture_export(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("texture")
     cfg = root / "scene.yaml"
-    cfg.write_text(yaml.safe_dump({"name": "texture", "task": "texture", **SMALL}))
+    cfg.write_text(yaml.safe_dump({"name": "texture", "task": "texture", **SMALL,
+                                   "device": ISSUE_SPREAD}))
     data, run, model = root / "data", root / "run", root / "export"
     for args in (["-m", "wtml.cli", "generate", "--config", str(cfg), "--out", str(data)],
                  ["train.py", "fit", "--config", "configs/texture.yaml",
@@ -115,7 +228,9 @@ def texture_export(tmp_path_factory):
 
 def test_exported_graphs_match_torch_and_compute_the_features_once(texture_export, scene):
     """The ONNX decoder against the torch net and gate each computing their own features,
-    and the ONNX thesis cues against torch; the gate and both nets share one feature layer."""
+    on records of devices drawn from the spread, each window through its own device's T (the
+    graph's t_re, t_im), and the ONNX thesis cues against torch; the gate and both nets share
+    one feature layer. The export says which reference it needs, and where."""
     from dataclasses import replace
 
     from wtml.baselines.texture_classical import ClassicalTexture
@@ -127,13 +242,27 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     graph = Gated(module.net, module.gate, (1,)).eval()
     assert graph.shared and module.gate.features is module.net.features
     n = module._n
-    rec = replace(scene, **SMALL).simulate(5, np.random.default_rng(7))
+    spread = replace(scene, **SMALL)
+    assert not spread.device.none  # the shipped scene's tolerances
+    rec = spread.simulate(5, np.random.default_rng(7))
+    assert len({rec["t"][r].tobytes() for r in range(5)}) == 5  # a device per record
     e, i = rec["e"][:, :n], rec["i"][:, :n]
+    t_re, t_im = flat_parts(rec["t"])
     with torch.no_grad():
-        et, it = torch.tensor(e), torch.tensor(i)
-        grain, _, prob = module.net(et, it)  # features computed by the net itself
-        score = module.gate(et, it)  # and again by the gate
-    dec = OnnxModel(texture_export["model"] / "model.onnx").run(e, i)
+        et, it, tr, ti = (torch.tensor(x) for x in (e, i, t_re, t_im))
+        grain, _, prob = module.net(et, it, tr, ti)  # features computed by the net itself
+        score = module.gate(et, it, tr, ti)  # and again by the gate
+        # the same windows through the preset's T: another answer (T is used)
+        nominal = torch.tensor(np.broadcast_to(t_re[:1], t_re.shape).copy())
+        other = module.gate.features(et, it, nominal, torch.tensor(
+            np.broadcast_to(t_im[:1], t_im.shape).copy()))
+        assert (other - module.gate.features(et, it, tr, ti)).abs().amax() > 1e-3
+    onnx = OnnxModel(texture_export["model"] / "model.onnx")
+    assert json.loads(onnx.metadata["inputs"]) == ["e", "i", "t_re", "t_im"]
+    assert "calibration" in onnx.references
+    np.testing.assert_allclose(json.loads(onnx.metadata["calibration_hz"]),
+                               spread.calibration_hz)
+    dec = onnx.run(e, i, t_re, t_im)
     np.testing.assert_allclose(dec["grain"], grain.numpy(), rtol=1e-4)
     np.testing.assert_allclose(dec["probabilities"], prob.numpy(), atol=1e-5)
     np.testing.assert_allclose(dec["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
@@ -143,31 +272,40 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     from wtml.runtime.export import _export
 
     fit = replace(scene, specimens_per_grade=1).simulate(5, np.random.default_rng(9))
-    classical = ClassicalTexture.fit(module.net.features, fit["e"], fit["i"], fit["grade"],
-                                     fit["grain_m"], n)
+    classical = ClassicalTexture.fit(module.net.features, fit["e"], fit["i"], fit["t"],
+                                     fit["grade"], fit["grain_m"], n)
     cl_graph = Gated(classical, module.gate.inputs_only()).eval()
     assert cl_graph.shared
     path = texture_export["model"].parent / "classical_test.onnx"
-    _export(cl_graph, n, path, {"outputs": json.dumps(list(scene.OUTPUTS))}, ("e", "i"),
-            optimize=False)
+    k = len(spread.calibration_hz)
+    _export(cl_graph, n, path, {"outputs": json.dumps(list(scene.OUTPUTS))},
+            ("e", "i", "t_re", "t_im"), (n, n, (k, 4), (k, 4)), optimize=False)
     import onnxruntime as ort
 
     session = ort.InferenceSession(str(path))
     cl = dict(zip((o.name for o in session.get_outputs()),
-                  session.run(None, {"e": e, "i": i}), strict=True))
+                  session.run(None, {"e": e, "i": i, "t_re": t_re, "t_im": t_im}),
+                  strict=True))
     with torch.no_grad():
-        ref = classical(et, it)
+        ref = classical(et, it, tr, ti)
     np.testing.assert_allclose(cl["grain"], ref[0].numpy(), rtol=1e-4)
     np.testing.assert_allclose(cl["probabilities"], ref[2].numpy(), atol=1e-4)
     np.testing.assert_allclose(cl["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
 
 def test_predict_prints_grades_per_record(texture_export, scene, tmp_path):
+    from wtml.runtime.predict import InputError
     from wtml.runtime.texture import predict_records
 
     rec = scene.simulate(2, np.random.default_rng(8))
-    path = tmp_path / "rec.npz"
+    path, cal = tmp_path / "rec.npz", tmp_path / "cal.npz"
     np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
-    rows = predict_records(texture_export["model"], path)
+    with pytest.raises(InputError, match="needs --calibration"):
+        predict_records(texture_export["model"], path)  # never a default device
+    np.savez(cal, frequency_hz=scene.calibration_hz[:-1], t=rec["t"][:, :-1])
+    with pytest.raises(InputError, match="is not the model's"):
+        predict_records(texture_export["model"], path, calibration=cal)
+    np.savez(cal, frequency_hz=scene.calibration_hz, t=rec["t"])
+    rows = predict_records(texture_export["model"], path, calibration=cal)
     assert [(r["record"], r["method"]) for r in rows] == [
         (0, "decoder"), (1, "decoder"), (0, "classical"), (1, "classical")]
     for r in rows:

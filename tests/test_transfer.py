@@ -8,7 +8,13 @@ import pytest
 
 from tests.conftest import ROOT
 from wtml.bench.onset_transfer import BASE_LEVELS, location_scores, onset_variants
-from wtml.bench.texture_transfer import texture_variants
+from wtml.bench.texture_transfer import (
+    REFERENCE_SPREAD,
+    device_table,
+    device_variants,
+    device_verdict,
+    texture_variants,
+)
 from wtml.bench.transfer import mixture_members, run_variants
 from wtml.physics.contact import LAWS
 from wtml.physics.friction import LAWS as FRICTION_LAWS
@@ -66,6 +72,57 @@ def test_texture_rows_hold_out_lugre_and_step_it_finely_enough():
     on = [n for n in scene.acquisition.effects.NAMES
           if getattr(scene.acquisition.effects, n).enabled]
     assert len(acq) == 1 + len(on)
+
+
+def test_texture_device_rows_are_the_nominal_device_the_spread_and_each_class_alone():
+    """The device-spread table's rows: the nominal device, the trained spread (the issue's
+    tolerances in the shipped scene), then one class of parameter alone per row; every row's
+    records share the specimens and nuisance (paired), and differ in their devices' T."""
+    from wtml.physics.spread import CLASSES
+
+    scene = load_scene(ROOT / "configs/scenes/texture.yaml")
+    assert scene.device == REFERENCE_SPREAD
+    short = dataclasses.replace(scene, specimens_per_grade=1, drive=dataclasses.replace(
+        scene.drive, record_s=0.05, lead_s=0.1))
+    rows = device_variants(short)
+    assert [v.name for v in rows] == ["nominal device", "devices of the trained spread"] + [
+        f"{c} ±{100 * getattr(scene.device, c):g} % alone" for c in CLASSES]
+    seen = []
+    out = run_variants(rows, 3, 5, lambda r: seen.append(r) or [{"name": "x"}], paired=True)
+    assert [r["name"] for r in out] == [v.name for v in rows]
+    assert seen[0]["grade"].tolist() == [0, 1, 2]  # a record per grade, not the first grade
+    nominal = short.calibrated_t(short.transducer())
+    np.testing.assert_array_equal(seen[0]["t"], np.broadcast_to(nominal, seen[0]["t"].shape))
+    for rec in seen[1:]:
+        np.testing.assert_array_equal(rec["whisk_v"], seen[0]["whisk_v"])
+        np.testing.assert_array_equal(rec["mu"], seen[0]["mu"])
+        assert np.all(np.abs(rec["t"] - nominal).max(axis=(1, 2, 3)) > 0)
+    # a class alone moves only what it stands for: tanδ leaves the mechanics (t11) alone
+    tan = seen[2 + CLASSES.index("tan_delta")]["t"]
+    np.testing.assert_allclose(tan[..., 0, 0], np.broadcast_to(nominal[..., 0, 0],
+                                                               tan[..., 0, 0].shape), rtol=1e-9)
+    # without a trained spread the rows take the issue's tolerances
+    bare = device_variants(dataclasses.replace(short, device=dataclasses.replace(
+        scene.device, **dict.fromkeys(CLASSES, 0.0))))
+    assert bare[1].name == "devices of issue 21's spread" and len(bare) == 2 + len(CLASSES)
+
+
+def test_texture_device_verdict_compares_error_rates_and_names_the_limit():
+    def row(name, acc):
+        return {"name": name, "records": 4, "methods": [
+            {"name": "decoder (ONNX)", "accuracy": acc, "interval": (acc - 0.1, acc),
+             "windows": 16, "flagged": 0.0}]}
+    rows = [row("nominal device", 0.9), row("devices of the trained spread", 0.86),
+            row("length ±0.5 % alone", 0.9), row("modulus ±3 % alone", 0.8)]
+    v = device_verdict(rows)
+    np.testing.assert_allclose(v["ratios"], [1.0, 1.4, 1.0, 2.0])
+    assert v["met"] and v["limit"] == "modulus ±3 % alone"
+    assert not device_verdict([row("nominal device", 0.9), row("spread", 0.84)])["met"]
+    # a perfect nominal row: its error floored at one window (1/16)
+    np.testing.assert_allclose(device_verdict([row("n", 1.0), row("s", 0.875)])["ratios"],
+                               [0.0, 2.0])
+    lines = device_table(rows)
+    assert len(lines) == 2 + len(rows) and "1.40×" in lines[3] and "0 % flagged" in lines[3]
 
 
 def test_location_scores_count_coverage_flags_and_misses():

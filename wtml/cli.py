@@ -89,7 +89,7 @@ def _predict(args: argparse.Namespace) -> int:
     elif task == "texture":
         from wtml.runtime.texture import predict_records as texture_records
 
-        rows = texture_records(args.model, args.input)
+        rows = texture_records(args.model, args.input, calibration=args.calibration)
     else:
         rows = predict_file(args.model, args.input, calibration=args.calibration,
                             reference=args.reference)
@@ -144,7 +144,8 @@ def _bench_texture(args: argparse.Namespace) -> int:
     print(run_bench(args.data, args.fepa, args.checkpoint, args.model, args.out,
                     peer_kernels=args.peer_kernels,
                     ablation_records=args.ablation_records,
-                    transfer_records=args.transfer_records))
+                    transfer_records=args.transfer_records,
+                    device_records=args.device_records))
     return 0
 
 
@@ -254,8 +255,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                    "classical.onnx), e.g. export/fluid")
     pr.add_argument("--input", required=True, help=".csv or .npz (formats below)")
     pr.add_argument("--calibration", default=None,
-                    help="fluid and onset: the device's calibration, .npz with frequency_hz "
-                         "and t (its calibrated T there); onset also hue0 (m/V)")
+                    help="fluid, onset and texture: the device's calibration, .npz with "
+                         "frequency_hz and t (its calibrated T there); onset also hue0 (m/V)")
     pr.add_argument("--reference", default=None,
                     help="radial exports: the free whisker's Ze of the device (.npz, below)")
     pr.add_argument("--out", default=None,
@@ -333,7 +334,9 @@ def build_parser() -> argparse.ArgumentParser:
                                        "kinetic signature, the amplitude oracle), accuracy "
                                        "against window length and each nuisance, grain size "
                                        "on unseen FEPA grades, the cue ablation, the transfer "
-                                       "table (held-out physics), latency.")
+                                       "table (held-out physics), the device-spread table "
+                                       "(nominal device, the trained spread, each class of "
+                                       "parameter alone), latency.")
     bt.add_argument("--data", default="datasets/texture", help="the thesis grades' dataset")
     bt.add_argument("--fepa", default="datasets/texture_fepa",
                     help="the unseen FEPA grades' dataset (configs/scenes/texture_fepa.yaml)")
@@ -348,6 +351,8 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--transfer-records", type=int, default=24,
                     help="fresh records per row of the transfer table (each friction law "
                          "alone, the held-out one included; each acquisition effect alone)")
+    bt.add_argument("--device-records", type=int, default=24,
+                    help="fresh records per row of the device-spread table")
     bt.set_defaults(func=_bench_texture)
 
     pl = verb("pipeline", "the main job: generate, train, export, predict, bench, summary")

@@ -30,8 +30,9 @@ TRANSFER_RECORDS = 4
 version: their benches' defaults are the full tables)."""
 INDEPENDENT_RECORDS = 4
 """Records of the independent simulator in the main job's onset transfer table."""
-DEVICE_RECORDS = 8
-"""Fresh records per row of the main job's onset device-spread table."""
+DEVICE_RECORDS = {"onset": 8, "texture": 16}
+"""Fresh records per row of the main job's device-spread tables (texture's rows are paired:
+the same specimens and nuisance on every device)."""
 
 
 class Stages:
@@ -306,8 +307,9 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
 def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: Path,
                                 data: Path, predict_records) -> dict:
     """Export a time-domain slice, write two test records as ``model/rec.npz`` (e, i,
-    sample_rate_hz) and, for onset, their devices' calibration as ``model/cal.npz``
-    (``--calibration``), print ``wtml predict`` on them; returns the test shard."""
+    sample_rate_hz) and the devices' calibration where the graph takes it, as
+    ``model/cal.npz`` (``--calibration``: onset's T at the probe and HUE(0), texture's T on
+    its ``calibration_hz``), print ``wtml predict`` on them; returns the test shard."""
     stages.begin(slice_, f"export {model.name}",
                  f"wtml export --checkpoint {ckpt} --out {model}")
     for kind, path in export_model(ckpt, model).items():
@@ -323,6 +325,10 @@ def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: 
 
         options["calibration"] = calibration_file(
             model / "cal.npz", scene, {k: test[k][:2] for k in ("t_probe", "hue0")})
+    elif "t" in test:  # texture: the graph takes the device's calibrated T
+        options["calibration"] = model / "cal.npz"
+        np.savez(options["calibration"], t=test["t"][:2], frequency_hz=scene.calibration_hz)
+    if options:
         flag = f" --calibration {options['calibration']}"
     stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}{flag}")
     print(format_predictions(predict_records(model, sample, **options)))
@@ -344,10 +350,10 @@ def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
     stages.begin("onset", "bench", f"wtml bench onset --out {bench} --free-records 50 "
                                    f"--variant-records 8 --transfer-records {TRANSFER_RECORDS} "
                                    f"--independent-records {INDEPENDENT_RECORDS} "
-                                   f"--device-records {DEVICE_RECORDS}")
+                                   f"--device-records {DEVICE_RECORDS['onset']}")
     print(run_bench(data, model, bench, free_records=50, variant_records=8,
                     transfer_records=TRANSFER_RECORDS, independent_records=INDEPENDENT_RECORDS,
-                    device_records=DEVICE_RECORDS))
+                    device_records=DEVICE_RECORDS["onset"]))
     stages.end()
     return json.loads((bench / "summary.json").read_text())
 
@@ -441,8 +447,10 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
                                for g, d in zip(test["grade"][:2], test["grain_m"][:2],
                                                strict=True)))
     stages.begin("texture", "bench", f"wtml bench texture --out {bench} "
-                                     f"--transfer-records {TRANSFER_RECORDS}")
-    report = run_bench(data, fepa, ckpt, model, bench, transfer_records=TRANSFER_RECORDS)
+                                     f"--transfer-records {TRANSFER_RECORDS} "
+                                     f"--device-records {DEVICE_RECORDS['texture']}")
+    report = run_bench(data, fepa, ckpt, model, bench, transfer_records=TRANSFER_RECORDS,
+                       device_records=DEVICE_RECORDS["texture"])
     print(report.split("\n\nConfusion matrices")[0])
     stages.end()
     return json.loads((bench / "summary.json").read_text())
@@ -482,8 +490,28 @@ def _texture_lines(s: dict, stages: Stages) -> list[str]:
         f"{1e3 * peer['latency_s']:.0f} ms); {short['window_s']:g} s windows "
         f"{100 * short['accuracy']:.1f} %",
         *_texture_transfer_lines(s["transfer"]),
+        *_texture_device_lines(s),
         "  report runs/texture/bench/report.md, plots runs/texture/bench/*.png",
         f"  time: {stages.line('texture')}"]
+
+
+def _texture_device_lines(s: dict) -> list[str]:
+    """The decoder on the nominal device, over the trained spread and on the class that
+    limits it (target: error rate within 1.5× the nominal one)."""
+    from wtml.bench.texture_transfer import DEVICE_TARGET
+
+    rows, v = s["device_spread"], s["device_verdict"]
+    dec = [r["methods"][0] for r in rows]
+    limit = next((r for r in rows if r["name"] == v["limit"]), None)
+    return [f"  device spread ({rows[0]['records']} fresh records per row, paired): nominal "
+            f"device {100 * dec[0]['accuracy']:.1f} %, {rows[1]['name']} "
+            f"{100 * dec[1]['accuracy']:.1f} % ({100 * dec[1].get('flagged', 0):.0f} % "
+            f"flagged; error {v['ratios'][1]:.2f}× the nominal, target ≤ {DEVICE_TARGET:g}×: "
+            f"{_met(v['met'])}); "
+            + (f"worst class alone {limit['name'].removesuffix(' alone')}: "
+               f"{100 * limit['methods'][0]['accuracy']:.1f} % (paired rows; compare with "
+               "their intervals in the report)" if limit
+               else "no class alone below the nominal device")]
 
 
 def _texture_transfer_lines(rows: list[dict]) -> list[str]:

@@ -11,22 +11,27 @@ import torch
 from torch import nn
 
 from wtml.decoders.texture import WhiskFeatures
+from wtml.physics.twoport import flat_parts
 
 
-def cue_matrix(features: WhiskFeatures, e: np.ndarray, i: np.ndarray, window: int,
-               batch: int = 64) -> np.ndarray:
-    """The four cues ``(n, 4)`` (N, m/s, N·s/m, N·s/m) of the first ``window`` samples."""
+def cue_matrix(features: WhiskFeatures, e: np.ndarray, i: np.ndarray, t: np.ndarray,
+               window: int, batch: int = 64) -> np.ndarray:
+    """The four cues ``(n, 4)`` (N, m/s, N·s/m, N·s/m) of the first ``window`` samples, each
+    record through its device's calibrated T ``t`` (complex ``(n, K, 2, 2)``)."""
+    t_re, t_im = flat_parts(t)
     rows = []
     with torch.no_grad():
         for s in range(0, len(e), batch):
             x = features(torch.tensor(e[s:s + batch, :window]),
-                         torch.tensor(i[s:s + batch, :window]))
+                         torch.tensor(i[s:s + batch, :window]),
+                         torch.tensor(t_re[s:s + batch]), torch.tensor(t_im[s:s + batch]))
             rows.append(features.cues_from(x).double().numpy())
     return np.concatenate(rows)
 
 
 class ClassicalTexture(nn.Module):
-    """``(e, i)`` windows -> ``(grain m, log_sigma (0: none), probabilities (batch, 5))``.
+    """``(e, i)`` windows and the calibrated T (``t_re, t_im``, as the decoder's) ->
+    ``(grain m, log_sigma (0: none), probabilities (batch, 5))``.
 
     Args:
         features: the shared feature layer (the cues are four of its columns).
@@ -43,10 +48,11 @@ class ClassicalTexture(nn.Module):
         self.register_buffer("scale", torch.tensor(scale, dtype=torch.float32))
 
     @classmethod
-    def fit(cls, features: WhiskFeatures, e: np.ndarray, i: np.ndarray, grade: np.ndarray,
-            grain_m: np.ndarray, window: int) -> ClassicalTexture:
-        """Fit the quadratic and the centroids on records ``(n, >= window)`` of known grade."""
-        cues = cue_matrix(features, e, i, window)
+    def fit(cls, features: WhiskFeatures, e: np.ndarray, i: np.ndarray, t: np.ndarray,
+            grade: np.ndarray, grain_m: np.ndarray, window: int) -> ClassicalTexture:
+        """Fit the quadratic and the centroids on records ``(n, >= window)`` of known grade
+        and their devices' calibrated T ``(n, K, 2, 2)``."""
+        cues = cue_matrix(features, e, i, t, window)
         poly = np.polyfit(cues[:, 2] / 1e-3, grain_m * 1e6, 2)[::-1].copy()
         scale = np.stack([cues.mean(0), cues.std(0) + 1e-30])
         z = (cues - scale[0]) / scale[1]
@@ -63,5 +69,6 @@ class ClassicalTexture(nn.Module):
         grain = d_um.clamp_min(1e-3) * 1e-6
         return grain, torch.zeros_like(grain), torch.softmax(-1e3 * dist, -1)
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        return self.from_features(self.features(e, i))
+    def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor
+                ) -> tuple[torch.Tensor, ...]:
+        return self.from_features(self.features(e, i, t_re, t_im))

@@ -22,6 +22,7 @@ from scipy.signal import welch
 
 from wtml.decoders.texture import WhiskFeatures
 from wtml.physics.modal import available_cores
+from wtml.physics.twoport import flat_parts
 
 
 class MiniRocketPeer:
@@ -48,7 +49,10 @@ class MiniRocketPeer:
         self.model.fit(x / self.scale, np.asarray(grade))
         return self
 
-    def predict(self, e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
+    def predict(self, e: np.ndarray, i: np.ndarray, t: np.ndarray | None = None
+                ) -> dict[str, np.ndarray]:
+        """The grade of each window; ``t`` (the device's calibrated T) is not used: MiniRocket
+        reads the raw samples, so it cannot adapt to the device."""
         if self.model is None:
             raise RuntimeError("MiniRocketPeer.predict before fit")
         grade = self.model.predict(self._stack(e, i) / self.scale).astype(int)
@@ -79,14 +83,17 @@ class KineticSignature:
         return freq[band][np.argmax(psd[:, band], axis=1)]
 
     @torch.no_grad()
-    def speed(self, e: np.ndarray, i: np.ndarray) -> np.ndarray:
-        """RMS tip speed ``|V|/√2`` (m/s) at the fundamental, ``(n,)``."""
-        _, (_, _, v_re, v_im, _, _), _ = self.features.cues(torch.tensor(e, dtype=torch.float32),
-                                                            torch.tensor(i, dtype=torch.float32))
+    def speed(self, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """RMS tip speed ``|V|/√2`` (m/s) at the fundamental, ``(n,)``, through each window's
+        calibrated T ``t`` (complex ``(n, K, 2, 2)``)."""
+        t_re, t_im = flat_parts(t)
+        _, (_, _, v_re, v_im, _, _), _ = self.features.cues(
+            torch.tensor(e, dtype=torch.float32), torch.tensor(i, dtype=torch.float32),
+            torch.tensor(t_re), torch.tensor(t_im))
         return np.hypot(v_re.double().numpy(), v_im.double().numpy()) / np.sqrt(2)
 
-    def predict(self, e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
-        peak, v = self.peaks(i), self.speed(e, i)
+    def predict(self, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+        peak, v = self.peaks(i), self.speed(e, i, t)
         expected = v[:, None] / self.sizes[None, :]  # (n, 5): v/d of each grade
         grade = np.argmin(np.abs(np.log(expected / peak[:, None])), axis=1)
         return {"grade": grade, "grain": v / peak}

@@ -15,7 +15,10 @@ domain gate flags), and an ablation: fresh held-out specimens simulated with bot
 asperities only (every grade the middle grade's mean friction) and with mean friction only
 (no grains). And the transfer table (:mod:`wtml.bench.texture_transfer`): every method on fresh
 records of each friction law alone (those the training mixture leaves out held out) and of
-each acquisition effect alone. Writes ``report.md``, ``summary.json`` and PNGs.
+each acquisition effect alone; and the device-spread table (the same module): every method on
+fresh records of the nominal device, of devices drawn from the trained spread and of each
+class of parameter alone, each record through its own device's calibrated T. Writes
+``report.md``, ``summary.json`` and PNGs.
 """
 
 from __future__ import annotations
@@ -30,8 +33,15 @@ import torch
 
 from wtml.baselines.texture_peers import KineticSignature, MiniRocketPeer
 from wtml.bench.resampling import group_interval
+from wtml.bench.texture_transfer import (
+    DEVICE_TARGET,
+    device_table,
+    device_variants,
+    device_verdict,
+    texture_variants,
+    transfer_table,
+)
 from wtml.bench.texture_transfer import scorer as transfer_scorer
-from wtml.bench.texture_transfer import texture_variants, transfer_table
 from wtml.bench.timing import latency_p50, throughput
 from wtml.bench.transfer import run_variants
 from wtml.data.datamodule import split_shards
@@ -39,8 +49,9 @@ from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.checkpoint import load_decoder
 from wtml.decoders.domain import Gated
 from wtml.decoders.texture import WhiskFeatures
+from wtml.physics.twoport import flat_parts
 from wtml.runtime.predict import load_export
-from wtml.runtime.texture import pool, windows
+from wtml.runtime.texture import pool, run_windows, windows
 from wtml.scenes.texture import (
     FEPA_GRADES,
     NOMINAL_HZ,
@@ -131,31 +142,33 @@ class _Timed:
         self.fn = fn
 
     def predict(self, x: _Batch):
-        return self.fn(x.e, x.i)
+        return self.fn(x.e, x.i, x.t)
 
 
 class _Batch:
-    """Windows e, i ``(n, window)`` as one argument; its length is n."""
+    """Windows e, i ``(n, window)`` and their calibrated T ``(n, K, 2, 2)`` as one argument;
+    its length is n."""
 
-    def __init__(self, e: np.ndarray, i: np.ndarray) -> None:
-        self.e, self.i = e, i
+    def __init__(self, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> None:
+        self.e, self.i, self.t = e, i, t
 
     def __len__(self) -> int:
         return len(self.e)
 
 
 def _onnx(model):
-    def run(e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
-        out = model.run(e, i)
+    def run(e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+        out = run_windows(model, e, i, t)
         return {"grade": np.argmax(out["probabilities"], 1), "grain": out["grain"],
                 "in_domain": out["in_domain"]}
     return run
 
 
-def _cut(data: dict, seconds: float, rate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Whole windows of ``seconds``: e, i ``(n_windows, window)`` and each one's record."""
+def _cut(data: dict, seconds: float, rate: float) -> tuple[np.ndarray, ...]:
+    """Whole windows of ``seconds``: e, i ``(n_windows, window)``, each one's record and its
+    record's calibrated T ``(n_windows, K, 2, 2)``."""
     cut, owner = windows(np.stack([data["e"], data["i"]]), int(round(seconds * rate)))
-    return cut[0], cut[1], owner
+    return cut[0], cut[1], owner, data["t"][owner]
 
 
 def _grain_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, float]:
@@ -166,8 +179,9 @@ def _grain_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, float]:
 def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path,
               model_dir: str | Path, out: str | Path, *, peer_kernels: int = 10000,
               ablation_records: int = 40, oracle_draws: int = 100_000,
-              transfer_records: int = 24) -> str:
-    """The whole bench; returns the markdown report (also written to ``out/report.md``)."""
+              transfer_records: int = 24, device_records: int = 24) -> str:
+    """The whole bench; returns the markdown report (also written to ``out/report.md``).
+    ``device_records``: fresh records per row of the device-spread table."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     scene = dataset_scene(data_dir)
@@ -176,14 +190,14 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     test = load_shards(data_dir, split["test"])
     decoder, classical = load_export(model_dir)
     window_s = json.loads(decoder.metadata["window_s"])
-    e, i, owner = _cut(test, window_s, rate)
+    e, i, owner, t = _cut(test, window_s, rate)
     truth = test["grade"][owner]
     sizes = np.array(list(THESIS_GRADES.values())) * 1e-6
-    features = WhiskFeatures(scene.transducer(), rate)
+    features = WhiskFeatures(scene.calibration_hz, rate)
     graphs = {"decoder (ONNX)": _onnx(decoder), "thesis cues (ONNX)": _onnx(classical)}
     methods = dict(graphs)
     train = load_shards(data_dir, split["train"])
-    e_tr, i_tr, own_tr = _cut(train, window_s, rate)
+    e_tr, i_tr, own_tr, _ = _cut(train, window_s, rate)
     _progress(f"fitting MiniRocket ({peer_kernels} kernels) on {len(e_tr)} training windows")
     t0 = time.perf_counter()
     peer = MiniRocketPeer(peer_kernels).fit(e_tr, i_tr, train["grade"][own_tr])
@@ -197,14 +211,16 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     specimen = test["specimen"][owner]
     results, correct = [], {}
     for name, run in methods.items():
-        pred = run(e, i)
+        pred = run(e, i, t)
         timed = _Timed(run)
         correct[name] = (pred["grade"] == truth).astype(float)
         row = {"name": name, "accuracy": float(np.mean(correct[name])),
                "interval": group_interval(correct[name], specimen),
                "confusion": confusion(truth, pred["grade"], 5).tolist(),
-               "latency_s": latency_p50(timed, _Batch(e[:1], i[:1]), 50, TIMING_BUDGET_S),
-               "throughput": throughput(timed, _Batch(e[:64], i[:64]), 5, TIMING_BUDGET_S),
+               "latency_s": latency_p50(timed, _Batch(e[:1], i[:1], t[:1]), 50,
+                                        TIMING_BUDGET_S),
+               "throughput": throughput(timed, _Batch(e[:64], i[:64], t[:64]), 5,
+                                        TIMING_BUDGET_S),
                "robustness": _robustness(test, owner, pred["grade"] == truth)}
         if "in_domain" in pred:
             row["flagged"] = float(1 - np.mean(pred["in_domain"]))
@@ -229,6 +245,9 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     transfer = run_variants(
         texture_variants(scene), transfer_records, scene.seed,
         transfer_scorer(methods, lambda r: _windows(r, window_s, rate)), _progress)
+    spread = run_variants(
+        device_variants(scene), device_records, scene.seed,
+        transfer_scorer(methods, lambda r: _windows(r, window_s, rate)), _progress, paired=True)
     summary = {"task": "texture", "n_test_records": len(test["grade"]),
                "n_test_specimens": len(np.unique(specimen)),
                "n_test_windows": len(truth), "window_s": window_s,
@@ -238,7 +257,8 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
                "oracle": oracle | {"confusion": oracle["confusion"].tolist()},
                "grain_oracle": grain_oracle | {"confusion": grain_oracle["confusion"].tolist()},
                "by_window": by_window, "unseen": unseen, "ablation": ablation,
-               "transfer": transfer}
+               "transfer": transfer, "device_spread": spread,
+               "device_verdict": device_verdict(spread)}
     report = _report(summary)
     (out / "report.md").write_text(report)
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
@@ -261,8 +281,9 @@ def _robustness(test: dict, owner: np.ndarray, correct: np.ndarray) -> dict:
 
 def _torch(graph):
     @torch.no_grad()
-    def run(e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
-        grain, _, prob, inside, _ = graph(torch.tensor(e), torch.tensor(i))
+    def run(e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+        grain, _, prob, inside, _ = graph(torch.tensor(e), torch.tensor(i),
+                                          *(torch.tensor(x) for x in flat_parts(t)))
         return {"grade": prob.argmax(1).numpy(), "grain": grain.double().numpy(),
                 "in_domain": inside.numpy()}
     return run
@@ -275,37 +296,39 @@ def _by_window(test: dict, graph, onnx_model, window_s: float, rate: float
     them; and the largest difference of the two graphs' probabilities on trained windows."""
     rows = []
     for seconds in WINDOWS_S:
-        e, i, owner = _cut(test, seconds, rate)
-        runs = {"decoder graph (torch)": (_torch(graph), e, i, owner)}
+        e, i, owner, t = _cut(test, seconds, rate)
+        runs = {"decoder graph (torch)": _torch(graph)}
         per = seconds / window_s
         if per >= 1 and abs(per - round(per)) < 1e-9:
-            runs[f"decoder (ONNX), {window_s:g} s windows pooled"] = (
-                _pooled(onnx_model, test, window_s, rate), e, i, owner)
-        for name, (run, ee, ii, own) in runs.items():
-            pred = run(ee, ii)
-            rows.append({"window_s": seconds, "name": name, "n": len(own),
-                         "accuracy": float(np.mean(pred["grade"] == test["grade"][own])),
+            runs[f"decoder (ONNX), {window_s:g} s windows pooled"] = _pooled(
+                onnx_model, window_s, rate)
+        for name, run in runs.items():
+            pred = run(e, i, t)
+            rows.append({"window_s": seconds, "name": name, "n": len(owner),
+                         "accuracy": float(np.mean(pred["grade"] == test["grade"][owner])),
                          "flagged": float(1 - np.mean(pred["in_domain"])),
-                         "latency_s": latency_p50(_Timed(run), _Batch(ee[:1], ii[:1]), 30),
-                         **_grain_errors(pred["grain"], test["grain_m"][own])})
-    e, i, _ = _cut(test, window_s, rate)
-    diff = np.abs(_probabilities(graph, e, i) - onnx_model.run(e, i)["probabilities"]).max()
+                         "latency_s": latency_p50(_Timed(run), _Batch(e[:1], i[:1], t[:1]), 30),
+                         **_grain_errors(pred["grain"], test["grain_m"][owner])})
+    e, i, _, t = _cut(test, window_s, rate)
+    diff = np.abs(_probabilities(graph, e, i, t)
+                  - run_windows(onnx_model, e, i, t)["probabilities"]).max()
     return rows, float(diff)
 
 
 @torch.no_grad()
-def _probabilities(graph, e: np.ndarray, i: np.ndarray) -> np.ndarray:
-    return graph(torch.tensor(e), torch.tensor(i))[2].double().numpy()
+def _probabilities(graph, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> np.ndarray:
+    return graph(torch.tensor(e), torch.tensor(i),
+                 *(torch.tensor(x) for x in flat_parts(t)))[2].double().numpy()
 
 
-def _pooled(model, test: dict, window_s: float, rate: float):
+def _pooled(model, window_s: float, rate: float):
     """Longer windows as ``wtml predict`` answers them: the trained windows' mean
     log-probabilities and mean ln grain, in domain if all of them are."""
     n = int(round(window_s * rate))
 
-    def run(e: np.ndarray, i: np.ndarray) -> dict[str, np.ndarray]:
+    def run(e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
         cut, owner = windows(np.stack([e, i]), n)
-        p = pool(model.run(cut[0], cut[1]), owner, len(e))
+        p = pool(run_windows(model, cut[0], cut[1], t[owner]), owner, len(e))
         return {"grade": p["probabilities"].argmax(1), "grain": p["grain"],
                 "in_domain": p["in_domain"]}
     return run
@@ -314,12 +337,12 @@ def _pooled(model, test: dict, window_s: float, rate: float):
 def _unseen(fepa: dict, methods: dict, window_s: float, rate: float) -> dict:
     """Grain size on the unseen grades, per grade and pooled: interpolated (inside the
     thesis's 15.3-52.2 µm) and extrapolated."""
-    e, i, owner = _cut(fepa, window_s, rate)
+    e, i, owner, t = _cut(fepa, window_s, rate)
     true = fepa["grain_m"][owner]
     lo, hi = min(THESIS_GRADES.values()) * 1e-6, max(THESIS_GRADES.values()) * 1e-6
     inside = (true >= lo) & (true <= hi)
     out = {"grades": [], "pooled": []}
-    preds = {name: run(e, i) for name, run in methods.items()}
+    preds = {name: run(e, i, t) for name, run in methods.items()}
     for grade, d_um in sorted(FEPA_GRADES.items(), key=lambda kv: kv[1]):
         sel = np.isclose(true, d_um * 1e-6)
         row = {"grade": grade, "d_um": d_um, "n": int(sel.sum())}
@@ -343,9 +366,9 @@ def _unseen(fepa: dict, methods: dict, window_s: float, rate: float) -> dict:
 
 
 def _windows(records: dict, window_s: float, rate: float) -> tuple[np.ndarray, ...]:
-    """Records cut into windows: ``(e, i, grade)`` of each window."""
-    e, i, owner = _cut(records, window_s, rate)
-    return e, i, records["grade"][owner]
+    """Records cut into windows: ``(e, i, t, grade, specimen)`` of each window."""
+    e, i, owner, t = _cut(records, window_s, rate)
+    return e, i, t, records["grade"][owner], records["specimen"][owner]
 
 
 def _ablation(scene, methods: dict, window_s: float, n: int) -> list[dict]:
@@ -356,10 +379,10 @@ def _ablation(scene, methods: dict, window_s: float, n: int) -> list[dict]:
                 ("mean friction only", {"asperities": False}))
     for label, kwargs in variants:
         data = scene.simulate(n, np.random.default_rng([scene.seed, 2**20 + 3]), **kwargs)
-        e, i, owner = _cut(data, window_s, scene.acquisition.sample_rate_hz)
+        e, i, owner, t = _cut(data, window_s, scene.acquisition.sample_rate_hz)
         row = {"variant": label}
         for name, run in methods.items():
-            pred = run(e, i)
+            pred = run(e, i, t)
             row[name] = float(np.mean(pred["grade"] == data["grade"][owner]))
         rows.append(row)
     return rows
@@ -457,6 +480,18 @@ def _report(s: dict) -> str:
               "each acquisition effect alone. Window accuracy (and the share the domain gate "
               "flags).", ""]
     lines += transfer_table(s["transfer"])
+    v = s["device_verdict"]
+    lines += ["", "## Device spread", "",
+              "Fresh held-out specimens per row, the same specimens and nuisance in every row "
+              "(paired): the nominal device, devices drawn from the trained spread (uniform in "
+              "± the half-widths of the scene's `device` block) and each class of parameter "
+              "alone at its width. Each record goes through its own device's calibrated T, "
+              "the user's calibration. Window accuracy (95 % interval over the specimens) and "
+              "the share the domain gate flags; the last column is the decoder's error rate "
+              f"over the nominal row's (target over the spread ≤ {DEVICE_TARGET:g}×: "
+              f"{'met' if v['met'] else 'MISSED'}; the class that costs most alone: "
+              f"{v['limit']}).", ""]
+    lines += device_table(s["device_spread"])
     lines += ["", "## Robustness: accuracy by quartile of each nuisance", ""]
     for key, (label, unit, _) in NUISANCES.items():
         edges = s["methods"][0]["robustness"][key]["edges"]

@@ -1,6 +1,12 @@
 """The texture bench's transfer table: its methods on each friction law alone (the laws left
 out of the training mixture held out) and on each acquisition effect alone. Per row and
 method: window accuracy, and for a method with a domain flag the flagged share.
+
+And its device-spread table (issue 21 §1): the methods on records of the nominal device, of
+devices drawn from the trained spread and of each class of parameter alone at its width
+(:func:`device_variants`); every row on the same specimens and nuisance (paired), each record
+through its own device's calibrated T. Target: the decoder's error rate over the spread within
+1.5× its error rate on the nominal device.
 """
 
 from __future__ import annotations
@@ -10,9 +16,19 @@ from collections.abc import Callable
 
 import numpy as np
 
+from wtml.bench.resampling import group_interval
 from wtml.bench.transfer import Variant, acquisition_variants, member_variants
 from wtml.physics.friction import LAWS
+from wtml.physics.spread import CLASSES, DeviceSpread
 from wtml.scenes.texture import LUGRE_OVERSAMPLE
+
+REFERENCE_SPREAD = DeviceSpread(length=0.005, thickness=0.005, modulus=0.03, loss_factor=0.25,
+                                tan_delta=0.25, coupling=0.03)
+"""Issue 21's tolerances (uniform half-widths): lengths and thicknesses ±0.5 %, moduli ±3 %,
+loss factor and tanδ ±25 %, d31 ±3 %; the one-at-a-time rows' widths when the scene trains
+without a spread."""
+DEVICE_TARGET = 1.5
+"""The decoder's error rate over the spread may be at most this times its nominal one."""
 
 
 def _with_law(scene, law: str):
@@ -31,18 +47,43 @@ def texture_variants(scene) -> list[Variant]:
     return rows + acquisition_variants(scene)
 
 
+def device_variants(scene) -> list[Variant]:
+    """The device-spread table's rows: the nominal device, the trained spread, and each class
+    of :data:`~wtml.physics.spread.CLASSES` alone at the trained width (issue 21's,
+    :data:`REFERENCE_SPREAD`, where the scene trains on none). A row of n records has n // 5
+    specimens of each grade (the scene's own count would give a few records the first grades
+    only)."""
+    spread = REFERENCE_SPREAD if scene.device.none else scene.device
+    sets = [("nominal device", DeviceSpread(devices=spread.devices)),
+            ("devices of the trained spread" if not scene.device.none
+             else "devices of issue 21's spread", spread)]
+    sets += [(f"{cls} ±{100 * getattr(spread, cls):g} % alone",
+              DeviceSpread(devices=spread.devices, **{cls: getattr(spread, cls)}))
+             for cls in CLASSES if getattr(spread, cls) > 0]
+    scenes = [(label, dataclasses.replace(scene, device=device)) for label, device in sets]
+
+    def make(s, n: int, rng):  # n // 5 specimens per grade: every grade, each record its own
+        per = max(1, n // len(s.grade_table))
+        return dataclasses.replace(s, specimens_per_grade=per).simulate(n, rng)
+
+    return [Variant(label, "nominal" if s.device.none else "spread",
+                    lambda n, rng, s=s: make(s, n, rng)) for label, s in scenes]
+
+
 def scorer(methods: dict[str, Callable], windows: Callable[[dict], tuple]
            ) -> Callable[[dict], list[dict]]:
-    """``score(records)``: the records cut into windows (``windows(records) -> (e, i,
-    grade)``), then each method's ``accuracy`` and, where it answers ``in_domain``, its
-    ``flagged`` share."""
+    """``score(records)``: the records cut into windows (``windows(records) -> (e, i, t,
+    grade, specimen)``, t each window's calibrated T), then each method's ``accuracy``
+    (``run(e, i, t)``), its 95 % ``interval`` (bootstrap over the specimens) and, where it
+    answers ``in_domain``, its ``flagged`` share."""
     def score(records: dict) -> list[dict]:
-        e, i, truth = windows(records)
+        e, i, t, truth, group = windows(records)
         rows = []
         for name, run in methods.items():
-            pred = run(e, i)
-            row = {"name": name, "accuracy": float(np.mean(pred["grade"] == truth)),
-                   "windows": len(truth)}
+            pred = run(e, i, t)
+            correct = (pred["grade"] == truth).astype(float)
+            row = {"name": name, "accuracy": float(np.mean(correct)),
+                   "interval": group_interval(correct, group), "windows": len(truth)}
             if "in_domain" in pred:
                 row["flagged"] = float(1 - np.mean(pred["in_domain"]))
             rows.append(row)
@@ -62,3 +103,37 @@ def transfer_table(rows: list[dict]) -> list[str]:
         lines.append(f"| {r['name']} ({r['records']}, {r['methods'][0]['windows']}) | "
                      f"{r['kind']} | " + " | ".join(cells) + " |")
     return lines
+
+
+def device_table(rows: list[dict]) -> list[str]:
+    """Markdown lines of the device-spread table: per row each method's accuracy, its
+    interval and the flagged share; then the decoder's error rate against the nominal one
+    (target :data:`DEVICE_TARGET` ×) and the class that limits it."""
+    names = [m["name"] for m in rows[0]["methods"]]
+    lines = ["| devices (records, windows) | " + " | ".join(names) + " | decoder error / "
+             "nominal |", "|---" * (2 + len(names)) + "|"]
+    verdict = device_verdict(rows)
+    for r, ratio in zip(rows, verdict["ratios"], strict=True):
+        cells = [f"{100 * m['accuracy']:.1f} % ({100 * m['interval'][0]:.0f}–"
+                 f"{100 * m['interval'][1]:.0f})"
+                 + (f", {100 * m['flagged']:.0f} % flagged" if "flagged" in m else "")
+                 for m in r["methods"]]
+        lines.append(f"| {r['name']} ({r['records']}, {r['methods'][0]['windows']}) | "
+                     + " | ".join(cells) + f" | {ratio:.2f}× |")
+    return lines
+
+
+def device_verdict(rows: list[dict]) -> dict:
+    """The decoder's (the first method's) error rate on each row over the nominal row's
+    (``ratios``; the nominal error floored at one window), whether the trained spread's row
+    meets :data:`DEVICE_TARGET` (``met``) and the one-at-a-time row with the largest error
+    (``limit``, its name; None where none is above the nominal row's)."""
+    err = [1 - r["methods"][0]["accuracy"] for r in rows]
+    floor = 1 / rows[0]["methods"][0]["windows"]
+    ratios = [e / max(err[0], floor) for e in err]
+    alone = [k for k, r in enumerate(rows) if r["name"].endswith(" alone")]
+    limit = max(alone, key=lambda k: err[k]) if alone else None
+    if limit is not None and err[limit] <= err[0]:
+        limit = None  # no class alone costs the decoder anything
+    return {"ratios": ratios, "met": bool(ratios[1] <= DEVICE_TARGET) if len(rows) > 1 else None,
+            "limit": None if limit is None else rows[limit]["name"]}

@@ -97,16 +97,19 @@ def _level(fields: dict) -> str:
 
 
 def run_variants(variants: list[Variant], n: int, seed: int,
-                 score: Callable[[dict], list[dict]], progress=None) -> list[dict]:
+                 score: Callable[[dict], list[dict]], progress=None, *,
+                 paired: bool = False) -> list[dict]:
     """Score every variant's ``n`` fresh records (drawn from ``seed`` and the row's index, so
-    each row is reproducible alone). ``score(records)`` returns one dict per method. Returns
-    one row per variant: ``name``, ``kind``, ``records``, ``simulate_s`` and ``methods``."""
+    each row is reproducible alone; ``paired``: every row from one stream of its own, so that
+    rows differing only in what the variant changes share their draws). ``score(records)``
+    returns one dict per method. Returns one row per variant: ``name``, ``kind``, ``records``,
+    ``simulate_s`` and ``methods``."""
     rows = []
     for k, v in enumerate(variants):
         if progress:
-            progress(f"transfer: {v.name} ({n} records)")
+            progress(f"{'paired' if paired else 'transfer'}: {v.name} ({n} records)")
         t0 = time.perf_counter()
-        rec = v.make(n, np.random.default_rng([seed, 9100, k]))
+        rec = v.make(n, np.random.default_rng([seed, 9200] if paired else [seed, 9100, k]))
         made = time.perf_counter() - t0
         rows.append({"name": v.name, "kind": v.kind, "records": n, "simulate_s": made,
                      "methods": score(rec)})

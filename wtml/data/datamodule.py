@@ -55,19 +55,21 @@ def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor
     """The input tensors and the targets, float32: ``(ze_re, ze_im, ref_re, ref_im,
     targets)`` for radial (``ref``: the free whisker's Ze of the record's device, the user's
     reference), ``(ze_re, ze_im, t_re, t_im, targets)`` for fluid (each record's calibrated T,
-    ``(n, n_freq, 4)`` flattened as t11, t12, t21, t22), ``(e, i, targets)`` (V, A; NaN-padded
-    targets: gap m, onsets s, detachments s) for texture, and for onset also each record's
-    calibration after ``e, i`` (:func:`onset_calibration`); targets as in ``TARGETS``."""
+    ``(n, n_freq, 4)`` flattened as t11, t12, t21, t22), ``(e, i, t_re, t_im, targets)`` (V, A;
+    NaN-padded targets: gap m, onsets s, detachments s) for texture (T at the scene's
+    ``calibration_hz``), and for onset ``e, i`` then each record's calibration
+    (:func:`onset_calibration`); targets as in ``TARGETS``."""
     if task == "onset":
         inputs = (arrays["e"], arrays["i"], *onset_calibration(arrays))
-    elif task == "texture":
         inputs = (arrays["e"], arrays["i"])
-    elif task == "fluid":
+    elif task in ("fluid", "texture"):
         if "t" not in arrays:
-            raise DatasetError("a fluid dataset without each record's calibrated T ('t'): made "
-                               "by an older wtml; generate it again")
+            raise DatasetError(f"a {task} dataset without each record's calibrated T ('t'): "
+                               "made by an older wtml; generate it again")
         t = arrays["t"].reshape(*arrays["t"].shape[:-2], 4)
-        inputs = (arrays["ze"].real, arrays["ze"].imag, t.real, t.imag)
+        signals = ((arrays["ze"].real, arrays["ze"].imag) if task == "fluid"
+                   else (arrays["e"], arrays["i"]))
+        inputs = (*signals, t.real, t.imag)
     elif task == "radial":
         if "ref" not in arrays:
             raise DatasetError("a radial dataset without each record's free reference ('ref'): "

@@ -8,11 +8,13 @@ its own features, so a device feeds it what its ADC gives:
    where the noise matters least, applied to ``x = e[n+L] - e[n]`` so an offset drops out);
    a least-squares fit of ``[1, cos kωt, sin kωt]`` (k = 1..3) to e and to i (normal
    equations solved by an unrolled Cholesky: ``torch.linalg.solve`` does not export); the
-   fundamental phasors E, I through the calibrated T at that ω (the modal model's closed form,
-   evaluated in the graph): ``F = t22 E - t12 I``, ``V = -t21 E + t11 I``, ``Zm = F/V`` (the
-   thesis's cues); the current's harmonics relative to its fundamental; and the residual of the
-   fit (what the harmonics do not explain: the asperities' broadband part), its RMS and that of
-   its differences at lags 1-32 samples (a coarse spectrum), relative to |I|.
+   fundamental phasors E, I through the user's calibrated T at that ω (:class:`CalibratedT`:
+   an input of the graph, T of their own device at the scene's ``calibration_hz``,
+   interpolated to ω by the polynomial through those points): ``F = t22 E - t12 I``,
+   ``V = -t21 E + t11 I``, ``Zm = F/V`` (the thesis's cues); the current's harmonics
+   relative to its fundamental; and the residual of the fit (what the harmonics do not
+   explain: the asperities' broadband part), its RMS and that of its differences at lags
+   1-32 samples (a coarse spectrum), relative to |I|.
 2. A standardised MLP with two heads: grade logits (the thesis's five grades) and the mean
    and log std of ln(grain size / 1 m).
 
@@ -28,6 +30,7 @@ from torch import nn
 from torch.nn import functional as fn
 
 from wtml.decoders.base import ConfigError, DecoderModule, check_positive, check_widths
+from wtml.decoders.layers import t_elements
 
 HARMONICS = 3
 LAGS = (1, 2, 4, 8, 16, 32)
@@ -111,20 +114,74 @@ class ModalT(nn.Module):
         return (*t11, *t12, *t21, *t22)
 
 
+class CalibratedT(nn.Module):
+    """The user's calibrated T at the measured ω: T given at ``K`` frequencies (an input of
+    the graph, one per window) interpolated by the Lagrange polynomial through all K, in
+    float32 real arithmetic.
+
+    Why T on a grid: the graph measures ω from each window and the whisking range sits on
+    the macro WT's 36 Hz resonance, so one T at one frequency is not enough; T at a few
+    frequencies is what a user's calibration gives (physics.md §4), needs no model of their
+    device, and T is smooth there (its elements are ratios of the transducer's forms, whose
+    shared modal poles cancel): degree 4 through 5 points over 34.5-37.5 Hz reproduces the
+    modal model's T to 1e-7 of each element.
+
+    Args:
+        frequency_hz: the K calibration frequencies, Hz, ``(K,)`` (distinct).
+
+    Forward: ω (rad/s) ``(batch,)``, ``t_re, t_im`` ``(batch, K, 4)`` (t11, t12, t21, t22)
+    -> re and im of (t11, t12, t21, t22) at ω, eight tensors ``(batch,)``.
+    """
+
+    def __init__(self, frequency_hz) -> None:
+        super().__init__()
+        f = np.asarray(frequency_hz, float)
+        if f.ndim != 1 or len(f) < 2 or len(np.unique(f)) != len(f):
+            raise ValueError(f"frequency_hz: at least 2 distinct frequencies, got {f}")
+        self.centre, self.half = float(f.mean()), float(np.ptp(f) / 2)
+        x = (f - self.centre) / self.half
+        self.nodes = [float(v) for v in x]
+        self.denominators = [float(np.prod([x[k] - x[j] for j in range(len(x)) if j != k]))
+                             for k in range(len(x))]
+
+    def weights(self, w: torch.Tensor) -> torch.Tensor:
+        """The Lagrange weights of each calibration frequency at ω, ``(batch, K)``."""
+        x = (w / (2 * np.pi) - self.centre) / self.half
+        cols = []
+        for k, den in enumerate(self.denominators):
+            num = torch.ones_like(x)
+            for j, node in enumerate(self.nodes):
+                if j != k:
+                    num = num * (x - node)
+            cols.append(num / den)
+        return torch.stack(cols, -1)
+
+    def forward(self, w: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor
+                ) -> tuple[torch.Tensor, ...]:
+        lw = self.weights(w)[..., None]  # (B, K, 1)
+        out = []
+        for re, im in t_elements((t_re * lw).sum(1, keepdim=True),
+                                 (t_im * lw).sum(1, keepdim=True)):
+            out += [re[:, 0], im[:, 0]]
+        return tuple(out)
+
+
 class WhiskFeatures(nn.Module):
-    """``(e, i)`` windows ``(batch, n)`` (V, A) -> features ``(batch, N_FEATURES)``: see the
-    module docstring. Columns: ω/ω_ref, ln|E|, ln|I|, ln|F|, ln|V|, Re Zm/z, Im Zm/z (z =
-    :attr:`Z_REF`), Re and Im of ``I_k conj(E/|E|)^k / |I|`` for k = 2..3 (harmonics
-    in the drive's phase, the same for any window start), ln of the residual's RMS and of its
-    differences' at :data:`LAGS`, relative to |I|. :meth:`cues` gives the thesis's four."""
+    """``(e, i)`` windows ``(batch, n)`` (V, A) and the user's calibrated T ``t_re, t_im``
+    ``(batch, K, 4)`` at ``calibration_hz`` (:class:`CalibratedT`) -> features
+    ``(batch, N_FEATURES)``: see the module docstring. Columns: ω/ω_ref, ln|E|, ln|I|,
+    ln|F|, ln|V|, Re Zm/z, Im Zm/z (z = :attr:`Z_REF`), Re and Im of
+    ``I_k conj(E/|E|)^k / |I|`` for k = 2..3 (harmonics in the drive's phase, the same for
+    any window start), ln of the residual's RMS and of its differences' at :data:`LAGS`,
+    relative to |I|. :meth:`cues` gives the thesis's four."""
 
     N_FEATURES = 7 + 2 * (HARMONICS - 1) + 1 + len(LAGS)
     Z_REF = 1e-3
     W_REF = 2 * np.pi * 36.0
 
-    def __init__(self, model, sample_rate_hz: float) -> None:
+    def __init__(self, calibration_hz, sample_rate_hz: float) -> None:
         super().__init__()
-        self.t = ModalT(model)
+        self.t = CalibratedT(calibration_hz)
         self.rate = float(sample_rate_hz)
         self.lag = max(1, int(round(self.rate / (4 * self.W_REF / (2 * np.pi)))))
 
@@ -160,13 +217,14 @@ class WhiskFeatures(nn.Module):
         """``a cos + b sin`` = Re{(a - jb) e^{jωt}}: the phasor of harmonic k (1-based)."""
         return c[:, 2 * k - 1], -c[:, 2 * k]
 
-    def cues(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    def cues(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor
+             ) -> tuple[torch.Tensor, ...]:
         """ω (rad/s) and the thesis's cues at the fundamental through the calibrated T:
         (F re, F im, V re, V im, Zm re, Zm im), each ``(batch,)``, plus the fit."""
         w, ce, ci, resid = self.fit(e, i)
         e_re, e_im = self._phasor(ce, 1)
         i_re, i_im = self._phasor(ci, 1)
-        t11r, t11i, t12r, t12i, t21r, t21i, t22r, t22i = self.t(w)
+        t11r, t11i, t12r, t12i, t21r, t21i, t22r, t22i = self.t(w, t_re, t_im)
         f_re = t22r * e_re - t22i * e_im - (t12r * i_re - t12i * i_im)
         f_im = t22r * e_im + t22i * e_re - (t12r * i_im + t12i * i_re)
         v_re = -(t21r * e_re - t21i * e_im) + t11r * i_re - t11i * i_im
@@ -176,8 +234,9 @@ class WhiskFeatures(nn.Module):
         z_im = (f_im * v_re - f_re * v_im) / vv
         return w, (f_re, f_im, v_re, v_im, z_re, z_im), (ce, ci, resid)
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
-        w, (f_re, f_im, v_re, v_im, z_re, z_im), (ce, ci, resid) = self.cues(e, i)
+    def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor
+                ) -> torch.Tensor:
+        w, (f_re, f_im, v_re, v_im, z_re, z_im), (ce, ci, resid) = self.cues(e, i, t_re, t_im)
         e_re, e_im = self._phasor(ce, 1)
         i_re, i_im = self._phasor(ci, 1)
         ii = i_re**2 + i_im**2
@@ -235,8 +294,9 @@ class TextureNet(nn.Module):
         logits, mu, log_sd = self.heads(x)
         return torch.exp(mu), log_sd, torch.softmax(logits, -1)
 
-    def forward(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        return self.from_features(self.features(e, i))
+    def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor
+                ) -> tuple[torch.Tensor, ...]:
+        return self.from_features(self.features(e, i, t_re, t_im))
 
 
 class TextureDecoder(DecoderModule):
@@ -272,14 +332,15 @@ class TextureDecoder(DecoderModule):
         """The net's own feature layer, the same module, so the exported graph computes the
         features once for the net and its gate (a new one before the net exists)."""
         features = (self.net.features if self.net is not None
-                    else WhiskFeatures(scene.transducer(), scene.acquisition.sample_rate_hz))
+                    else WhiskFeatures(scene.calibration_hz, scene.acquisition.sample_rate_hz))
         return features, WhiskFeatures.N_FEATURES
 
-    def build_net(self, scene, e, i, targets) -> nn.Module:
-        feats = WhiskFeatures(scene.transducer(), scene.acquisition.sample_rate_hz)
+    def build_net(self, scene, e, i, t_re, t_im, targets) -> nn.Module:
+        feats = WhiskFeatures(scene.calibration_hz, scene.acquisition.sample_rate_hz)
         self._n = self.window(scene)
         with torch.no_grad():
-            x = torch.cat([feats(e[s:s + 64, :self._n], i[s:s + 64, :self._n])
+            x = torch.cat([feats(e[s:s + 64, :self._n], i[s:s + 64, :self._n],
+                                 t_re[s:s + 64], t_im[s:s + 64])
                            for s in range(0, len(e), 64)])
         scale = torch.stack([x.mean(0), x.std(0).clamp_min(1e-6)])
         net = TextureNet(feats, scale, list(self.hparams.hidden))
@@ -287,11 +348,14 @@ class TextureDecoder(DecoderModule):
         net.log_grain.copy_(torch.stack([logd.mean(), logd.std().clamp_min(1e-3)]))
         return net
 
-    def gate_inputs(self, e: torch.Tensor, i: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """Every whole window of the training records, ``(n · per, window)`` each."""
+    def gate_inputs(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
+                    t_im: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Every whole window of the training records, ``(n · per, window)`` each, with its
+        record's T."""
         n = self._n
         per = e.shape[1] // n
-        return e[:, :per * n].reshape(-1, n), i[:, :per * n].reshape(-1, n)
+        return (e[:, :per * n].reshape(-1, n), i[:, :per * n].reshape(-1, n),
+                t_re.repeat_interleave(per, 0), t_im.repeat_interleave(per, 0))
 
     def net_shape(self) -> dict:
         return {"window": self._n}
@@ -301,13 +365,13 @@ class TextureDecoder(DecoderModule):
 
         scene = scene_from_dict(self.scene)
         self._n = int(shape["window"])
-        self.net = TextureNet(WhiskFeatures(scene.transducer(),
+        self.net = TextureNet(WhiskFeatures(scene.calibration_hz,
                                             scene.acquisition.sample_rate_hz),
                               torch.ones(2, WhiskFeatures.N_FEATURES),
                               list(self.hparams.hidden))
 
     def loss(self, batch) -> torch.Tensor:
-        e, i, targets = batch
+        e, i, t_re, t_im, targets = batch
         n = self._n
         if self.training and e.shape[1] > n:
             start = torch.randint(0, e.shape[1] - n + 1, (len(e),))
@@ -315,7 +379,7 @@ class TextureDecoder(DecoderModule):
             e, i = e.gather(1, idx), i.gather(1, idx)
         else:
             e, i = e[:, :n], i[:, :n]
-        logits, mu, log_sd = self.net.heads(self.net.features(e, i))
+        logits, mu, log_sd = self.net.heads(self.net.features(e, i, t_re, t_im))
         ce = fn.cross_entropy(logits, targets[:, 0].long())
         z = (torch.log(targets[:, 1]) - mu) / torch.exp(log_sd)
         nll = (0.5 * z**2 + log_sd).mean()

@@ -37,9 +37,10 @@ model's metadata; another grid is refused, never interpolated):
   (complex, (n_freq,) for every measurement, or (n, n_freq) one per measurement).
 Fluid models return eta (Pa*s) and rho (kg/m^3); radial models distance (m from the tip)
 and sigma (m, the decoder's std; NaN out of domain).
-Fluid models also need the device's calibration (--calibration): .npz with frequency_hz
-(n_freq,) on the model's grid and t, the calibrated T (complex, (n_freq, 2, 2) for every
-measurement, or (n, n_freq, 2, 2) one per measurement).
+Fluid and texture models also need the device's calibration (--calibration): .npz with
+frequency_hz (n_freq,) on the model's grid (texture: its metadata's calibration_hz) and t, the
+calibrated T (complex, (n_freq, 2, 2) for every measurement, or (n, n_freq, 2, 2) one per
+measurement or record).
 Onset models take a recording instead: .npz with e (V) and i (A), each (n_samples,) or
 (n_records, n_samples), and sample_rate_hz (another rate than trained is resampled when the
 ratio is one of whole numbers, else refused) and the device's calibration (--calibration:
@@ -238,7 +239,7 @@ def read_calibration(path: str | Path | None, frequency_hz: np.ndarray, n: int) 
     """
     grid = ", ".join(f"{f:g}" for f in frequency_hz[:3]) + f", ... {frequency_hz[-1]:g} Hz"
     if path is None:
-        raise InputError(f"this fluid export needs --calibration: the device's calibrated T at "
+        raise InputError(f"this export needs --calibration: the device's calibrated T at "
                          f"{grid} (npz with frequency_hz and t, complex (n_freq, 2, 2))")
     path = Path(path)
     if not path.is_file():

@@ -2,9 +2,12 @@
 domain gate) and ``wtml predict`` on records.
 
 Both graphs take ``e`` (V) and ``i`` (A), float32 ``(batch, window)`` at the scene's rate,
-and return ``grain`` (m), ``log_sigma`` (std of ln grain; NaN out of domain, 0 for the
-classical path) and ``probabilities`` ``(batch, 5)`` over the thesis's grades, then
-``in_domain`` and ``domain_score``. A longer record is cut into whole windows; its answer is
+and the user's calibrated T of their device at the scene's ``calibration_hz`` as ``t_re, t_im``
+``(batch, K, 4)`` (t11, t12, t21, t22; the metadata's ``calibration_hz`` and ``references``
+say so, and ``wtml predict --calibration cal.npz`` reads it), and return ``grain`` (m),
+``log_sigma`` (std of ln grain; NaN out of domain, 0 for the classical path) and
+``probabilities`` ``(batch, 5)`` over the thesis's grades, then ``in_domain`` and
+``domain_score``. A longer record is cut into whole windows; its answer is
 the windows' mean log-probabilities and mean ln grain.
 """
 
@@ -19,11 +22,17 @@ import torch
 from wtml import __version__
 from wtml.baselines.texture_classical import ClassicalTexture
 from wtml.decoders.domain import Gated
+from wtml.physics.twoport import flat_parts
 from wtml.runtime.export import _export, domain_metadata
 from wtml.runtime.onset import read_record
 from wtml.scenes import config_hash
 
-TEXTURE_INPUTS = ("e", "i")
+TEXTURE_INPUTS = ("e", "i", "t_re", "t_im")
+"""The texture graphs' inputs: the window's two channels and the device's calibrated T at the
+calibration frequencies, ``(batch, K, 4)`` flattened as (t11, t12, t21, t22)."""
+TEXTURE_REFERENCES = {"calibration": "the device's calibrated T (the macro WT with its whisker, "
+                                     "tip free) at calibration_hz, measured with the "
+                                     "calibration loads of physics.md §4: inputs t_re, t_im"}
 FRESH_RECORDS = 100
 """Fresh records of the scene (its own seed, not the training data) on which the classical
 path is fitted and the exported decoder's false-alarm rate is measured."""
@@ -35,11 +44,11 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
     window = module._n
     decoder = Gated(module.net, module.gate, (1,)).eval()
     fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
-    inside = decoder(torch.tensor(fresh["e"][:, :window]),
-                     torch.tensor(fresh["i"][:, :window]))[-2]
+    inside = decoder(torch.tensor(fresh["e"][:, :window]), torch.tensor(fresh["i"][:, :window]),
+                     *(torch.tensor(x) for x in flat_parts(fresh["t"])))[-2]
     domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
-    classical = ClassicalTexture.fit(module.net.features, fresh["e"], fresh["i"], fresh["grade"],
-                                     fresh["grain_m"], window)
+    classical = ClassicalTexture.fit(module.net.features, fresh["e"], fresh["i"], fresh["t"],
+                                     fresh["grade"], fresh["grain_m"], window)
     meta = {"wtml_version": __version__, "task": "texture",
             "inputs": json.dumps(list(TEXTURE_INPUTS)),
             "outputs": json.dumps(list(scene.OUTPUTS)),
@@ -48,14 +57,17 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
             "frequency_hz": json.dumps(list(scene.drive.whisk_hz)),
             "sample_rate_hz": json.dumps(scene.acquisition.sample_rate_hz),
             "n_samples": json.dumps(window), "window_s": json.dumps(module.hparams.window_s),
+            "calibration_hz": json.dumps(scene.calibration_hz.tolist()),
+            "references": json.dumps(TEXTURE_REFERENCES),
             "scene": json.dumps(module.scene, sort_keys=True), "scene_hash": config_hash(scene),
             "domain": json.dumps(domain)}
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
+    widths = (window, window, (len(scene.calibration_hz), 4), (len(scene.calibration_hz), 4))
     _export(decoder, window, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"},
-            TEXTURE_INPUTS, optimize=False)
+            TEXTURE_INPUTS, widths, optimize=False)
     _export(Gated(classical, module.gate.inputs_only()).eval(), window, paths["classical"],
             meta | {"kind": "classical", "label": "thesis cues (|F|, |V|, Zm)"}, TEXTURE_INPUTS,
-            optimize=False)
+            widths, optimize=False)
     return paths
 
 
@@ -87,20 +99,36 @@ def pool(pred: dict[str, np.ndarray], owner: np.ndarray, n: int) -> dict[str, np
     return out
 
 
-def predict_records(model_dir: str | Path, input_path: str | Path) -> list[dict]:
+def run_windows(model, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+    """``model`` (an :class:`~wtml.runtime.predict.OnnxModel` of this task) on windows e, i
+    ``(n, window)`` through the calibrated T ``t`` (complex ``(n, K, 2, 2)``)."""
+    return model.run(e, i, *flat_parts(t))
+
+
+def predict_records(model_dir: str | Path, input_path: str | Path, *,
+                    calibration: str | Path | None = None) -> list[dict]:
     """One row per record and method: grade probabilities, the likeliest grade, grain size
-    (µm), ``in_domain``, ``domain_score`` and flags."""
-    from wtml.runtime.predict import load_export
+    (µm), ``in_domain``, ``domain_score`` and flags. ``calibration``: the device's calibrated
+    T at the export's ``calibration_hz`` (npz with ``frequency_hz`` and ``t``, complex ``(K,
+    2, 2)`` or one per record ``(n, K, 2, 2)``), which the graph needs (:class:`InputError`
+    without it, never a default device)."""
+    from wtml.runtime.predict import InputError, load_export, read_calibration
 
     decoder, classical = load_export(model_dir)
     meta = decoder.metadata
     window = json.loads(meta["n_samples"])
+    if "calibration_hz" not in meta:
+        raise InputError(f"{model_dir}: a texture export without calibration_hz in its "
+                         "metadata (made by an older wtml, before the calibrated T was an "
+                         "input); export it again")
+    freq = np.array(json.loads(meta["calibration_hz"]))
     x = read_record(input_path, json.loads(meta["sample_rate_hz"]), window, at_least=True)
+    t = read_calibration(calibration, freq, x.shape[1])
     cut, owner = windows(x, window)
     names = json.loads(meta["classes"])
     rows = []
     for label, model in (("decoder", decoder), ("classical", classical)):
-        pred = pool(model.run(cut[0], cut[1]), owner, x.shape[1])
+        pred = pool(run_windows(model, cut[0], cut[1], t[owner]), owner, x.shape[1])
         for r in range(x.shape[1]):
             p = pred["probabilities"][r]
             flags = [] if pred["in_domain"][r] else ["outside the trained domain"]

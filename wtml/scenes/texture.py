@@ -15,6 +15,15 @@ N, θ, and the device's coupling (calibration error, times the temperature drift
 ``acquisition.effects``). Both channels go through a 24-bit ADC with noise and the effects of
 :mod:`wtml.signals.acquisition`; the current through an I-V converter.
 
+Manufacturing spread (``device``, :class:`~wtml.physics.spread.DeviceSpread`): each record's
+transducer is drawn around the preset (``min(device.devices, n)`` devices per call of
+:meth:`TextureScene.simulate`, records assigned to them at random), each its own modal model
+``ModalTransducer.from_beam(build(preset, factors=...), n_modes)``. The user calibrates their
+own device (physics.md §4), so each record carries its device's calibrated T at the
+calibration frequencies (:attr:`TextureScene.calibration_hz`) as ``t`` ``(n, K, 2, 2)``: the
+decoder's input; the calibration error and the temperature drift stay on top of it. All widths
+zero (the default) draws nothing: the records are today's, bit for bit.
+
 Each specimen also draws its friction law from the mixture ``friction.law`` (Coulomb, Stribeck
 or LuGre, each with its own line μ_c(d) fitted to Table 4.10 and its shape drawn as nuisance:
 :class:`StribeckLaw`, :class:`LuGreLaw`).
@@ -39,6 +48,7 @@ from wtml.interface import OutputRange
 from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
+from wtml.physics.spread import DeviceSpread, draw_factors
 from wtml.scenes.config import SceneError, bounded, mixture, one_of
 from wtml.scenes.onset import Acquisition
 from wtml.signals.excitation import lead_in
@@ -201,6 +211,7 @@ class TextureScene:
         sample_rate_hz=51200.0, e_full_scale_v=20.0, i_full_scale_a=1e-4, e_noise_v=1e-4,
         i_noise_a=2e-8))
     calibration_error: float = bounded(0.0, 0.2, default=0.01)
+    device: DeviceSpread = field(default_factory=DeviceSpread)
     oversample: int = bounded(1, 16, default=2)
     """The simulation steps at ``oversample`` × the sampling rate (the asperities' impulses
     land on the step grid: at 102.4 kS/s halving the step moves the current's phasor by less
@@ -247,9 +258,41 @@ class TextureScene:
         """The classes a texture decoder names: the thesis's five grades, finest first."""
         return tuple(THESIS_GRADES)
 
-    def transducer(self) -> ModalTransducer:
-        """The calibrated modal model."""
-        return ModalTransducer.from_beam(build(self.preset), self.n_modes)
+    def transducer(self, factors: dict[str, float] | None = None) -> ModalTransducer:
+        """The calibrated modal model: the preset's, or with ``factors`` (actual / nominal,
+        :func:`~wtml.physics.spread.draw_factors`) a device off it."""
+        return ModalTransducer.from_beam(build(self.preset, factors=factors), self.n_modes)
+
+    CALIBRATION_POINTS: ClassVar[int] = 5
+
+    @property
+    def calibration_hz(self) -> np.ndarray:
+        """The frequencies (Hz) at which a user's calibrated T enters the decoder,
+        ``(CALIBRATION_POINTS,)``: evenly over the whisking range widened on each side by a
+        quarter of it or 1 % of its middle (the larger; the ω the graph measures from a
+        noisy window strays a little). The graph interpolates T between them by the
+        polynomial through all five (the macro preset's T is smooth there, its modes being
+        in the transducer's forms' denominators: 1e-7 of each element on 35-37 Hz)."""
+        lo, hi = self.drive.whisk_hz
+        pad = max(0.25 * (hi - lo), 0.005 * (hi + lo))
+        return np.linspace(lo - pad, hi + pad, self.CALIBRATION_POINTS)
+
+    def calibrated_t(self, model: ModalTransducer) -> np.ndarray:
+        """``model``'s T at :attr:`calibration_hz`, complex ``(K, 2, 2)``."""
+        return model.transduction_matrix(2 * np.pi * self.calibration_hz)
+
+    def devices(self, n: int, rng: np.random.Generator
+                ) -> tuple[list[ModalTransducer], np.ndarray]:
+        """The records' devices: ``min(device.devices, n)`` modal models drawn from the
+        spread and each record's index into them ``(n,)``; with no spread, the preset alone
+        and nothing drawn from ``rng``."""
+        if self.device.none:
+            return [self.transducer()], np.zeros(n, int)
+        k = min(self.device.devices, n)
+        factors = draw_factors(self.preset, self.device.widths(self.preset), k, rng)
+        models = [self.transducer({p: float(v[j]) for p, v in factors.items()})
+                  for j in range(k)]
+        return models, rng.permutation(np.arange(n) % k)
 
     @property
     def n_samples(self) -> int:
@@ -351,7 +394,11 @@ class TextureScene:
         ``asperities=False`` leaves the grains out; ``mean_friction=False`` gives every
         specimen the Coulomb coefficient of the law at the middle grade (the ablations of the
         bench); ``nominal`` fixes the set-up at the thesis's (10 V, 36 Hz, 3.3e-4 N, 10°, the
-        calibrated device, no specimen deviations)."""
+        calibrated device, no specimen deviations).
+
+        Returns ``e``, ``i`` (see the module docstring), ``t`` (each record's device's
+        calibrated T at :attr:`calibration_hz`, complex ``(n, K, 2, 2)``), the labels and the
+        nuisance drawn."""
         spec = self.specimens(rng)
         if nominal:
             spec["mu"] = self.mu(spec["grain_um"], spec["law"])
@@ -373,7 +420,8 @@ class TextureScene:
             angle, scale = np.full(n, np.deg2rad(NOMINAL_ANGLE_DEG)), np.ones(n)
         mid = self.mu(np.median(list(THESIS_GRADES.values())), spec["law"][which])
         mu = None if mean_friction else mid
-        model = self.transducer()
+        models, device = (self.devices(n, rng) if not nominal
+                          else ([self.transducer()], np.zeros(n, int)))
         dt = 1 / (a.sample_rate_hz * self.oversample)
         cur = np.empty((n, self.n_samples))
         vel = np.empty((n, self.n_samples), np.float32)
@@ -381,17 +429,25 @@ class TextureScene:
         for start in range(0, n, batch):
             sl = slice(start, min(n, start + batch))
             e, de, n_lead = self.drive_voltage(volts[sl], hz[sl])
-            load = self.friction_load(spec, which[sl], normal[sl], angle[sl],
-                                      asperities=asperities,
-                                      mu=None if mu is None else mu[sl])
-            out = model.simulate(e, dt, load, drive_rate=de, coupling_scale=scale[sl],
-                                 record=("v", "i"), dtype=np.float64,
-                                 tones=[(2 * np.pi * hz[sl], e)])
-            for dst, x in ((cur, out["i"]), (vel, out["v"]), (volt, e)):
-                dst[sl] = self.decimate(x[:, n_lead - 64 * self.oversample:])[:, 64:]
-        e_rec, i_rec = a.record(volt, cur, model.capacitance, rng)
+            for d in np.unique(device[sl]):  # records of one device stepped together
+                own = np.flatnonzero(device[sl] == d)
+                rows = own + start if len(own) < len(e) else sl
+                load = self.friction_load(spec, which[rows], normal[rows], angle[rows],
+                                          asperities=asperities,
+                                          mu=None if mu is None else mu[rows])
+                e_d = e if len(own) == len(e) else e[own]
+                out = models[d].simulate(e_d, dt, load,
+                                         drive_rate=de if len(own) == len(e) else de[own],
+                                         coupling_scale=scale[rows], record=("v", "i"),
+                                         dtype=np.float64,
+                                         tones=[(2 * np.pi * hz[rows], e_d)])
+                for dst, x in ((cur, out["i"]), (vel, out["v"]), (volt, e_d)):
+                    dst[rows] = self.decimate(x[:, n_lead - 64 * self.oversample:])[:, 64:]
+        # the op-amp's e_n through Cp (fA): the first device's Cp stands for all of them
+        e_rec, i_rec = a.record(volt, cur, models[0].capacitance, rng)
+        t = np.stack([self.calibrated_t(m) for m in models])[device]
         grade = spec["grade"][which] if self.grades == "thesis" else np.full(n, -1)
-        return {"e": e_rec, "i": i_rec,
+        return {"e": e_rec, "i": i_rec, "t": t,
                 "grade": grade, "grain_m": spec["grain_um"][which] * 1e-6,
                 "specimen": rng.integers(0, 2**62) + which, "mu": spec["mu"][which],
                 "asperity": spec["asperity"][which], "friction_law": spec["law"][which],

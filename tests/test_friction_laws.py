@@ -315,3 +315,30 @@ def test_default_scene_is_coulomb_only():
     scene = replace(TextureScene(), specimens_per_grade=1)
     spec = scene.specimens(np.random.default_rng(0))
     assert np.all(spec["law"] == 0) and np.all(spec["static_ratio"] == 1.0)
+
+
+def test_slip_span_draws_each_specimens_regularisation_and_changes_nothing_else():
+    """``friction.slip_span`` draws each specimen's v_r log-uniform in [slip_speed/span,
+    slip_speed] (how sharply the force turns at a reversal: the nuisance that spans a bristle's
+    pre-sliding without being LuGre); its draws come after every other, so the records'
+    other nuisance is unchanged, and span 1 is the fixed v_r of before."""
+    law = {"coulomb": 0.5, "stribeck": 0.5}
+    fixed = scene_with(law, oversample=4)
+    spanned = scene_with(law, oversample=4, friction={"law": law, "slip_span": 4.0})
+    a, b = (s.specimens(np.random.default_rng(3)) for s in (fixed, spanned))
+    np.testing.assert_array_equal(a["slip_speed"], 0.01)
+    assert np.all((b["slip_speed"] >= 0.0025) & (b["slip_speed"] <= 0.01))
+    assert b["slip_speed"].min() < 4e-3 and b["slip_speed"].max() > 6e-3
+    for key in set(a) - {"slip_speed"}:
+        np.testing.assert_array_equal(a[key], b[key])
+    ra, rb = (s.simulate(20, np.random.default_rng(5)) for s in (fixed, spanned))
+    for key in ("whisk_v", "whisk_hz", "normal_force", "angle", "coupling", "grade", "mu"):
+        np.testing.assert_array_equal(ra[key], rb[key])
+    assert np.all(np.isfinite(rb["i"])) and not np.array_equal(ra["i"], rb["i"])
+
+
+def test_slip_span_below_the_stable_step_is_a_scene_error():
+    law = {"coulomb": 1.0}
+    with pytest.raises(SceneError, match=r"friction.slip_span.*oversample 2"):
+        scene_with(law, friction={"law": law, "slip_span": 4.0})
+    scene_with(law, friction={"law": law, "slip_span": 2.0})  # 5 mm/s: held at oversample 2

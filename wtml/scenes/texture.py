@@ -124,11 +124,22 @@ halving the step moves the current's fundamental by up to ~3 × a 0.25 s window'
 204.8 kS/s by less than it."""
 
 
+SLIP_SPEED_AT_2 = 4.3e-3
+"""m/s: the least regularisation v_r that the explicit Coulomb/Stribeck step holds at
+``oversample`` 2 (scaled by 2/oversample): the force's slope at rest ``μ_s N cos θ / v_r``
+times ``dt Σφb²`` below 1 (:mod:`wtml.physics.friction`) at the scene's worst case, μ_s =
+1.5 × 0.69 (the Stribeck's largest ratio at P280), N cos θ = 4.1e-4 cos 5° N, Σφb² = 1.03e6 /kg
+(the macro WT's 14 modes), dt = 9.77 µs: ``4.3e-3 / v_r``."""
+
+
 @dataclass(frozen=True)
 class FrictionLaw:
     """The friction law against grain size (see the module docstring) and each specimen's
     deviations from it: ``mu_0`` and ``mu_per_um`` (the Coulomb law's line μ(d)), ``asperity``
     a at 35 µm, ``slip_speed`` v_s (m/s; the regularisation v_r of Coulomb and Stribeck),
+    ``slip_span``: each Coulomb or Stribeck specimen's own v_r, log-uniform in ``[slip_speed /
+    slip_span, slip_speed]`` (how sharply its force turns over at each reversal: the surface's
+    pre-sliding compliance, a nuisance; 1: every specimen at ``slip_speed``),
     ``viscous`` c (N·s/m); ``mu_spread`` (std of μ), ``asperity_spread`` (log-normal σ of a),
     ``grain_spread`` (range of the coefficient of variation of grain spacing and size).
 
@@ -141,6 +152,7 @@ class FrictionLaw:
     mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
     asperity: float = bounded(0.0, 10.0, default=0.2)
     slip_speed: float = bounded(1e-4, 1.0, default=0.01)
+    slip_span: float = bounded(1.0, 100.0, default=1.0)
     viscous: float = bounded(0.0, 1.0, default=0.0)
     mu_spread: float = bounded(0.0, 0.5, default=0.005)
     asperity_spread: float = bounded(0.0, 1.0, default=0.08)
@@ -182,6 +194,8 @@ class FrictionLaw:
             lug = draw(getattr(self.lugre, key), log)
             out[key] = np.where(code == 2, lug, stri)
         out["static_ratio"] = np.where(code == 0, 1.0, out["static_ratio"])
+        out["slip_speed"] = (self.slip_speed * np.ones(n) if rng is None or self.slip_span == 1
+                             else draw((self.slip_speed / self.slip_span, self.slip_speed), True))
         return out
 
 
@@ -230,6 +244,12 @@ class TextureScene:
             raise SceneError(f"{pre}oversample: LuGre friction (friction.law.lugre > 0) needs "
                              f"oversample >= {LUGRE_OVERSAMPLE} (its bristle resolved), got "
                              f"{self.oversample}")
+        least, f = SLIP_SPEED_AT_2 * 2 / self.oversample, self.friction
+        if f.slip_span > 1 and f.slip_speed / f.slip_span < least:
+            raise SceneError(f"{pre}friction.slip_span: the least v_r, slip_speed/slip_span = "
+                             f"{f.slip_speed / f.slip_span:g} m/s, must be "
+                             f">= {least:g} m/s at oversample {self.oversample} (the explicit "
+                             "friction step's stability)")
         if self.drive.whisk_hz[1] >= self.acquisition.sample_rate_hz / 8:
             raise SceneError(f"{pre}drive.whisk_hz: must stay below an eighth of the sample "
                              f"rate ({self.acquisition.sample_rate_hz / 8:g} Hz)")
@@ -370,7 +390,9 @@ class TextureScene:
                 rows.append((np.array([np.inf]), np.zeros(1)))
         pos, imp = pad_grains(rows)
         coulomb = spec["mu"][which] if mu is None else mu
-        return Friction(np.clip(coulomb, 0.0, None), normal, angle, f.slip_speed, f.viscous,
+        return Friction(np.clip(coulomb, 0.0, None), normal, angle,
+                        spec.get("slip_speed", np.full(len(spec["mu"]), f.slip_speed))[which],
+                        f.viscous,
                         pos, imp, **self.law_shape(spec, which))
 
     def law_shape(self, spec: dict, which: np.ndarray) -> dict[str, np.ndarray]:

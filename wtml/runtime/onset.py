@@ -101,7 +101,7 @@ def read_onset_calibration(path: str | Path | None, probe_hz: float, n: int
                          f"the probe ({probe_hz:g} Hz) and its HUE(0) (npz with frequency_hz "
                          f"[{probe_hz:g}], t complex (1, 2, 2) and hue0 in m/V); "
                          "physics.md §4")
-    t = read_calibration(path, np.array([float(probe_hz)]), n)[:, 0].reshape(n, 4)
+    t = read_calibration(path, np.array([float(probe_hz)]), n, "onset")[:, 0].reshape(n, 4)
     with np.load(path, allow_pickle=False) as data:
         if "hue0" not in data.files:
             raise InputError(f"{path}: an onset calibration needs 'hue0' (the device's HUE(0), "

@@ -229,9 +229,10 @@ def read_input(path: str | Path, frequency_hz: np.ndarray) -> np.ndarray:
     return ze
 
 
-def read_calibration(path: str | Path | None, frequency_hz: np.ndarray, n: int) -> np.ndarray:
+def read_calibration(path: str | Path | None, frequency_hz: np.ndarray, n: int,
+                     task: str) -> np.ndarray:
     """The device's calibrated T as complex ``(n, n_freq, 2, 2)`` on ``frequency_hz`` (one T
-    in the file is every measurement's), checked.
+    in the file is every measurement's), checked; ``task`` names the export in the errors.
 
     Raises:
         InputError: no calibration given, or a missing or unreadable file, another grid, a
@@ -239,7 +240,7 @@ def read_calibration(path: str | Path | None, frequency_hz: np.ndarray, n: int) 
     """
     grid = ", ".join(f"{f:g}" for f in frequency_hz[:3]) + f", ... {frequency_hz[-1]:g} Hz"
     if path is None:
-        raise InputError(f"this export needs --calibration: the device's calibrated T at "
+        raise InputError(f"this {task} export needs --calibration: the device's calibrated T at "
                          f"{grid} (npz with frequency_hz and t, complex (n_freq, 2, 2))")
     path = Path(path)
     if not path.is_file():
@@ -339,7 +340,7 @@ def predict_file(model_dir: str | Path, input_path: str | Path, *,
         if reference is not None:
             raise InputError(f"--reference {reference}: this {decoder.task} export takes no "
                              "reference (it takes --calibration)")
-        extra = read_calibration(calibration, decoder.frequency_hz, len(ze))
+        extra = read_calibration(calibration, decoder.frequency_hz, len(ze), decoder.task)
     else:
         if calibration is not None:
             raise InputError(f"--calibration {calibration}: this {decoder.task} export takes "

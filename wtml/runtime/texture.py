@@ -123,7 +123,7 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
                          "input); export it again")
     freq = np.array(json.loads(meta["calibration_hz"]))
     x = read_record(input_path, json.loads(meta["sample_rate_hz"]), window, at_least=True)
-    t = read_calibration(calibration, freq, x.shape[1])
+    t = read_calibration(calibration, freq, x.shape[1], "texture")
     cut, owner = windows(x, window)
     names = json.loads(meta["classes"])
     rows = []

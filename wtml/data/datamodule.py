@@ -61,7 +61,6 @@ def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor
     (:func:`onset_calibration`); targets as in ``TARGETS``."""
     if task == "onset":
         inputs = (arrays["e"], arrays["i"], *onset_calibration(arrays))
-        inputs = (arrays["e"], arrays["i"])
     elif task in ("fluid", "texture"):
         if "t" not in arrays:
             raise DatasetError(f"a {task} dataset without each record's calibrated T ('t'): "

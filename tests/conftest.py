@@ -1,5 +1,6 @@
 """Shared fixtures: seeded generators, hypothesis profiles, and transducers of realistic size."""
 
+import dataclasses
 import os
 import shutil
 import zlib
@@ -13,6 +14,8 @@ from lightning.pytorch.callbacks import Callback
 from wtml.cli import main
 from wtml.data import generate
 from wtml.physics import LumpedTransducer
+from wtml.physics.beam_presets import build as build_preset
+from wtml.physics.modal import ModalTransducer
 from wtml.scenes import FluidScene, RadialScene
 from wtml.scenes.config import build
 from wtml.training import cli_main
@@ -125,3 +128,23 @@ def radial_flow(tmp_path_factory):
     finally:
         os.chdir(cwd)
     return tmp
+
+
+W_H = 2 * np.pi * 420.0
+"""The onset probe's ω, rad/s."""
+
+
+@pytest.fixture(scope="module")
+def micro():
+    """The micro preset's modal model without dielectric loss: the loss current is linear in E,
+    added after stepping (tested in test_modal), and has nothing to do with the wall."""
+    return dataclasses.replace(ModalTransducer.from_beam(build_preset("micro"), 3),
+                               loss_tangent=0.0)
+
+
+def whisk(fs, seconds=0.05, whisk_hz=10.0):
+    """The onset drive sped up (10 Hz whisk, 9.5 V; 20 mV probe at 420 Hz): E and dE/dt."""
+    t = np.arange(int(round(seconds * fs))) / fs
+    wl = 2 * np.pi * whisk_hz
+    return (-9.5 * np.cos(wl * t) + 0.02 * np.sin(W_H * t),
+            9.5 * wl * np.sin(wl * t) + 0.02 * W_H * np.cos(W_H * t))

@@ -2,34 +2,17 @@
 impact, step halving, the numba stepper against a slow per-record reference, and the linear
 law against the exact switched wall."""
 
-import dataclasses
 
 import numpy as np
 import pytest
 from scipy.linalg import expm
 from scipy.optimize import brentq
 
-from wtml.physics.beam_presets import build
+from tests.conftest import whisk
 from wtml.physics.contact import LAWS, ContactWall, hertz_constant
 from wtml.physics.modal import ModalTransducer, Wall
 
-W_H = 2 * np.pi * 420.0
 FS = 26880.0
-
-
-@pytest.fixture(scope="module")
-def micro():
-    """The micro preset's modal model without dielectric loss: the loss current is linear in E,
-    added after stepping (tested in test_modal), and has nothing to do with the wall."""
-    return dataclasses.replace(ModalTransducer.from_beam(build("micro"), 3), loss_tangent=0.0)
-
-
-def whisk(fs, seconds=0.05, whisk_hz=10.0):
-    """The onset drive sped up (10 Hz whisk, 9.5 V; 20 mV probe at 420 Hz): E and dE/dt."""
-    t = np.arange(int(round(seconds * fs))) / fs
-    wl = 2 * np.pi * whisk_hz
-    return (-9.5 * np.cos(wl * t) + 0.02 * np.sin(W_H * t),
-            9.5 * wl * np.sin(wl * t) + 0.02 * W_H * np.cos(W_H * t))
 
 
 def run(model, load, fs, **kw):

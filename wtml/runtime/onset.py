@@ -174,8 +174,9 @@ def contacts_from(pred: dict, metadata: dict) -> tuple[np.ndarray, np.ndarray]:
     with ``touch >= 1`` starts, of those from :data:`TOUCH_LOOKBACK` frames ahead of the run
     (not reaching back into the contact before) up to the run's first frame with ``contact >
     0.5`` (on that frame if none): a touch steps Zm on each frame as it deepens, while a noise
-    step over the threshold stands alone (on the bench-top acquisition 1 frame in ~20 of free
-    whisking: the first such frame ahead called ~1 onset in 6 early), and
+    step over the threshold stands alone (on the bench-top acquisition 4 % of free whisking's
+    frames, the main job's test shards: over 4 frames of lookback, the first such frame
+    would call ~1 onset in 6 early), and
     ends on its last frame with ``detach_margin >= 0``. Without (the classical path), a run
     of ``contact > 0.5``.
     Runs closer than ``merge_s`` are one contact.

@@ -18,14 +18,16 @@ The graph takes the raw records and computes its own features per probe period (
 2. A causal temporal convolution over the frames (dilated, so it sees ~60 frames back: the
    400 Hz mode rings for ~40 ms), fed the normalised frames, u_L's step and Zm's step from
    the frame before (compressed by asinh on the scale of free whisking's frame-to-frame
-   jitter). Per frame: the contact logit, and for two quantities a vote weight and the
-   frame's estimate (relative to the whisking position): the wall's location g (with a log
-   std) and the *detachment level* (below). Because it is causal, the streaming form
-   (:class:`StreamingOnset`, fed chunks, its state carried) gives the offline answer.
-3. Each quantity is pooled over the frames by softmax weights, ``g = Σ_t w_t (u_L(t) + δ_t)``:
-   each frame near an edge says where the wall is relative to the whisking position, which
-   accounts for the tip touching on the probe's peaks before u_L reaches g (§10). g's
-   variance is the same weighted mean of the frames' variances.
+   jitter; the step scaled to the nominal device's noise, :meth:`OnsetNet.scaled`). Per frame:
+   the contact logit, and for two quantities a vote weight and the frame's estimate (relative
+   to the free tip's reach on the probe peaks, ``u_L + |u_H|``, below): the wall's location g
+   (with a log std) and the *detachment level* (below). Because it is causal, the streaming
+   form (:class:`StreamingOnset`, fed chunks, its state carried) gives the offline answer.
+3. Each quantity is pooled over the frames by softmax weights, ``g = Σ_t w_t (u_L(t) +
+   |u_H(t)| + δ_t)``: each frame near an edge says where the wall is relative to the tip's
+   reach, which accounts for the tip touching on the probe's peaks before u_L reaches g (§10)
+   with each device's own probe amplitude |u_H| (|t12| at the probe spreads 0.5-1.4x over the
+   trained devices). g's variance is the same weighted mean of the frames' variances.
 4. Timing. The first touch, on a probe peak, shows in its own frame as a step of Zm from the frame
    before (4e-6 N·s/m and more, where free whisking's frames differ by ~1e-7 on a quiet acquisition
    and ~6e-7 on the bench-top one): the output ``touch`` is that step's size over a threshold fitted
@@ -380,8 +382,10 @@ class OnsetNet(nn.Module):
 
     def __init__(self, frames: ProbeFrames, scale: torch.Tensor, zm_step: torch.Tensor,
                  touch_step: float, amp: float, probe_omega: float, channels: int,
-                 dilations: tuple[int, ...], kernel: int = 3) -> None:
+                 dilations: tuple[int, ...], kernel: int = 3, t12: float = 0.0) -> None:
         super().__init__()
+        # the nominal device's |t12| at the probe (0: steps not rescaled; see :meth:`scaled`)
+        self.per_volt_ref = 1.0 / (float(probe_omega) * t12) if t12 > 0 else 0.0
         self.frames = frames
         self.register_buffer("mean", scale[0].float().clone())
         self.register_buffer("std", scale[1].float().clone())
@@ -403,6 +407,20 @@ class OnsetNet(nn.Module):
         x = torch.cat([previous, f[..., :3]], 1)
         return x[:, 1:] - x[:, :-1]
 
+    def scaled(self, step: torch.Tensor, per_volt: torch.Tensor) -> torch.Tensor:
+        """Steps (:meth:`steps`) with Zm's in the nominal device's units of noise: times
+        ``(|t12_nominal| / |t12|)²`` (with :meth:`reach_per_volt`, ``(batch, 1)``). Near the
+        free tip ``dZm/dI_H = -t12² / E_H``, so the current channel's noise steps each
+        device's Zm in proportion to ``|t12|²``, and |t12| at the probe (20 Hz above the first
+        mode) spreads 0.5-1.4x over the trained devices: free whisking's median Zm step
+        spread 8x between records (log-correlated 0.90 with ``|t12|²``), so one threshold
+        called noise a touch on the devices of large |t12| and missed grazes on the others.
+        A contact's own step (the wall's Zm) does not scale with the device."""
+        if self.per_volt_ref <= 0:
+            return step
+        k = (per_volt / self.per_volt_ref) ** 2  # (|t12_nominal| / |t12|)², (batch, 1)
+        return torch.cat([step[..., :1], step[..., 1:] * k[..., None]], -1)
+
     def reach_per_volt(self, t_re: torch.Tensor, t_im: torch.Tensor) -> torch.Tensor:
         """The calibrated free tip's probe amplitude per probe volt, ``1/(ωH |t12|)`` (m/V),
         ``(batch, 1)``, from each record's T at the probe ``(batch, 4)``."""
@@ -421,11 +439,12 @@ class OnsetNet(nn.Module):
         ``log_sd`` of g (m), ``vote_off``/``est_off`` of the detachment level (m),
         ``reach`` (m) and ``touch`` (Zm's step over :attr:`touch_step`: >= 1 on a touch)."""
         f = self.frames(e, i, t_re, t_im, hue0)
-        return self.split(f, self.steps(f, f[:, :1, :3]), self.reach_per_volt(t_re, t_im))
+        per_volt = self.reach_per_volt(t_re, t_im)
+        return self.split(f, self.scaled(self.steps(f, f[:, :1, :3]), per_volt), per_volt)
 
     def split(self, f: torch.Tensor, step: torch.Tensor, per_volt: torch.Tensor
               ) -> dict[str, torch.Tensor]:
-        """The heads of frames ``f`` ``(batch, n, 5)`` with their steps (:meth:`steps`) and
+        """The heads of frames ``f`` ``(batch, n, 5)`` with their steps (:meth:`scaled`) and
         the records' reach per volt (:meth:`reach_per_volt`)."""
         return self.outputs(self.head(self.body(self.inputs(f, step))), f, step, per_volt)
 
@@ -441,11 +460,15 @@ class OnsetNet(nn.Module):
                 per_volt: torch.Tensor) -> dict[str, torch.Tensor]:
         """The per-frame quantities (see :meth:`per_frame`) from the heads ``(batch, 6, n)``,
         the frames, their steps and the records' reach per volt."""
-        u = f[..., 0]
+        # g and the detachment level relative to the free tip's reach on the probe peaks, not
+        # u_L: the tip touches where u_L + |u_H| passes g, and |u_H| (0.22 µm at the nominal
+        # device) is each device's own, |t12| at the probe spreading 0.5-1.4x over the trained
+        # devices, which the net does not see (its frames hold |E_H|, the same for all)
+        reach = self.reach(f, per_volt)
         zm = step[..., 1:]
-        return {"contact": h[:, 0], "vote": h[:, 1], "est": u + self.amp * h[:, 2],
-                "log_sd": h[:, 3], "vote_off": h[:, 4], "est_off": u + self.amp * h[:, 5],
-                "reach": self.reach(f, per_volt),
+        return {"contact": h[:, 0], "vote": h[:, 1], "est": reach + self.amp * h[:, 2],
+                "log_sd": h[:, 3], "vote_off": h[:, 4], "est_off": reach + self.amp * h[:, 5],
+                "reach": reach,
                 "touch": torch.sqrt((zm * zm).sum(-1)) / self.touch_step}
 
     def pooled(self, p: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
@@ -650,8 +673,7 @@ class OnsetDecoder(DecoderModule):
         # reach on it (the nominal free tip's |u_H| = |E_H| / (ωH |t12|); a device of the
         # spread differs by a few %)
         wh = 2 * np.pi * scene.drive.probe_hz
-        t12 = scene.transducer().transduction_matrix(np.array([wh]))[0, 0, 1]
-        reach = scene.drive.probe_v / (wh * abs(t12))
+        reach = scene.drive.probe_v / (wh * nominal_t12(scene))
         return ProbeFrames(period, mains, free_below=scene.gap_range_m()[0] - 2 * reach)
 
     def domain_features(self, scene) -> tuple[nn.Module, int]:
@@ -663,7 +685,7 @@ class OnsetDecoder(DecoderModule):
         return OnsetNet(self._frames(scene), scale,
                         torch.ones(2) if zm_step is None else zm_step, touch_step,
                         scene.whisk_amplitude_m(), 2 * np.pi * scene.drive.probe_hz,
-                        h.channels, tuple(h.dilations))
+                        h.channels, tuple(h.dilations), t12=nominal_t12(scene))
 
     def build_net(self, scene, *tensors) -> nn.Module:
         *inputs, targets = tensors
@@ -682,14 +704,19 @@ class OnsetDecoder(DecoderModule):
         # float32 resolves it, or rounding differences between graphs would drive the net
         floor = RESOLUTION * flat.abs().amax(0)
         scale = torch.stack([flat.mean(0), torch.maximum(flat.std(0), floor)])
-        step = OnsetNet.steps(f, f[:, :1, :3])[..., 1:]
+        # Zm's steps in the nominal device's noise units (OnsetNet.scaled)
+        ref = self._make(scene, scale)
+        step = ref.scaled(OnsetNet.steps(f, f[:, :1, :3]),
+                          ref.reach_per_volt(inputs[2], inputs[3]))[..., 1:]
         zm_step = torch.maximum(step.abs().flatten(0, 1).median(0).values, floor[1:3])
         frame_s = frame_period(scene) / scene.acquisition.sample_rate_hz
         self.offsets.copy_(torch.tensor(edge_offsets(targets.numpy(), frame_s,
                                                      scene.max_contacts)))
         self._frame_s, self._max_contacts = frame_s, scene.max_contacts
+        # the rule (contacts_from) starts a contact where its last run of touches starts: an
+        # onset is called right iff its own frame's step passes and the frame before's does not
         touch = touch_threshold(step.norm(dim=-1).double().numpy(), targets.numpy(), frame_s,
-                                scene.max_contacts)
+                                scene.max_contacts, lookback=1)
         return self._make(scene, scale, zm_step, max(touch, float(floor[1:3].max())))
 
     def net_shape(self) -> dict:
@@ -727,6 +754,12 @@ class OnsetDecoder(DecoderModule):
         timing = (timing + torch.log1p(torch.exp(-2 * timing)) - np.log(2.0))  # log cosh
         timing = timing.sum() / max(timing.numel(), 1)
         return bce + self.hparams.location_weight * nll + self.hparams.timing_weight * timing
+
+
+def nominal_t12(scene) -> float:
+    """|t12| (V·s/m) of the scene's nominal device at the probe frequency."""
+    wh = 2 * np.pi * scene.drive.probe_hz
+    return float(abs(scene.transducer().transduction_matrix(np.array([wh]))[0, 0, 1]))
 
 
 def frame_period(scene) -> int:

@@ -98,7 +98,8 @@ class StreamingOnset(nn.Module):
             return torch.where(first, new, op(old, new))
 
         prev = torch.where(first[:, None, None], f[:, :1, :3], prev[:, None])
-        step = net.steps(f, prev)
+        per_volt = net.reach_per_volt(t_re, t_im)
+        step = net.scaled(net.steps(f, prev), per_volt)
         x = net.inputs(f, step)
         carried = []
         for layer in net.body:
@@ -109,7 +110,7 @@ class StreamingOnset(nn.Module):
                 x = layer.conv(full)
             else:
                 x = layer(x)
-        p = net.outputs(net.head(x), f, step, net.reach_per_volt(t_re, t_im))
+        p = net.outputs(net.head(x), f, step, per_volt)
         pooled, merged = [], []
         for vote, est, log_sd, at in POOLS:
             run = pool[:, at:at + (4 if log_sd else 3)]

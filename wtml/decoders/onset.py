@@ -493,8 +493,13 @@ class OnsetNet(nn.Module):
 CONFIRM_FRAMES = 4
 """Frames before a frame in which a touch (Zm's step over the threshold) confirms its contact
 probability (:func:`confirm`; the runtime looks as far back for the onset,
-:data:`wtml.runtime.onset.TOUCH_LOOKBACK`)."""
+:data:`TOUCH_LOOKBACK`)."""
 
+
+TOUCH_LOOKBACK = 4
+"""Frames ahead of a decoder's contact run in which its first touch is still looked for (the
+run starts where the reach passes the detachment level or the probability passes 0.5,
+either of which can come a frame or two after the first touch)."""
 
 def confirm(prob: torch.Tensor, touch: torch.Tensor, past: torch.Tensor, seen: torch.Tensor
             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -569,7 +574,7 @@ def touch_threshold(step: np.ndarray, targets: np.ndarray, frame_s: float, max_c
     ``step`` ``(n, n_frames)`` the steps' size, targets as :func:`frame_labels`; 1.0
     without an onset."""
     if lookback is None:
-        from wtml.runtime.onset import TOUCH_LOOKBACK as lookback
+        lookback = TOUCH_LOOKBACK
     on = targets[:, 1:1 + max_contacts]
     first, ahead = [], []
     for r, k in zip(*np.nonzero(np.isfinite(on)), strict=True):

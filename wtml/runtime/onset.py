@@ -30,7 +30,7 @@ from wtml import __version__
 from wtml.baselines.onset_classical import ThesisOnset
 from wtml.data.datamodule import onset_calibration
 from wtml.decoders.domain import Gated
-from wtml.decoders.onset import CALIBRATION, frame_period
+from wtml.decoders.onset import CALIBRATION, TOUCH_LOOKBACK, frame_period
 from wtml.decoders.onset_stream import StreamingOnset
 from wtml.runtime.export import _export, domain_metadata
 from wtml.runtime.predict import InputError, read_calibration
@@ -47,10 +47,6 @@ ONSET_OUTPUTS = ("gap", "sigma", "contact")
 DECODER_OUTPUTS = ONSET_OUTPUTS + ("detach_margin", "touch")
 STREAM_INPUTS = ("e", "i", *CALIBRATION, "state")
 STREAM_OUTPUTS = ("contact", "detach_margin", "touch", "gap", "sigma", "next_state")
-TOUCH_LOOKBACK = 4
-"""Frames ahead of a decoder's contact run in which its first touch is still looked for (the
-run starts where the reach passes the detachment level or the probability passes 0.5,
-either of which can come a frame or two after the first touch)."""
 STREAM_CHUNK_FRAMES = 1
 """Probe periods per chunk of the exported streaming graph (2.4 ms at the defaults)."""
 FRESH_RECORDS = 64

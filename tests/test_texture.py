@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from wtml.decoders.texture import CalibratedT, ModalT, WhiskFeatures, cholesky_solve
+from wtml.decoders.texture import CalibratedT, WhiskFeatures, cholesky_solve
 from wtml.fidelity import format_texture, texture_fidelity
 from wtml.physics.twoport import flat_parts
 from wtml.scenes import load_scene
@@ -26,15 +26,6 @@ def test_unrolled_cholesky_solves_like_numpy():
     b = rng.standard_normal((3, 7, 2))
     x = cholesky_solve(torch.tensor(g), torch.tensor(b)).numpy()
     np.testing.assert_allclose(x, np.linalg.solve(g, b), rtol=1e-10, atol=1e-12)
-
-
-def test_graph_t_is_the_modal_models(scene):
-    model = scene.transducer()
-    w = 2 * np.pi * np.array([30.0, 35.5, 36.0, 37.0, 45.0])
-    t = model.transduction_matrix(w).reshape(-1, 4)
-    parts = [p.double().numpy() for p in ModalT(model)(torch.tensor(w, dtype=torch.float32))]
-    got = np.stack([parts[2 * k] + 1j * parts[2 * k + 1] for k in range(4)], 1)
-    np.testing.assert_allclose(got, t, rtol=1e-5)
 
 
 def test_calibrated_t_interpolates_the_users_t_to_the_measured_omega(scene):

@@ -50,17 +50,6 @@ BAYES_GRID = {"n_fraction": 200, "n_temperature": 50}
 medians move by less than the rows' sampling error)."""
 
 
-class Calibrated:
-    """A fluid predictor with its records' calibrated T bound, behind ``predict(ze)`` (for the
-    timing helpers): the first ``len(ze)`` rows of ``t``."""
-
-    def __init__(self, predictor, t: np.ndarray) -> None:
-        self.predictor, self.t, self.name = predictor, t, predictor.name
-
-    def predict(self, ze: np.ndarray) -> dict[str, np.ndarray]:
-        return self.predictor.predict(ze, self.t[:len(ze)])
-
-
 def device_spread(scene, decoder: OnnxModel, classical: OnnxModel, n: int,
                   seed: int = 2024) -> list[dict]:
     """The device-spread table's rows (module docstring): per device set, ``{"device",
@@ -143,15 +132,14 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
             false_alarm = float(1 - pred["in_domain"].mean())
         err = relative_errors(pred, eta, rho)
         results.append({"name": p.name, "rows": by_decade(err, eta),
-                        "latency": latency_p50(Calibrated(p, t), ze[:1], latency_repeats),
-                        "throughput": throughput(Calibrated(p, big_t), big,
-                                                 throughput_repeats)})
+                        "latency": latency_p50(p, (ze[:1], t[:1]), latency_repeats),
+                        "throughput": throughput(p, (big, big_t), throughput_repeats)})
     bayes = BayesFluid(scene)
     start = time.perf_counter()
     best = bayes.predict(ze, t)
     bayes_rate = len(ze) / (time.perf_counter() - start)  # its accuracy pass, batch = all
     results.append({"name": bayes.name, "rows": by_decade(relative_errors(best, eta, rho), eta),
-                    "latency": latency_p50(Calibrated(bayes, t), ze[:1], latency_repeats),
+                    "latency": latency_p50(bayes, (ze[:1], t[:1]), latency_repeats),
                     "throughput": bayes_rate})
     spread_rows = device_spread(scene, decoder_onnx, classical_onnx, device_records)
     exact = classical_exactness(scene)

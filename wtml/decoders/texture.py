@@ -64,56 +64,6 @@ def cholesky_solve(g: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.stack(x, 1)
 
 
-class ModalT(nn.Module):
-    """T(ω) of a :class:`~wtml.physics.modal.ModalTransducer` in the graph, real and imaginary
-    parts of ``(t11, t12, t21, t22)``, each ``(batch,)``, for ω (rad/s) ``(batch,)``."""
-
-    def __init__(self, model) -> None:
-        super().__init__()
-        for name, value in (("omega_n", model.omega_n), ("zeta", model.zeta),
-                            ("tip", model.tip), ("coupling", model.coupling)):
-            self.register_buffer(name, torch.tensor(value, dtype=torch.float64).float())
-        a_r, b_r, d_r = model.residual
-        self.a_r, self.b_r = float(a_r), float(b_r)
-        self.d_r = float(d_r) + float(model.capacitance)
-        self.loss = float(model.capacitance * model.loss_tangent)  # -Im of Cp (1 - j tanδ)
-        # forms scaled to O(1) in float32: a in m/N, beta in m/V, delta in F
-        self.sa, self.sb, self.sd = 1e-3, 1e-6, 1e-8
-
-    def forward(self, w: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        wn, z = self.omega_n, self.zeta
-        wc = w[:, None]
-        den_re = (wn**2 - wc**2) / wn**2
-        den_im = 2 * z * wn * wc / wn**2
-        mag = den_re**2 + den_im**2
-        h_re, h_im = den_re / mag / wn**2, -den_im / mag / wn**2  # 1/(Ω²-ω²+2jζΩω)
-        a_re = (h_re * self.tip**2).sum(-1) / self.sa + self.a_r / self.sa
-        a_im = (h_im * self.tip**2).sum(-1) / self.sa
-        tc = self.tip * self.coupling
-        b_re = (h_re * tc).sum(-1) / self.sb + self.b_r / self.sb
-        b_im = (h_im * tc).sum(-1) / self.sb
-        d_re = (h_re * self.coupling**2).sum(-1) / self.sd + self.d_r / self.sd
-        d_im = (h_im * self.coupling**2).sum(-1) / self.sd - self.loss / self.sd
-        bb = b_re**2 + b_im**2
-
-        def div(x_re, x_im):  # x / beta
-            return (x_re * b_re + x_im * b_im) / bb, (x_im * b_re - x_re * b_im) / bb
-
-        t11 = div(a_re, a_im)
-        t11 = (t11[0] * self.sa / self.sb, t11[1] * self.sa / self.sb)
-        inv = div(torch.ones_like(w), torch.zeros_like(w))  # 1/beta (scaled)
-        t12 = (inv[1] / (w * self.sb), -inv[0] / (w * self.sb))  # 1/(jω β)
-        ad_re = (a_re * d_re - a_im * d_im) * self.sa * self.sd
-        ad_im = (a_re * d_im + a_im * d_re) * self.sa * self.sd
-        b2_re = (b_re**2 - b_im**2) * self.sb**2
-        b2_im = 2 * b_re * b_im * self.sb**2
-        q = div(ad_re - b2_re, ad_im - b2_im)
-        t21 = (-w * q[1] / self.sb, w * q[0] / self.sb)
-        t22 = div(d_re, d_im)
-        t22 = (t22[0] * self.sd / self.sb, t22[1] * self.sd / self.sb)
-        return (*t11, *t12, *t21, *t22)
-
-
 class CalibratedT(nn.Module):
     """The user's calibrated T at the measured ω: T given at ``K`` frequencies (an input of
     the graph, one per window) interpolated by the Lagrange polynomial through all K, in

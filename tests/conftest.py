@@ -17,7 +17,7 @@ from wtml.physics import LumpedTransducer
 from wtml.physics.beam_presets import build as build_preset
 from wtml.physics.modal import ModalTransducer
 from wtml.scenes import FluidScene, RadialScene
-from wtml.scenes.config import build
+from wtml.schema import build
 from wtml.training import cli_main
 
 settings.register_profile("ci", max_examples=60, deadline=None,

@@ -12,7 +12,7 @@ from tests.conftest import ROOT
 from wtml.constants import BOLTZMANN
 from wtml.physics.spread import DeviceSpread
 from wtml.scenes import load_scene
-from wtml.scenes.config import SceneError, build
+from wtml.schema import SceneError, build
 from wtml.scenes.onset import OnsetScene
 from wtml.scenes.texture import TextureScene
 from wtml.signals.acquisition import (

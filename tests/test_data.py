@@ -9,7 +9,7 @@ from wtml.data import DatasetError, generate, load_shards, read_manifest
 from wtml.data.datamodule import ShardDataModule, split_shards
 from wtml.data.shards import shard_sizes
 from wtml.scenes import FluidScene
-from wtml.scenes.config import build
+from wtml.schema import build
 
 SCENE = build(FluidScene, {"samples": 400, "shards": 4})
 

@@ -29,7 +29,7 @@ from wtml.physics.twoport import flat_parts
 from wtml.runtime.export import ClassicalFluidNet
 from wtml.runtime.predict import InputError, OnnxModel, predict_file
 from wtml.scenes import FluidScene, to_dict
-from wtml.scenes.config import SceneError, build
+from wtml.schema import SceneError, build
 from wtml.signals import complex_noise, sample_times, tone
 from wtml.training import cli_main
 

@@ -12,7 +12,7 @@ from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, describing_function, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.scenes import SceneError
-from wtml.scenes.config import build as build_config
+from wtml.schema import build as build_config
 from wtml.scenes.texture import (
     LUGRE_OVERSAMPLE,
     NOMINAL_ANGLE_DEG,

@@ -19,7 +19,7 @@ from wtml.decoders.radial import RadialNet, TorchRadial, load_radial_net
 from wtml.physics import ze_from_zm
 from wtml.runtime.predict import OnnxModel, predict_file
 from wtml.scenes import RadialScene, SceneError, load_scene
-from wtml.scenes.config import build, to_dict
+from wtml.schema import build, to_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = RADIAL_SMALL

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from wtml.decoders.layers import HermiteTable
 from wtml.decoders.radial import RadialDecoder, RefinedRadialNet, contact_table, one_cycle
 from wtml.scenes import RadialScene
-from wtml.scenes.config import build
+from wtml.schema import build
 
 SCENE = build(RadialScene, {"samples": 1600, "shards": 4,
                             "excitation": {"frequencies_hz": [420.0, 380.0, 460.0]}})

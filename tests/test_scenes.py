@@ -9,7 +9,7 @@ from wtml.physics.loads import stokes_sphere
 from wtml.physics.lumped import LumpedTransducer
 from wtml.physics.presets import FLUID_SPHERE_MASS, FLUID_SPHERE_RADIUS, fluid_lumped
 from wtml.scenes import FluidScene, SceneError, config_hash, load_scene
-from wtml.scenes.config import build
+from wtml.schema import build
 
 
 def write(tmp_path, text):

@@ -12,7 +12,7 @@ from wtml.physics.beam import BeamTransducer
 from wtml.physics.beam_presets import PRESETS, build, device_parameters
 from wtml.physics.spread import DeviceSpread, device_ze, devices, draw_factors
 from wtml.scenes import RadialScene, SceneError
-from wtml.scenes.config import build as build_config
+from wtml.schema import build as build_config
 from wtml.signals import complex_noise
 
 SPREAD = DeviceSpread(length=0.01, thickness=0.01, modulus=0.03, loss_factor=0.25,

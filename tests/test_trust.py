@@ -37,7 +37,7 @@ from wtml.physics.twoport import flat_parts
 from wtml.pipeline import Stages, checkpoint_matches, summary
 from wtml.runtime.predict import OnnxModel, predict_file
 from wtml.scenes import load_scene
-from wtml.scenes.config import build
+from wtml.schema import build
 from wtml.signals import complex_noise
 from wtml.training import cli_main
 

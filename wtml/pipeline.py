@@ -22,7 +22,7 @@ from wtml.decoders.checkpoint import CheckpointError, read_checkpoint
 from wtml.runtime.export import export_model
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.scenes import config_hash, load_scene, scene_from_dict
-from wtml.scenes.config import yaml_load
+from wtml.schema import yaml_load
 from wtml.training import cli_main, duration
 
 TRANSFER_RECORDS = 4

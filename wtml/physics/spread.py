@@ -27,7 +27,7 @@ from wtml.physics.beam_presets import build, device_parameters
 
 
 def _width(high: float, default=0.0):
-    """A field in [0, high], validated by ``wtml.scenes.config.build`` like one made by its
+    """A field in [0, high], validated by ``wtml.schema.build`` like one made by its
     ``bounded`` (which this module cannot import: ``wtml.scenes`` imports it)."""
     return field(default=default, metadata={"range": (0.0, high)})
 

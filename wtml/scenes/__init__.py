@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from wtml.scenes.config import SceneError, config_hash, load_yaml, to_dict, yaml_load
+from wtml.schema import SceneError, config_hash, load_yaml, to_dict, yaml_load
 from wtml.scenes.fluid import FluidScene
 from wtml.scenes.onset import OnsetScene
 from wtml.scenes.radial import RadialScene
@@ -28,7 +28,7 @@ def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene | Text
 
 def scene_from_dict(data: dict) -> FluidScene | RadialScene | OnsetScene | TextureScene:
     """Rebuild a scene from the mapping stored in a manifest."""
-    from wtml.scenes.config import build
+    from wtml.schema import build
 
     return build(SCENES[data.get("task", "fluid")], data)
 

@@ -35,7 +35,7 @@ from wtml.physics.fluids import glycerol_water, water
 from wtml.physics.loads import stokes_sphere
 from wtml.physics.lumped import LumpedTransducer
 from wtml.physics.presets import PRESETS
-from wtml.scenes.config import SceneError, bounded, one_of
+from wtml.schema import SceneError, bounded, one_of
 from wtml.signals import complex_noise
 
 _LUMPED_FIELDS = ("c0", "phi", "k", "m", "c", "tan_delta")

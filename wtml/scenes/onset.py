@@ -44,7 +44,7 @@ from typing import ClassVar
 
 import numpy as np
 
-import wtml.signals.acquisition as acq  # as a module: it imports wtml.scenes.config
+import wtml.signals.acquisition as acq  # as a module: it imports wtml.schema
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import PRESETS, build
 from wtml.physics.contact import (
@@ -58,7 +58,7 @@ from wtml.physics.contact import (
 )
 from wtml.physics.modal import ModalTransducer, Wall
 from wtml.physics.spread import DeviceSpread, draw_factors
-from wtml.scenes.config import SceneError, bounded, mixture, one_of
+from wtml.schema import SceneError, bounded, mixture, one_of
 from wtml.signals.excitation import lead_in
 from wtml.signals.noise import quantize
 

@@ -33,7 +33,7 @@ import numpy as np
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import PRESETS, build
 from wtml.physics.spread import DeviceSpread, device_ze, devices, draw_factors
-from wtml.scenes.config import SceneError, bounded, one_of
+from wtml.schema import SceneError, bounded, one_of
 from wtml.signals import complex_noise
 
 

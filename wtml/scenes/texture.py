@@ -49,7 +49,7 @@ from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.physics.spread import DeviceSpread, draw_factors
-from wtml.scenes.config import SceneError, bounded, mixture, one_of
+from wtml.schema import SceneError, bounded, mixture, one_of
 from wtml.scenes.onset import Acquisition
 from wtml.signals.excitation import lead_in
 

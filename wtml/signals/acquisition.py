@@ -32,7 +32,7 @@ import numpy as np
 
 from wtml.constants import BOLTZMANN
 from wtml.physics.validation import check_range
-from wtml.scenes.config import SceneError, bounded
+from wtml.schema import SceneError, bounded
 
 
 @dataclass(frozen=True)

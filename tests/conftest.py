@@ -148,3 +148,13 @@ def whisk(fs, seconds=0.05, whisk_hz=10.0):
     wl = 2 * np.pi * whisk_hz
     return (-9.5 * np.cos(wl * t) + 0.02 * np.sin(W_H * t),
             9.5 * wl * np.sin(wl * t) + 0.02 * W_H * np.cos(W_H * t))
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The fuzz harness's counts per file kind, when it ran (tests/test_fuzz.py)."""
+    import sys
+
+    stats = sys.modules.get("tests.fuzz.stats")
+    if stats is not None and stats.STATS:
+        terminalreporter.write_sep("=", "fuzz harness: outcomes per file kind")
+        terminalreporter.write_line(stats.table())

@@ -2,11 +2,11 @@
 
 from pathlib import Path
 
-from wtml.schema import SceneError, config_hash, load_yaml, to_dict, yaml_load
 from wtml.scenes.fluid import FluidScene
 from wtml.scenes.onset import OnsetScene
 from wtml.scenes.radial import RadialScene
 from wtml.scenes.texture import TextureScene
+from wtml.schema import SceneError, config_hash, load_yaml, to_dict, yaml_load
 
 SCENES = {"fluid": FluidScene, "radial": RadialScene, "onset": OnsetScene,
           "texture": TextureScene}

@@ -33,7 +33,8 @@ EXAMPLES = {"scene": 6, "config": 2, "manifest": 8, "sidecar": 4, "shard": 6,
             "checkpoint": 6, "export": 8, "input": 6, "calibration": 3, "reference": 3,
             "record": 0}
 """Cases per kind in the quick run (onset and texture records need their exports: slow)."""
-THOROUGH = 150
+THOROUGH = int(os.environ.get("FUZZ_EXAMPLES", "150"))
+"""Cases per kind in the slow run (``FUZZ_EXAMPLES`` changes it)."""
 LIGHT = ("fluid", "radial")
 """Tasks whose bases are shared session fixtures (cheap); onset and texture cost ~1 min each."""
 

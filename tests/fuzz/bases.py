@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from tests.fuzz.cases import Task
+from tests.fuzz.cases import Task, train_config
 from wtml.schema import to_dict
 
 
@@ -41,11 +41,15 @@ def fluid(flow, folder: Path) -> Task:
     freq = FLUID_SMALL.excitation.frequency_hz
     _inputs(folder, freq, rec["ze"])
     np.savez(folder / "cal.npz", frequency_hz=freq, t=rec["t"])
-    return Task("fluid", {"scene.yaml": folder / "scene.yaml", "data": tmp / "data",
+    task = Task("fluid", {"scene.yaml": folder / "scene.yaml", "data": tmp / "data",
                           "last.ckpt": ckpt, "export": tmp / "export",
                           "input.npz": folder / "input.npz", "input.csv": folder / "input.csv",
                           "cal.npz": folder / "cal.npz"},
                 ("--calibration", "cal.npz"), epochs=2)
+    # the training config's keys (a case folder writes its own, pointing at its copies)
+    (folder / "config.yaml").write_text(yaml.safe_dump(train_config(task, folder)))
+    task.files["config.yaml"] = folder / "config.yaml"
+    return task
 
 
 def radial(tmp: Path, folder: Path) -> Task:

@@ -165,13 +165,39 @@ def build(cls: type, data: Any, path: str = "") -> Any:
     return obj
 
 
+def read_yaml(path: str | Path, *, what: str = "YAML file") -> Any:
+    """The parsed contents of a YAML file, every failure one line naming the file: not a
+    regular file or too large (:func:`wtml.files.regular_file`), not UTF-8 text, not YAML
+    (with the line and column), nested too deeply.
+
+    Raises:
+        SchemaError: (a :class:`wtml.files.FileError` for the file itself) as above.
+    """
+    from wtml.files import JSON_MAX_BYTES, regular_file
+
+    path = regular_file(path, what=what, max_bytes=JSON_MAX_BYTES)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as err:
+        raise SchemaError(f"{path}: cannot read this {what} ({err.strerror})") from None
+    except UnicodeDecodeError as err:
+        raise SchemaError(f"{path}: not a text file (byte {err.start} is not UTF-8); a "
+                          f"{what} is YAML text") from None
+    try:
+        return yaml_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None) or getattr(err, "context_mark", None)
+        at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        raise SchemaError(f"{path}: not valid YAML{at}: {problem}") from None
+    except RecursionError:
+        raise SchemaError(f"{path}: nested too deeply to be a {what}") from None
+
+
 def load_yaml(cls: type, path: str | Path) -> Any:
     """Read a YAML file into dataclass ``cls``; errors name the file and the key path."""
     path = Path(path)
-    try:
-        data = yaml_load(path.read_text())
-    except (OSError, yaml.YAMLError) as err:
-        raise SchemaError(f"{path}: cannot read: {err}") from err
+    data = read_yaml(path)
     try:
         return build(cls, data)
     except SchemaError as err:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import os
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -81,9 +82,11 @@ def _flow(folder: Path, scene_map: dict, config: str, epochs: int) -> None:
     cwd = os.getcwd()
     os.chdir(ROOT)
     try:
-        cli_main(["fit", "--config", config, "--data.init_args.data_dir", str(folder / "data"),
-                  "--trainer.max_epochs", str(epochs), "--trainer.default_root_dir",
-                  str(folder / "run")])
+        with warnings.catch_warnings():  # the tests' fixtures run this in a subprocess
+            warnings.simplefilter("ignore")
+            cli_main(["fit", "--config", config, "--data.init_args.data_dir",
+                      str(folder / "data"), "--trainer.max_epochs", str(epochs),
+                      "--trainer.default_root_dir", str(folder / "run")])
     finally:
         os.chdir(cwd)
     assert main(["export", "--checkpoint", str(folder / "run/checkpoints/last.ckpt"), "--out",

@@ -69,7 +69,8 @@ def _save(kind: str, case: dict, result, signature: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     found = {"outcome": result.outcome, "signature": signature,
              "said": (result.error or result.stderr).strip()[-400:]}
-    path.write_text(json.dumps({**case, "found_on_main": found}, indent=1) + "\n")
+    path.write_text(json.dumps({**case, "owner": cases.OWNERS[kind], "found_on_main": found},
+                               indent=1) + "\n")
 
 
 def fuzz(bases: cases.Bases, kind: str, n: int, slow: bool, tmp_path_factory) -> None:

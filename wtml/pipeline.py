@@ -22,7 +22,7 @@ from wtml.decoders.checkpoint import CheckpointError, read_checkpoint
 from wtml.runtime.export import export_model
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.scenes import config_hash, load_scene, scene_from_dict
-from wtml.schema import yaml_load
+from wtml.schema import read_yaml
 from wtml.training import cli_main, duration
 
 TRANSFER_RECORDS = 4
@@ -77,7 +77,7 @@ def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
     info, hparams = state["wtml"], state.get("hyper_parameters", {})
     if config_hash(scene_from_dict(info["scene"])) != scene_hash:
         return False
-    cfg = yaml_load(Path(config).read_text())
+    cfg = read_yaml(config)
     epochs = max_epochs if max_epochs is not None else cfg.get("trainer", {}).get("max_epochs")
     if info.get("max_epochs") != epochs:
         return False
@@ -125,7 +125,7 @@ def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
 
 def _train(stages: Stages, slice_: str, config: str, data: Path, scene_hash: str,
            max_epochs: int | None) -> Path:
-    root = Path(yaml_load(Path(config).read_text())["trainer"]["default_root_dir"])
+    root = Path(read_yaml(config)["trainer"]["default_root_dir"])
     ckpt = root / "checkpoints" / "last.ckpt"
     args = ["fit", "--config", config, "--data.init_args.data_dir", str(data)]
     if max_epochs is not None:

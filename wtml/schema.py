@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import re
 import typing
 from collections.abc import Mapping
@@ -82,7 +83,11 @@ def mixture(path: str, weights: Any, family: tuple[str, ...]) -> np.ndarray:
 def _check_number(path: str, value: Any, low: float, high: float, kind: type) -> float | int:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise SchemaError(f"{path}: must be a number in [{low:g}, {high:g}], got {value!r:.80}")
-    if kind is int and float(value) != int(value):
+    if isinstance(value, int) and value.bit_length() > 63:  # float() of it may overflow
+        raise SchemaError(f"{path}: must be in [{low:g}, {high:g}], got an integer of "
+                          f"{len(str(abs(value)))} digits")
+    if kind is int and not isinstance(value, int) and not (
+            math.isfinite(value) and value == int(value)):  # 2.0 is 2; 2.5, inf, NaN are not
         raise SchemaError(f"{path}: must be an integer in [{low:g}, {high:g}], got {value!r}")
     if not low <= value <= high:  # NaN fails too
         raise SchemaError(f"{path}: must be in [{low:g}, {high:g}], got {value!r}")

@@ -140,6 +140,11 @@ PLAN: dict[str, dict[str, tuple[tuple[str, ...], tuple[str, ...]]]] = {
 }
 """Which commands read which files of each kind, per task (the case draws one of each)."""
 
+OWNERS = {"scene": "data", "config": "train", "manifest": "data", "sidecar": "data",
+          "shard": "data", "checkpoint": "train", "export": "export", "input": "export",
+          "calibration": "export", "reference": "export", "record": "export"}
+"""Which of issue 22's branches fixes the reader of each kind (the corpus notes it)."""
+
 SLOW_COMMANDS = ("fit", "resume", "export")
 """Commands of several seconds each (Lightning, the ONNX exporter): drawn in the slow run."""
 
@@ -265,6 +270,10 @@ def apply(bases: Bases, where: Path, case: dict) -> Path:
     m = case["mutation"]
     op = m["op"]
     if op in mutate.STRUCTURED_OPS:
+        value = m.get("value")
+        if isinstance(value, str) and value.startswith("$base:"):
+            task_name, _, name = value.removeprefix("$base:").partition("/")
+            m = {**m, "value": str(base_file(bases, task_name, name))}
         save_doc(target, mutate.apply_structured(load_doc(target), m))
     elif op in mutate.NPZ_OPS:
         mutate.apply_npz(target, m)
@@ -340,6 +349,28 @@ FOCUS = ("n_shards", "shards", "file", "index", "sha256", "complete", "scene", "
          "shape", "window_s", "data_dir", "accelerator", "hidden", "batch_size", "lr")
 """Keys the readers index: drawn more often."""
 
+SPECIAL = {"accelerator": ["gpu", "tpu", "mps", "auto"],
+           "devices": [0, 64, "x"],
+           "window_s": [1e-5, 1e-9, 1e3],
+           "data_dir": ["$base:radial/data", "$base:fluid/export", "$base:fluid/input.npz",
+                        "$base:onset/data", "$base:texture/data"],
+           "max_epochs": [0, 10**7, -1],
+           "batch_size": [0, 1, 10**9],
+           "hidden": [[], [0], [10**6, 10**6]],
+           "lr": [-1.0, 0.0, 1e9],
+           "val_shards": [0, 3, 100], "test_shards": [0, 3, 100],
+           "n_shards": [10**9, 1e9, 0, 2, 5],
+           "index": [0, 3, -1, 10**9],
+           "file": ["shard-00000.npz", "manifest.json", "../../x.npz", "/dev/zero"],
+           "count": [0, 10**9, -1],
+           "frame_s": [-1.0, 0.0, 1e9], "onset_offset_s": [mutate.NAN, -1e3],
+           "detach_offset_s": [mutate.NAN, 1e3],
+           "sample_rate_hz": [1, 0.5, 1e12, -1],
+           "n_samples": [0, 1, 10**12, -1],
+           "task": ["fluid", "radial", "onset", "texture", "other"],
+           "outputs": [[], ["sigma", "distance"], ["rho", "eta"]]}
+"""Values worth trying at a key of that name, besides the generic ones."""
+
 NPZ_VALUES = {"sample_rate_hz": [1, 0.5, 1e-300, 1e12, -1, [1.0, 2.0], 4.1e4, 3.3e4],
               "hue0": [0, -1e-3, [1.0, 2.0, 3.0]],
               "frequency_hz": [[1.0], [90.0, 90.0]]}
@@ -384,7 +415,7 @@ def draw_case(data, bases: Bases, kind: str, slow: bool) -> dict:
     foreign = sorted(bases.foreign())
     whole = mutate.file_mutation(foreign)
     if path.suffix in (".yaml", ".json", ".ckpt", ".onnx"):
-        choices = [mutate.structured(_doc(path), focus=FOCUS)] * 4 + [whole]
+        choices = [mutate.structured(_doc(path), focus=FOCUS, special=SPECIAL)] * 4 + [whole]
         if path.suffix == ".ckpt":
             others = [t for t in bases.tasks if t != task and "last.ckpt" in
                       bases.tasks[t].files]

@@ -2,7 +2,8 @@
 :func:`apply` turns into a tampered copy of a file, and hypothesis strategies that draw them.
 
 Values that JSON cannot hold are encoded: ``{"$float": "nan"}`` (also ``"inf"``,
-``"-inf"``), ``{"$complex": [re, im]}``. Operations:
+``"-inf"``), ``{"$complex": [re, im]}``; ``"$base:TASK/NAME"`` is the path of a base file
+(another task's dataset, say), resolved when the case is replayed. Operations:
 
 - structured (YAML, JSON, a checkpoint's ``wtml`` block, ONNX metadata): ``set`` (``path``,
   ``value``), ``delete`` (``path``), ``root`` (the whole document becomes ``value``);
@@ -131,9 +132,11 @@ def apply_structured(doc: Any, m: dict) -> Any:
 
 
 @st.composite
-def structured(draw, doc: Any, *, focus: tuple[str, ...] = ()) -> dict:
+def structured(draw, doc: Any, *, focus: tuple[str, ...] = (),
+               special: dict[str, list] | None = None) -> dict:
     """A ``set``, ``delete``, extra key or ``root`` mutation of ``doc``; ``focus``: key names
-    drawn more often (those the reader indexes)."""
+    drawn more often (those the reader indexes); ``special``: key name -> values worth trying
+    there (another task's dataset for ``data_dir``, ``gpu`` for ``accelerator``)."""
     every = paths(doc)
     choice = draw(st.sampled_from(["set", "set", "set", "delete", "extra", "root"]))
     if choice == "root":
@@ -151,7 +154,10 @@ def structured(draw, doc: Any, *, focus: tuple[str, ...] = ()) -> dict:
                                                                         "format2"]))],
                 "value": draw(VALUES)}
     old = _get(doc, list(path))
-    value = draw(st.one_of(VALUES, _same_kind(old)))
+    pool = [VALUES, _same_kind(old)]
+    if special and path and path[-1] in special:
+        pool.append(st.sampled_from(special[path[-1]]))
+    value = draw(st.one_of(*pool))
     return {"op": "set", "path": list(path), "value": value}
 
 

@@ -42,10 +42,16 @@ def fluid(flow, folder: Path) -> Task:
     freq = FLUID_SMALL.excitation.frequency_hz
     _inputs(folder, freq, rec["ze"])
     np.savez(folder / "cal.npz", frequency_hz=freq, t=rec["t"])
+    # the same Ze as the raw signals of a stepped sweep (3 V, 10 kHz, 40 ms per tone)
+    rate, t = 1e4, np.arange(400) / 1e4
+    phase = np.exp(2j * np.pi * freq[:, None] * t)
+    np.savez(folder / "rec.npz", frequency_hz=freq, sample_rate_hz=rate,
+             e=np.broadcast_to((3.0 * phase).real, (3, *phase.shape)),
+             i=(3.0 * phase[None] / rec["ze"][:, :, None]).real)
     task = Task("fluid", {"scene.yaml": folder / "scene.yaml", "data": tmp / "data",
                           "last.ckpt": ckpt, "export": tmp / "export",
                           "input.npz": folder / "input.npz", "input.csv": folder / "input.csv",
-                          "cal.npz": folder / "cal.npz"},
+                          "cal.npz": folder / "cal.npz", "rec.npz": folder / "rec.npz"},
                 ("--calibration", "cal.npz"), epochs=2)
     # the training config's keys (a case folder writes its own, pointing at its copies)
     (folder / "config.yaml").write_text(yaml.safe_dump(train_config(task, folder)))

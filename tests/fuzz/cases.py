@@ -105,6 +105,11 @@ COMMANDS = {
                               str(w / "input.npz"),
                               *[a if a.startswith("--") else str(w / a)
                                 for a in t.predict_args]]),
+    "predict_rec": ("wtml", ("export", "rec.npz", "cal.npz"),
+                    lambda w, t: ["predict", "--model", str(w / "export"), "--input",
+                                  str(w / "rec.npz"),
+                                  *[a if a.startswith("--") else str(w / a)
+                                    for a in t.predict_args]]),
     "predict_csv": ("wtml", ("export", "input.csv", "cal.npz"),
                     lambda w, t: ["predict", "--model", str(w / "export"), "--input",
                                   str(w / "input.csv"),
@@ -136,7 +141,8 @@ PLAN: dict[str, dict[str, tuple[tuple[str, ...], tuple[str, ...]]]] = {
               "radial": (("predict",), ("input.npz",))},
     "calibration": {t: (("predict",), ("cal.npz",)) for t in ("fluid", "onset", "texture")},
     "reference": {"radial": (("predict",), ("ref.npz",))},
-    "record": {t: (("predict",), ("input.npz",)) for t in ("onset", "texture")},
+    "record": {"fluid": (("predict_rec",), ("rec.npz",)),
+               **{t: (("predict",), ("input.npz",)) for t in ("onset", "texture")}},
 }
 """Which commands read which files of each kind, per task (the case draws one of each)."""
 

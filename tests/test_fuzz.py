@@ -126,5 +126,5 @@ def test_corpus(path, request, tmp_path):
     bases = request.getfixturevalue("light" if case["task"] in LIGHT else "heavy")
     limit = 90.0 if case["command"] in cases.SLOW_COMMANDS else 20.0
     result = cases.replay(bases, case, tmp_path, limit_s=limit)
-    record("corpus", case, result)
+    record("corpus", {**case, "file": f"{path.parent.name}/{path.stem}"}, result)
     assert result.outcome in ("ok", "flagged", "clear"), result.summary()

@@ -9,7 +9,8 @@ Values that JSON cannot hold are encoded: ``{"$float": "nan"}`` (also ``"inf"``,
   ``value``), ``delete`` (``path``), ``root`` (the whole document becomes ``value``);
 - arrays (``.npz``): ``npz_transform`` (``key``, ``transform``: see :data:`TRANSFORMS`),
   ``npz_set`` (``key``, ``value``: a scalar or a list), ``npz_delete`` (``key``),
-  ``npz_lie`` (``key``, ``shape``: a header that claims this shape over a tiny body);
+  ``npz_lie`` (``key``, ``shape``: a header that claims this shape over a tiny body),
+  ``npz_many`` (``ops``: several of these in a row);
 - whole files: ``truncate`` (``keep``: fraction of the bytes), ``empty``, ``bytes``
   (``hex``), ``fifo``, ``devzero`` (a symlink to /dev/zero), ``folder``, ``missing``,
   ``foreign`` (``with``: another base file's name, copied over it), ``symlink_escape``
@@ -244,6 +245,11 @@ def apply_npz(path: Path, m: dict) -> None:
         arrays[key] = np.array(value)
     elif m["op"] == "npz_delete":
         arrays.pop(key, None)
+    elif m["op"] == "npz_many":  # several changes at once (every key emptied, say)
+        path_ops = m["ops"]
+        for sub in path_ops:
+            apply_npz(path, sub)
+        return
     elif m["op"] == "npz_lie":
         arrays.pop(key, None)
         raw[key] = _lying_npy(m["shape"], m.get("dtype", "<f8"))
@@ -360,5 +366,5 @@ def csv_mutation(draw, n_rows: int, n_cols: int) -> dict:
 
 
 STRUCTURED_OPS = ("set", "delete", "root")
-NPZ_OPS = ("npz_transform", "npz_set", "npz_delete", "npz_lie")
+NPZ_OPS = ("npz_transform", "npz_set", "npz_delete", "npz_lie", "npz_many")
 CSV_OPS = ("csv_cell", "csv_drop_column")

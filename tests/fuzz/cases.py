@@ -160,9 +160,8 @@ def workspace(bases: Bases, task: str, command: str, where: Path) -> Path:
     t = bases.tasks[task]
     where.mkdir(parents=True, exist_ok=True)
     need = COMMANDS[command][1]
-    for name in need:
-        src = t.files.get(name)
-        if src is None:
+    for name, src in t.files.items():  # the files (small) always, the folders it needs
+        if name not in need and src.is_dir():
             continue
         dst = where / name
         if src.is_dir():
@@ -415,7 +414,9 @@ def draw_case(data, bases: Bases, kind: str, slow: bool) -> dict:
     fast = [c for c in commands if c not in SLOW_COMMANDS]
     command = data.draw(st.sampled_from(commands if slow or not fast else fast),
                         label="command")
-    targets = [t for t in targets if base_file(bases, task, t).exists()]
+    need = COMMANDS[command][1]
+    targets = [t for t in targets if base_file(bases, task, t).exists()
+               and t.split("/")[0] in need]
     target = data.draw(st.sampled_from(targets), label="target")
     path = base_file(bases, task, target)
     foreign = sorted(bases.foreign())

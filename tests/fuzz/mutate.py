@@ -237,7 +237,7 @@ def apply_npz(path: Path, m: dict) -> None:
     with np.load(path, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files}
     raw: dict[str, bytes] = {}
-    key = m["key"]
+    key = m.get("key", "")
     if m["op"] == "npz_transform":
         arrays[key] = transform(arrays.get(key, np.ones(3)), m["transform"])
     elif m["op"] == "npz_set":

@@ -2,18 +2,14 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import lightning as L
 import numpy as np
 import torch
-from torch.utils.data import (
-    BatchSampler,
-    DataLoader,
-    RandomSampler,
-    SequentialSampler,
-    TensorDataset,
-)
+from torch.utils.data import DataLoader, Sampler, TensorDataset
 
 from wtml.data.shards import DatasetError, dataset_scene, load_shards, read_manifest
 from wtml.scenes import to_dict
@@ -79,6 +75,43 @@ def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor
     return tuple(torch.tensor(a, dtype=torch.float32) for a in (*inputs, TARGETS[task](arrays)))
 
 
+def epoch_seed(epoch: int) -> int:
+    """The seed of a training epoch, from the run's seed (``seed_everything``'s, which
+    Lightning keeps in ``PL_GLOBAL_SEED``; 0 when the run set none) and the epoch alone: a
+    resumed run draws each epoch's data order and random state as the run never
+    interrupted drew them, whatever came before."""
+    base = int(os.environ.get("PL_GLOBAL_SEED", 0))
+    return int(np.random.SeedSequence([base, epoch]).generate_state(1)[0])
+
+
+class EpochBatches(Sampler):
+    """Batches of the indices ``0 .. n-1``, whole tensors of indices: in order, or in a
+    permutation drawn for each epoch from :func:`epoch_seed` (like ``DistributedSampler``
+    with ``set_epoch``, but the epoch read when the batches are drawn, from ``epoch()``).
+
+    Args:
+        n: samples.
+        batch_size: samples per batch (the last one may be short).
+        shuffle: a new order each epoch.
+        epoch: the training epoch now (0-based), asked when an epoch's batches are drawn.
+    """
+
+    def __init__(self, n: int, batch_size: int, shuffle: bool,
+                 epoch: Callable[[], int] = lambda: 0) -> None:
+        self.n, self.batch_size, self.shuffle, self.epoch = n, batch_size, shuffle, epoch
+
+    def __len__(self) -> int:
+        return -(-self.n // self.batch_size)
+
+    def __iter__(self) -> Iterator[torch.Tensor]:
+        if self.shuffle:
+            gen = torch.Generator().manual_seed(epoch_seed(self.epoch()))
+            order = torch.randperm(self.n, generator=gen)
+        else:
+            order = torch.arange(self.n)
+        yield from order.split(self.batch_size)
+
+
 class ShardDataModule(L.LightningDataModule):
     """Any task's shards, for its LightningModule (``wtml.decoders``).
 
@@ -137,13 +170,20 @@ class ShardDataModule(L.LightningDataModule):
         return self._dataset("train").tensors
 
     def _loader(self, split: str, batch_size: int, shuffle: bool) -> DataLoader:
-        """Whole batches indexed at once from the in-memory tensors: the same batches as
-        ``DataLoader(..., batch_size, shuffle)``, without collating one sample at a time
-        (that took 2 s of every radial epoch)."""
+        """Whole batches indexed at once from the in-memory tensors (:class:`EpochBatches`),
+        without collating one sample at a time (that took 2 s of every radial epoch);
+        shuffled, each epoch's order is drawn from the run's seed and the epoch alone."""
         data = self._dataset(split)
-        order = RandomSampler(data) if shuffle else SequentialSampler(data)
-        return DataLoader(data, sampler=BatchSampler(order, batch_size, drop_last=False),
-                          batch_size=None)
+        # its own generator: a DataLoader otherwise draws a seed from the global torch RNG
+        # whenever it starts an epoch, which a resumed run's first epoch does at another time
+        return DataLoader(data, sampler=EpochBatches(len(data), batch_size, shuffle,
+                                                     self._epoch), batch_size=None,
+                          generator=torch.Generator())
+
+    def _epoch(self) -> int:
+        """The trainer's epoch now (0 without a trainer)."""
+        trainer = self.trainer
+        return 0 if trainer is None else int(trainer.fit_loop.epoch_progress.current.processed)
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", self.batch_size, shuffle=True)

@@ -372,6 +372,8 @@ class RadialDecoder(DecoderModule):
             against 15.3 µm after 7000 AdamW steps (27 s).
     """
 
+    TASK = "radial"
+
     def __init__(self, hidden: list[int] | None = None, activation: str = "silu",
                  uncertainty: bool = True, used_frequencies: int | None = None,
                  refine_hidden: list[int] | None = None, table_step_um: float = 5.0,

@@ -389,29 +389,35 @@ def usage_line(message: str, argv: list[str], configs: list[str]) -> str:
 
 
 def _source(key: list[str], argv: list[str], configs: list[str]) -> str:
-    """``"<config file>: "`` when ``key`` came from a config file rather than ``argv``."""
+    """``"<config file>: "`` when the value of ``key`` came from a config file: the last of
+    ``argv``'s options and config files that sets it."""
     short = [k for k in key if k != "init_args"]
-    for arg in argv:
-        if arg.startswith("--"):
-            given = [k for k in arg[2:].split("=")[0].split(".") if k != "init_args"]
+    source = ""
+    for k, arg in enumerate(argv):
+        if arg in ("-c", "--config") or arg.startswith("--config="):
+            path = arg.split("=", 1)[1] if "=" in arg else argv[k + 1] if k + 1 < len(argv) else ""
+            if _sets(path, key):
+                source = f"{path}: "
+        elif arg.startswith("--"):
+            given = [w for w in arg[2:].split("=")[0].split(".") if w != "init_args"]
             n = min(len(given), len(short))
             if given[:n] == short[:n]:
-                return ""
-    for path in reversed(configs):
-        try:
-            node = yaml_load(Path(path).read_text())
-        except (OSError, ValueError, yaml.YAMLError):
-            continue
-        for k in key:
-            if isinstance(node, dict) and k in node:
-                node = node[k]
-            elif k == "init_args" or not isinstance(node, dict):
-                continue
-            else:
-                break
-        else:
-            return f"{path}: "
-    return ""
+                source = ""
+    return source
+
+
+def _sets(path: str, key: list[str]) -> bool:
+    """Whether the YAML file ``path`` sets ``key`` (``init_args`` levels optional)."""
+    try:
+        node = yaml_load(Path(path).read_text())
+    except (OSError, ValueError, yaml.YAMLError):
+        return False
+    for k in key:
+        if isinstance(node, dict) and k in node:
+            node = node[k]
+        elif k != "init_args":
+            return False
+    return True
 
 
 def cli_main(args: list[str] | None = None, run: bool = True) -> WtmlCLI:
@@ -446,6 +452,9 @@ def cli_main(args: list[str] | None = None, run: bool = True) -> WtmlCLI:
             # lightning's pytree helper calls a torch API that torch 2.13 deprecates
             warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)`",
                                     category=FutureWarning)
+            # a small dataset has fewer batches than the logging interval: not a problem
+            warnings.filterwarnings("ignore", message=r"The number of training batches .* is "
+                                                      r"smaller than the logging interval")
             # a resumed run writes into its own checkpoint folder, as it should
             warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is "
                                                       r"not empty")

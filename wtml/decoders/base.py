@@ -159,9 +159,9 @@ class DecoderModule(L.LightningModule, ABC):
         # L-BFGS's line search may try a step whose loss overflows, and step back from it
         search = stage == "train" and isinstance(self.optimizers(use_pl_optimizer=False),
                                                  torch.optim.LBFGS)
-        if stage != "test" and not search and not math.isfinite(float(loss)):
-            raise DivergedError(self._diverged(f"the {'training' if stage == 'train' else stage}"
-                                               f" loss is {float(loss)}"))
+        if stage != "test" and not search and not math.isfinite(float(loss.detach())):
+            which = "training" if stage == "train" else "validation"
+            raise DivergedError(self._diverged(f"the {which} loss is {float(loss.detach())}"))
         self.log(f"{stage}_loss", loss, prog_bar=stage == "val", on_epoch=True,
                  on_step=False, batch_size=len(batch[0]))
         return loss

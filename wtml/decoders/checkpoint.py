@@ -157,8 +157,8 @@ def load_module(cls, path: str | Path, task: str):
 def _module(cls, data: bytes, path: str | Path):
     """``cls`` loaded from checked checkpoint bytes (``weights_only=True``), CPU, eval."""
     try:
-        module = cls.load_from_checkpoint(io.BytesIO(data), map_location="cpu",
-                                          weights_only=True)
+        module = cls.load_from_checkpoint(io.BytesIO(data), weights_only=True,
+                                          map_location="cpu")
     except (KeyError, TypeError, RuntimeError) as err:  # shapes or weights that do not fit
         first = str(err).splitlines()[0][:160] if str(err) else type(err).__name__
         raise CheckpointError(f"{path}: a checkpoint whose weights do not fit its own "

@@ -116,7 +116,8 @@ class WtmlCLI(LightningCLI):
             return
         config = self.config[sub]
         path = config["ckpt_path"]
-        state = resume_checkpoint(path, _model_class(config).TASK)
+        task = getattr(_model_class(config), "TASK", "") or None
+        state = (resume_checkpoint if sub == "fit" else read_checkpoint)(path, task)
         self._resumed = state
         seed = state["wtml"].get("seed", -1)
         if seed >= 0 and config.get("seed_everything") is not False:
@@ -197,8 +198,9 @@ class WtmlCLI(LightningCLI):
         if state["epoch"] + 1 >= info["max_epochs"]:
             raise CheckpointError(
                 f"{path}: a finished run (epoch {state['epoch'] + 1} of {info['max_epochs']}): "
-                "nothing to resume; start a new run with --trainer.default_root_dir "
-                "runs/<name>, or replace it with --overwrite true")
+                "nothing to resume; instead of --ckpt_path, start a new run with "
+                "--trainer.default_root_dir runs/<name>, or train this one again with "
+                "--overwrite true")
 
     def instantiate_trainer(self, **kwargs):
         config = self._get(self.config_init, "trainer", default={})

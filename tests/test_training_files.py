@@ -104,6 +104,9 @@ def weights(path) -> dict:
     (["--trainer.callbacks", "foo.Bar"], "trainer.callbacks.class_path: cannot use 'foo.Bar'"),
     (["--bogus", "1"], "--bogus: not an option of train.py fit"),
     (["--trainer.accelerator", "bogus"], "trainer.accelerator: "),
+    (["--trainer.devices", "abc"], "trainer.devices: "),
+    (["--trainer.limit_train_batches", "-1"], "trainer.limit_train_batches: "),
+    (["--data.init_args.data_dir"], "data.init_args.data_dir: expected one argument"),
     (["--model.init_args.hidden", "[65536, 65536]"], "model.hidden [65536, 65536] makes "
                                                        "4.29e+09 weights"),
 ])

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import logging
 import os
 import re
@@ -214,12 +215,13 @@ class WtmlCLI(LightningCLI):
                       EpochProgress()]
         try:
             return self._instantiate_trainer({**config, **kwargs}, callbacks)
-        except (MisconfigurationException, ValueError, RuntimeError) as err:
+        except (MisconfigurationException, ValueError, TypeError, RuntimeError) as err:
             if isinstance(err, ConfigError):
                 raise
             text = " ".join(str(err).split())
-            key = next((k for k in ("accelerator", "strategy", "devices", "precision",
-                                    "num_nodes", "plugins") if k in text), None)
+            names = inspect.signature(L.Trainer.__init__).parameters
+            key = next((k for pattern in (r"[`(]{}\b|\b{}=", r"\b{}\b") for k in names
+                        if re.search(pattern.format(k, k), text)), None)
             raise ConfigError(f"trainer{'.' + key if key else ''}: {text[:300]}") from None
 
 
@@ -378,7 +380,12 @@ def usage_line(message: str, argv: list[str], configs: list[str]) -> str:
     if refused:
         key, what = refused[2].split("."), f"not an option of train.py {refused[1]}"
     elif (m := re.match(r"argument (\S+): (.*)", first)):
-        key, what = m[1].lstrip("-").split("."), m[2]
+        option = m[1]
+        if m[2].startswith("expected one argument"):  # jsonargparse names the group only
+            option = next((a for k, a in enumerate(argv) if a.startswith(option) and (
+                k + 1 == len(argv) or argv[k + 1].startswith("--"))), option)
+        key, what = option.lstrip("-").split("="), m[2]
+        key = key[0].split(".")
     elif (m := re.match(r'expected "subcommand" to be one of \{([^}]*)\}', first)):
         return (f"subcommand: expected one of {m[1]} (train.py fit --config "
                 "configs/<task>.yaml)")

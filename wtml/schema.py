@@ -71,8 +71,9 @@ def mixture(path: str, weights: Any, family: tuple[str, ...]) -> np.ndarray:
         if name not in family:
             raise SchemaError(f"{path}: unknown law {name!r}; allowed laws: {list(family)}")
         if isinstance(weight, bool) or not isinstance(weight, int | float) or not (
-                0 <= weight < float("inf")):
-            raise SchemaError(f"{path}.{name}: the weight must be a number >= 0, got {weight!r}")
+                0 <= weight <= 1e300):  # finite, and an int that a float holds
+            raise SchemaError(f"{path}.{name}: the weight must be a number in [0, 1e300], "
+                              f"got {weight!r:.80}")
     p = np.array([float(weights.get(name, 0.0)) for name in family])
     if p.sum() <= 0:
         raise SchemaError(f"{path}: the weights must not all be 0 (laws: {list(family)})")

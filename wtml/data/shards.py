@@ -502,8 +502,9 @@ def _identity(scene: FluidScene, n_shards: int) -> dict:
 
 
 def _leftovers(out: Path) -> list[str]:
-    """Dataset files in ``out`` (shards, sidecars, a manifest; finished or not)."""
-    pattern = re.compile(r"^\.?(shard-\d+\.(npz|json)|manifest\.json)")
+    """Finished dataset files in ``out`` (shards, sidecars, a manifest): a writer's temporary
+    files are left to :func:`clean_orphans` (a live one's exist only after its claim)."""
+    pattern = re.compile(r"^(shard-\d+\.(npz|json)|manifest\.json)$")
     return sorted(p.name for p in out.iterdir() if pattern.match(p.name))
 
 

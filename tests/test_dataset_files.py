@@ -436,3 +436,23 @@ def test_scene_from_dict_refuses_any_crafted_mapping_in_one_line(changes, task):
 def test_scene_from_dict_refuses_what_is_not_a_mapping(data):
     with pytest.raises(SceneError, match=r"^scene: must be a mapping"):
         scene_from_dict(data, "scene")
+
+
+def test_training_on_a_nan_shard_stops_before_the_first_step(ds, tmp_path, capsys):
+    """The issue's probe: a NaN in a training shard trained to a NaN checkpoint and exited 0.
+    Now ``train.py fit`` ends with one line naming the shard, the key and the row, and writes
+    no checkpoint."""
+    from wtml.training import cli_main
+
+    def nan(a):
+        a["t"][6, 0, 1, 1] = np.nan
+    _rewrite_shard(ds, 0, nan)
+    with pytest.raises(SystemExit) as done:
+        cli_main(["fit", "--config", str(ROOT / "configs/fluid.yaml"),
+                  "--data.init_args.data_dir", str(ds), "--data.init_args.batch_size", "8",
+                  "--trainer.max_epochs", "1", "--trainer.default_root_dir",
+                  str(tmp_path / "run")])
+    assert done.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "shard-00000.npz: 't' is NaN or inf in row 6" in err, err
+    assert not list(tmp_path.glob("run/**/*.ckpt"))

@@ -456,3 +456,21 @@ def test_training_on_a_nan_shard_stops_before_the_first_step(ds, tmp_path, capsy
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "shard-00000.npz: 't' is NaN or inf in row 6" in err, err
     assert not list(tmp_path.glob("run/**/*.ckpt"))
+
+
+@pytest.mark.parametrize("name", ["onset", "texture"])
+def test_record_scenes_make_the_arrays_their_task_needs(tmp_path, name):
+    """The shipped record scenes, 3 records in 3 shards: every array ``TASK_ARRAYS`` names is
+    there with its kind and shape, and the split loads (onset's labels NaN where by design)."""
+    from wtml.data.shards import TASK_ARRAYS
+    from wtml.scenes import load_scene
+
+    scene = load_scene(ROOT / f"configs/scenes/{name}.yaml")
+    small = build(type(scene), to_dict(scene) | {"samples": 3, "shards": 3})
+    generate(small, tmp_path, progress=False)
+    arrays = {a["name"]: a for a in read_manifest(tmp_path)["shards"][0]["arrays"]}
+    for key, (kind, shape) in TASK_ARRAYS[name].items():
+        assert np.dtype(arrays[key]["dtype"]).kind == kind
+        assert len(arrays[key]["shape"]) == len(shape)
+    *inputs, targets = ShardDataModule(str(tmp_path), batch_size=1).train_tensors()
+    assert len(targets) == 1 and all(len(x) == 1 for x in inputs)

@@ -12,9 +12,9 @@ from tests.conftest import ROOT
 from wtml.constants import BOLTZMANN
 from wtml.physics.spread import DeviceSpread
 from wtml.scenes import load_scene
-from wtml.schema import SceneError, build
 from wtml.scenes.onset import OnsetScene
 from wtml.scenes.texture import TextureScene
+from wtml.schema import SceneError, build
 from wtml.signals.acquisition import (
     AcquisitionEffects,
     IVConverter,

@@ -12,7 +12,6 @@ from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, describing_function, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.scenes import SceneError
-from wtml.schema import build as build_config
 from wtml.scenes.texture import (
     LUGRE_OVERSAMPLE,
     NOMINAL_ANGLE_DEG,
@@ -22,6 +21,7 @@ from wtml.scenes.texture import (
     fit_friction_law,
     nominal_response,
 )
+from wtml.schema import build as build_config
 
 F0 = 36.0
 PRESS = NOMINAL_N * np.cos(np.deg2rad(NOMINAL_ANGLE_DEG))

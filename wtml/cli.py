@@ -43,11 +43,23 @@ def _presets(args: argparse.Namespace) -> int:
     return 0
 
 
+def _whole_number(option: str, text: str | None) -> int | None:
+    """An option's whole number, parsed here (not by argparse, whose refusal is a usage dump):
+    a bad one is the command's one-line error."""
+    if text is None:
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"{option}: must be a whole number, got {text!r:.40}") from None
+
+
 def _generate(args: argparse.Namespace) -> int:
     from wtml.data import generate
     from wtml.scenes import load_scene
 
-    m = generate(load_scene(args.config), args.out, shards=args.shards, shard=args.shard,
+    shards, shard = _whole_number("--shards", args.shards), _whole_number("--shard", args.shard)
+    m = generate(load_scene(args.config), args.out, shards=shards, shard=shard,
                  progress=not args.quiet)
     state = "complete" if m["complete"] else f"{len(m['shards'])}/{m['n_shards']} shards"
     print(f"{args.out}: {m['samples']} samples, {m['n_shards']} shards, {state}, "
@@ -223,12 +235,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     gen = verb("generate", "simulate a scene into dataset shards (resumable)",
                "Simulate a scene into checksummed shards. Re-running skips complete shards, "
-               "remakes damaged ones and removes what an interrupted run left behind.")
+               "remakes damaged ones and removes what an interrupted run left behind. A folder "
+               "holds one scene's shards (its scene.json): generating another scene into it "
+               "is refused.")
     gen.add_argument("--config", required=True, help="scene YAML, e.g. configs/scenes/fluid.yaml")
     gen.add_argument("--out", required=True, help="dataset folder, e.g. datasets/fluid")
-    gen.add_argument("--shards", type=int, default=None,
+    gen.add_argument("--shards", metavar="N", default=None,
                      help="number of shards (default: the scene's 'shards')")
-    gen.add_argument("--shard", type=int, default=None,
+    gen.add_argument("--shard", metavar="K", default=None,
                      help="make only this shard index, for parallel jobs (then one run "
                           "without --shard completes the manifest)")
     gen.add_argument("--quiet", action="store_true", help="no progress bar")

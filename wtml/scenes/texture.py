@@ -49,8 +49,8 @@ from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.physics.spread import DeviceSpread, draw_factors
-from wtml.schema import SceneError, bounded, mixture, one_of
 from wtml.scenes.onset import Acquisition
+from wtml.schema import SceneError, bounded, mixture, one_of
 from wtml.signals.excitation import lead_in
 
 THESIS_GRADES = {"P1200": 15.3, "P800": 21.8, "P400": 35.0, "P320": 46.2, "P280": 52.2}

@@ -218,6 +218,11 @@ def test_a_bad_checkpoint_to_resume_is_one_line(data, runs, tmp_path, capsys):
         saved("plain.ckpt", {"state_dict": {}}): "not a wtml checkpoint",
         saved("weights.ckpt", {k: v for k, v in state.items() if k != "optimizer_states"}):
             "optimizer_states: missing",
+        saved("loops.ckpt", {**state, "loops": []}): "loops: must be a mapping, got list",
+        saved("optimizer.ckpt", {**state, "optimizer_states": [{}]}):
+            "its trainer state cannot be restored",
+        saved("hparams.ckpt", {**state, "hyper_parameters": {"hidden": "wide"}}):
+            "hyper_parameters: model.init_args.hidden: expected list[int]",
         saved("nan.ckpt", nan): f"state_dict.{first}: holds NaN or infinite values",
         saved("scene.ckpt", {**state, "wtml": {**state["wtml"], "scene": {
             **state["wtml"]["scene"], "samples": -5}}}): "wtml.scene.samples: must be",
@@ -311,8 +316,6 @@ def test_a_killed_and_resumed_run_ends_with_the_same_weights(data, tmp_path, tas
         assert torch.equal(a[name], b[name]), name
 
 
-# resumed into another folder than its own, as a copy of a run would be; lightning remarks on it
-@pytest.mark.filterwarnings("ignore:The dirpath has changed")
 def test_the_seed_of_a_resumed_run_is_its_checkpoints(data, runs, tmp_path):
     """Resumed with another --seed_everything, the run goes on drawing from the seed it was
     started with, and ends as the run never stopped (``runs``' finished one, seed 0)."""

@@ -123,7 +123,11 @@ class WtmlCLI(LightningCLI):
         seed = state["wtml"].get("seed", -1)
         if seed >= 0 and config.get("seed_everything") is not False:
             config["seed_everything"] = seed
-        hparams = dict(state.get("hyper_parameters") or {})
+        hparams = state.get("hyper_parameters") or {}
+        if not isinstance(hparams, dict):
+            raise CheckpointError(f"{path}: hyper_parameters: must be a mapping of the model's "
+                                  f"arguments, got {type(hparams).__name__}")
+        hparams = dict(hparams)
         hparams.pop("_instantiator", None)
         hparams.pop("_class_path", None)
         if hparams:
@@ -131,9 +135,25 @@ class WtmlCLI(LightningCLI):
                 self.config = self.parser.parse_object({sub: {"model": {
                     "class_path": config["model"]["class_path"], "init_args": hparams}}},
                     self.config)
-            except argparse.ArgumentError as err:
+            except (argparse.ArgumentError, TypeError, KeyError, ValueError) as err:
                 raise CheckpointError(f"{path}: hyper_parameters: "
                                       f"{usage_line(str(err), [], [])}") from None
+
+    def fit(self, **kwargs) -> None:
+        """``trainer.fit``; a resumed checkpoint whose trainer state Lightning cannot restore
+        (a crafted or damaged ``loops``, ``optimizer_states``, ...) ends in one line naming
+        it, not in Lightning's traceback."""
+        path = kwargs.get("ckpt_path")
+        try:
+            self.trainer.fit(**kwargs)
+        except (KeyError, IndexError, TypeError, ValueError, RuntimeError, AttributeError) as err:
+            if not path or _our_error(err) is not None \
+                    or self.trainer.global_step > self._resumed["global_step"]:
+                raise
+            first = (str(err).splitlines() or [""])[0][:160]
+            raise CheckpointError(f"{path}: its trainer state cannot be restored "
+                                  f"({type(err).__name__}: {first}); resume from another "
+                                  "checkpoint or start a new run") from None
 
     def before_instantiate_classes(self) -> None:
         config = self.config.get(str(self.subcommand), self.config)
@@ -464,6 +484,9 @@ def cli_main(args: list[str] | None = None, run: bool = True) -> WtmlCLI:
             # a small dataset has fewer batches than the logging interval: not a problem
             warnings.filterwarnings("ignore", message=r"The number of training batches .* is "
                                                       r"smaller than the logging interval")
+            # a run resumed into another folder than its own: its best-model bookkeeping,
+            # which wtml does not use (one last.ckpt), starts afresh there
+            warnings.filterwarnings("ignore", message=r"The dirpath has changed from")
             # a resumed run writes into its own checkpoint folder, as it should
             warnings.filterwarnings("ignore", message=r"Checkpoint directory .* exists and is "
                                                       r"not empty")

@@ -136,6 +136,16 @@ def resume_checkpoint(path: str | Path, task: str) -> dict:
     if missing:
         raise CheckpointError(f"{path}: {missing[0]}: missing; this checkpoint holds weights "
                               "only, without the trainer's state a run resumes from")
+    for key, kind in (("loops", dict), ("optimizer_states", list), ("lr_schedulers", list)):
+        if not isinstance(state[key], kind) or (kind is list and not all(
+                isinstance(item, dict) for item in state[key])):
+            raise CheckpointError(f"{path}: {key}: must be a "
+                                  f"{'mapping' if kind is dict else 'list of mappings'}, "
+                                  f"got {type(state[key]).__name__}")
+    step = state["global_step"]
+    if isinstance(step, bool) or not isinstance(step, int) or not 0 <= step < 2**62:
+        raise CheckpointError(f"{path}: global_step: must be a whole number >= 0, "
+                              f"got {step!r:.40}")
     epoch = state["epoch"]
     if isinstance(epoch, bool) or not isinstance(epoch, int) or not 0 <= epoch < 10**6:
         raise CheckpointError(f"{path}: epoch: must be a whole number in [0, 1000000), "

@@ -420,7 +420,7 @@ def _is_a_check(err: BaseException) -> bool:
     checks: FileError, SchemaError, InputError, ...). A ValueError raised inside a library
     (numpy, onnxruntime, torch) is input that wtml failed to check: a bug, whose traceback is
     kept."""
-    if isinstance(err, OSError):
+    if isinstance(err, OSError) or type(err).__module__.split(".")[0] == "wtml":
         return True
     if not isinstance(err, ValueError):
         return False

@@ -412,7 +412,12 @@ class ExportManifest:
         prefix = f"{path}." if path else ""
         names = [f.name for f in self.files]
         for k, f in enumerate(self.files):
-            inside(".", f.name, where=f"{prefix}files[{k}].name")
+            try:
+                inside(".", f.name, where="")
+            except FileError:
+                raise _fail(f"{prefix}files[{k}].name", f"must be a file name in the export "
+                            f"folder (letters, digits, '_', '.', '-'; no path), got "
+                            f"{f.name!r:.80}") from None
             if names.count(f.name) > 1:
                 raise _fail(f"{prefix}files[{k}].name", f"{f.name!r} is listed twice")
         kinds = [f.kind for f in self.files]

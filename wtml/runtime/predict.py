@@ -235,9 +235,9 @@ def _from_npz(path: Path, max_bytes: int = MEMORY_CEILING) -> tuple[np.ndarray, 
     n_freq = heads["frequency_hz"][0][0]
     where = str(path)
     if form == "signals":
-        if shape[-2] != n_freq or 0 in shape:
+        if shape[-2] != n_freq or 0 in shape or shape[-1] < 3:
             raise InputError(f"{path}: e and i must both have shape (..., n_freq={n_freq}, "
-                             f"n_t) with n_t >= 1; got {shape}")
+                             f"n_t) with n_t >= 3 (a phasor fit has 3 unknowns); got {shape}")
         n = int(np.prod(shape[:-2], dtype=float)) if len(shape) > 2 else 1
         size = n * n_freq * shape[-1]
         itemsize = heads["e"][1].itemsize
@@ -250,8 +250,9 @@ def _from_npz(path: Path, max_bytes: int = MEMORY_CEILING) -> tuple[np.ndarray, 
         e = check_array(where, "e", data.pop("e"))
         i = check_array(where, "i", data.pop("i"))
         t = np.arange(e.shape[-1]) / fs
-        ze = np.stack([phasor_lsq(e[..., k, :], t, f) / phasor_lsq(i[..., k, :], t, f)
-                       for k, f in enumerate(freq)], -1)
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero current: NaN, refused
+            ze = np.stack([phasor_lsq(e[..., k, :], t, f) / phasor_lsq(i[..., k, :], t, f)
+                           for k, f in enumerate(freq)], -1)
         return freq, ze
     n = shape[0] if len(shape) == 2 else 1
     if n == 0:

@@ -83,6 +83,11 @@ def windows(x: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
 def pool(pred: dict[str, np.ndarray], owner: np.ndarray, n: int) -> dict[str, np.ndarray]:
     """Per record: mean log-probabilities (renormalised), mean ln grain, all windows in
     domain."""
+    with np.errstate(divide="ignore", invalid="ignore"):  # a grain <= 0 pools to NaN, flagged
+        return _pool(pred, owner, n)
+
+
+def _pool(pred: dict[str, np.ndarray], owner: np.ndarray, n: int) -> dict[str, np.ndarray]:
     logp = np.log(np.clip(pred["probabilities"], 1e-12, 1.0))
     out = {"probabilities": np.zeros((n, logp.shape[1])), "grain": np.zeros(n),
            "in_domain": np.zeros(n, bool), "domain_score": np.zeros(n)}
@@ -127,7 +132,7 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
     without it, never a default device). A long recording's windows run in batches of
     :data:`wtml.runtime.predict.RUN_BYTES`: memory grows with the recording, not with its
     number of windows."""
-    from wtml.runtime.predict import RUN_BYTES, load_export, read_calibration
+    from wtml.runtime.predict import RUN_BYTES, impossible, load_export, read_calibration
 
     decoder, classical = load_export(model_dir)
     meta = decoder.meta
@@ -145,9 +150,12 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
             owners.append(owner)
         pred = pool({k: np.concatenate([p[k] for p in parts]) for k in parts[0]},
                     np.concatenate(owners), x.shape[1])
+        odd = impossible(model, {"grain": pred["grain"]})["grain"]
         for r in range(x.shape[1]):
             p = pred["probabilities"][r]
             flags = [] if pred["in_domain"][r] else ["outside the trained domain"]
+            if odd[r]:
+                flags.append("grain physically impossible")
             rows.append({"record": r, "method": label, "grade": names[int(np.argmax(p))],
                          **{f"p({n})": float(v) for n, v in zip(names, p, strict=True)},
                          "grain (um)": float(pred["grain"][r] * 1e6),

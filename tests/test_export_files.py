@@ -263,6 +263,9 @@ def test_bad_inputs_and_calibrations_are_one_line(fluid_copy, tmp_path, capsys):
              "sample_rate_hz": [1e4, 2e4]}, "'sample_rate_hz' must be one real number")
     refused({"frequency_hz": freq, "e": np.ones((1, 31, 50)), "i": np.ones((1, 31, 50)),
              "sample_rate_hz": -1.0}, "'sample_rate_hz' must be in")
+    refused({"frequency_hz": freq, "ze": ze * 1e300}, "'ze' is beyond the float32 range")
+    refused({"frequency_hz": freq, "t": t * 1e300}, "'t' is beyond the float32 range",
+            as_cal=True)
     refused({"frequency_hz": freq, "t": t[None, None]}, "t must have shape", as_cal=True)
     refused({"frequency_hz": freq, "t": t.astype(str)}, "'t' must hold numbers", as_cal=True)
     refused({"frequency_hz": freq, "t": np.full_like(t, np.nan)}, "t is NaN", as_cal=True)

@@ -75,6 +75,10 @@ PHYSICAL = {"fluid": ("eta", "rho"), "radial": ("distance",), "onset": ("gap",),
             "texture": ("grain",)}
 """The outputs with a physical range (the scenes' ``output_ranges``): the metadata's
 ``domain.outputs`` must cover each, or the impossible-answer flag would be lost."""
+REFERENCE_KEYS = {"fluid": ("calibration",), "radial": ("reference",),
+                  "onset": ("calibration",), "texture": ("calibration",)}
+"""What each task's graphs need besides the measurement (the metadata's ``references``):
+``wtml predict --calibration`` or ``--reference``."""
 PLAIN = ("wtml_version", "task", "kind", "label", "scene_hash")
 """Metadata keys stored as plain strings; every other key holds JSON."""
 
@@ -170,6 +174,9 @@ class GraphMetadata:
                             f"graph, got {list(getattr(self, name))}")
         _strings("units", self.units)
         _strings("references", self.references)
+        if tuple(sorted(self.references)) != REFERENCE_KEYS[self.task]:
+            raise _fail("references", f"must name {list(REFERENCE_KEYS[self.task])} for a "
+                        f"{self.task} graph, got {sorted(self.references)}")
         missing = [n for n in self.outputs if n not in self.units]
         if missing:
             raise _fail("units", f"no unit for output {missing[0]!r}")
@@ -234,9 +241,12 @@ class OnsetMetadata(GraphMetadata):
         if abs(period - round(period)) > 1e-6 * period:
             raise _fail("frame_s", f"must be a whole number of samples at sample_rate_hz "
                         f"{self.sample_rate_hz:g} Hz, got {self.frame_s:g} s")
-        if self.kind == "classical" and round(period) != 1:
-            raise _fail("frame_s", f"must be one sample (1/sample_rate_hz) for the classical "
-                        f"path, got {self.frame_s:g} s")
+        want = (1 / self.sample_rate_hz if self.kind == "classical"
+                else 1 / self.frequency_hz[0])
+        if abs(self.frame_s - want) > 1e-9 * want:
+            what = ("one sample (1 / sample_rate_hz) for the classical path"
+                    if self.kind == "classical" else "one probe period (1 / frequency_hz)")
+            raise _fail("frame_s", f"must be {what}: {want:g} s, got {self.frame_s:g}")
         if round(period) > self.n_samples:
             raise _fail("frame_s", f"must be within a record ({self.n_samples} samples), got "
                         f"{self.frame_s:g} s")

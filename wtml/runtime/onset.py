@@ -50,7 +50,12 @@ from wtml.runtime.metadata import (  # noqa: F401  (the names this module has al
     STREAM_INPUTS,
     STREAM_OUTPUTS,
 )
-from wtml.runtime.predict import ROW_BYTES, InputError, read_calibration_arrays
+from wtml.runtime.predict import (
+    ROW_BYTES,
+    InputError,
+    float32_range,
+    read_calibration_arrays,
+)
 from wtml.scenes import config_hash
 from wtml.scenes.onset import intervals
 
@@ -119,6 +124,7 @@ def read_onset_calibration(path: str | Path | None, probe_hz: float, n: int
                          f"{hue0.shape}")
     if not np.all(np.isfinite(hue0) & (hue0 > 0)):
         raise InputError(f"{path}: hue0 must be finite and > 0 (m/V), got {hue0.ravel()[:3]}")
+    float32_range(str(path), "hue0", hue0)
     hue0 = np.broadcast_to(hue0.reshape(-1) if hue0.ndim else hue0, (n,))
     t = t[:, 0].reshape(n, 4)
     return tuple(np.asarray(x, np.float32) for x in (t.real, t.imag, hue0))
@@ -300,6 +306,7 @@ def read_record(path: str | Path, sample_rate_hz: float, n_samples: int, *,
         x = np.atleast_2d(x)
         if up != down:
             x = resample_poly(x, up, down, axis=1)
+        float32_range(where, key, x)
         out[k] = x[:, :n_out]
         del x
     return out

@@ -125,7 +125,7 @@ class OnnxModel:
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = threads
         opts.inter_op_num_threads = 1
-        opts.log_severity_level = 3  # onnxruntime's own warnings are not ours to print
+        opts.log_severity_level = 4  # onnxruntime's own messages are not ours to print
         try:
             self.session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
         except Exception as err:  # onnxruntime raises its own classes for a bad protobuf
@@ -314,6 +314,21 @@ def _from_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return grids[0], np.stack([ze[sample == s] for s in ids])
 
 
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def float32_range(where: str, key: str, a: np.ndarray) -> None:
+    """Refuse values the float32 graphs cannot hold (beyond ±3.4e38: they would become inf
+    inside the graph), naming ``where`` and ``key``; ``a`` is finite."""
+    a = np.asarray(a)
+    parts = (a.real, a.imag) if np.iscomplexobj(a) else (a,)
+    for part in parts:
+        if part.size and np.abs(part).max() > FLOAT32_MAX:
+            first = np.unravel_index(np.argmax(np.abs(part) > FLOAT32_MAX), part.shape)
+            raise InputError(f"{where}: '{key}' is beyond the float32 range of the graphs "
+                             f"(|x| > 3.4e38) at index {tuple(map(int, first))}")
+
+
 def _span(freq: np.ndarray) -> str:
     return f"{freq.min():g}-{freq.max():g}" if freq.size else "(empty)"
 
@@ -351,6 +366,7 @@ def read_input(path: str | Path, frequency_hz: np.ndarray) -> np.ndarray:
     if bad.any():
         n, k = np.argwhere(bad)[0]
         raise InputError(f"{path}: Ze is NaN or inf at sample {n}, {freq[k]:g} Hz")
+    float32_range(str(path), "ze", ze)
     return ze
 
 
@@ -386,6 +402,7 @@ def read_calibration_arrays(path: str | Path, frequency_hz: np.ndarray, n: int,
     t = np.asarray(data["t"]).astype(complex, copy=False)
     if not np.all(np.isfinite(t)):
         raise InputError(f"{path}: t is NaN or inf")
+    float32_range(where, "t", t)
     return np.broadcast_to(t, (n, k, 2, 2)), {key: data[key] for key in extra if key in data}
 
 
@@ -438,6 +455,7 @@ def read_reference(path: str | Path | None, model: OnnxModel, n: int) -> np.ndar
                          f"got {ref.shape}")
     if not np.all(np.isfinite(ref)):
         raise InputError(f"--reference {path}: ze is NaN or inf")
+    float32_range(f"--reference {path}", "ze", ref)
     return np.broadcast_to(ref, (n, freq.size))
 
 
@@ -469,18 +487,18 @@ def load_export(model_dir: str | Path, *, stream: bool = False
                               f"so), got {model.meta.kind!r}; {REDO}")
         models.append(model)
     first = models[0]
-    for model in models:
+    for kind, model in zip(kinds, models, strict=True):
+        where = model_dir / manifest.entry(kind).name
         for key, want, got in (("task", manifest.task, model.task),
                                ("scene_hash", manifest.scene_hash, model.meta.scene_hash)):
             if want != got:
-                raise SchemaError(f"{model_dir}: metadata {key}: the graphs and "
-                                  f"{MANIFEST} disagree ({got!r:.20} against {want!r:.20}); "
-                                  f"{REDO}")
+                raise SchemaError(f"{where}: metadata {key}: {got!r:.20} is not {MANIFEST}'s "
+                                  f"{want!r:.20}; {REDO}")
         for key in ("frequency_hz", "sample_rate_hz", "n_samples", "calibration_hz", "classes",
                     "scene"):
             if getattr(model.meta, key, None) != getattr(first.meta, key, None):
-                raise SchemaError(f"{model_dir}: metadata {key}: {model.name} and "
-                                  f"{first.name} disagree; {REDO}")
+                raise SchemaError(f"{where}: metadata {key}: not the decoder's "
+                                  f"({manifest.entry('decoder').name}); {REDO}")
     return tuple(models)
 
 

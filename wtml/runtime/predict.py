@@ -77,11 +77,6 @@ input whose reading, resampling or windowing would take more than the ceiling of
 to {csv}, calibration and reference files up to {cal}."""
 
 
-INPUT_FORMATS = INPUT_FORMATS.format(ceiling=nbytes_text(MEMORY_CEILING),
-                                     csv=nbytes_text(64 * 1024**2),
-                                     cal=nbytes_text(256 * 1024**2))
-
-
 class InputError(FileError):
     """An input file or model folder that cannot be used (the message says what to do)."""
 
@@ -92,10 +87,13 @@ graphs' intermediate arrays stay small whatever the number of measurements or wi
 ROW_BYTES = 4096
 """Bytes a row of ``wtml predict``'s answer may take (its Python objects and its line):
 counted in each input's cost against :data:`wtml.files.MEMORY_CEILING`."""
-CSV_MAX_BYTES = 64 * 1024**2  # INPUT_FORMATS states it
+CSV_MAX_BYTES = 64 * 1024**2
 """Bytes: the largest CSV input."""
-CALIBRATION_MAX_BYTES = 256 * 1024**2  # INPUT_FORMATS states it
+CALIBRATION_MAX_BYTES = 256 * 1024**2
 """Bytes: the largest calibration or reference file's arrays."""
+INPUT_FORMATS = INPUT_FORMATS.format(ceiling=nbytes_text(MEMORY_CEILING),
+                                     csv=nbytes_text(CSV_MAX_BYTES),
+                                     cal=nbytes_text(CALIBRATION_MAX_BYTES))
 
 
 class OnnxModel:

@@ -395,7 +395,9 @@ def test_a_model_run_in_batches_gives_the_answer_of_one_run(fluid_copy, monkeypa
 @pytest.mark.parametrize("argv, needle", [
     (["bench", "onset", "--threads", "x"], "argument --threads: expects a whole number"),
     (["bench", "onset", "--threads", "0"], "argument --threads: expects a whole number in [1"),
-    (["walkthrough", "--noise", "nan"], "argument --noise: expects a number in [0, 1]"),
+    (["bench", "radial", "--max-samples", "-5"], "argument --max-samples: expects a whole "
+                                                 "number in [1, 1e+08], got '-5'"),
+    (["walkthrough", "--seed", "x"], "argument --seed: expects a whole number, got 'x'"),
     (["predict"], "the following arguments are required: --model, --input"),
     (["predict", "--model", "m", "--input", "x", "--bogus"], "unrecognized arguments: --bogus"),
     (["frobnicate"], "invalid choice: 'frobnicate'"),
@@ -408,6 +410,16 @@ def test_a_bad_command_line_is_one_line(capsys, argv, needle):
     lines = captured.err.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0] and "usage:" not in captured.err, captured.err
     assert lines[0].startswith("wtml")
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["walkthrough", "--seed", "-1"], "argument --seed: expects a number in [0,"),
+    (["walkthrough", "--repeats", "100000000"], "argument --repeats: expects a number in [1, "
+                                                "1000]"),
+])
+def test_values_a_verb_cannot_use_are_one_line(capsys, argv, needle):
+    """Once a traceback from numpy's seeding, or a run that does not end."""
+    one_line(capsys, argv, needle)
 
 
 def test_a_bug_keeps_its_traceback_and_bad_input_does_not(monkeypatch, capsys):

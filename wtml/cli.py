@@ -64,6 +64,13 @@ THREADS = _number(1, 1024, int)
 def _walkthrough(args: argparse.Namespace) -> int:
     from wtml.walkthrough import format_report, plot_walkthrough, run_walkthrough
 
+    for name, value, low, high in (("--frequency", args.frequency, 1e-3, 1e4),
+                                   ("--repeats", args.repeats, 1, 1000),
+                                   ("--seed", args.seed, 0, 2**63 - 1)):
+        if not low <= value <= high:  # NaN fails too
+            raise ValueError(f"argument {name}: expects a number in [{low:g}, {high:g}], got "
+                             f"{value!r}")
+
     result = run_walkthrough(frequency_hz=args.frequency, noise=args.noise,
                              repeats=args.repeats, seed=args.seed)
     print(format_report(result, noise=args.noise, repeats=args.repeats))
@@ -242,13 +249,13 @@ def build_parser() -> argparse.ArgumentParser:
     walk = verb("walkthrough", "simulate the thesis's calibration of the macro WT (Tables 4.3-4.4)",
                 "Least-squares calibration of the macro WT (lumped preset) at 36 Hz with the "
                 "82x1x0.3 mm steel cantilever at 71-81 mm, validated at 70-80 mm.")
-    walk.add_argument("--frequency", type=_number(1e-3, 1e6), default=36.0,
+    walk.add_argument("--frequency", type=float, default=36.0,
                       help="excitation frequency, Hz")
-    walk.add_argument("--noise", type=_number(0.0, 1.0), default=2e-4,
+    walk.add_argument("--noise", type=float, default=2e-4,
                       help="relative std of one Ze measurement (2e-4 = 0.02 %%)")
-    walk.add_argument("--repeats", type=_number(1, 10**4, int), default=5,
+    walk.add_argument("--repeats", type=int, default=5,
                       help="measurements averaged per load (5, as in the thesis)")
-    walk.add_argument("--seed", type=_number(0, 2**63 - 1, int), default=0,
+    walk.add_argument("--seed", type=int, default=0,
                       help="seed of the noise")
     walk.add_argument("--plot", metavar="PNG", default=None,
                       help="also save a plot of Zm and the errors here")

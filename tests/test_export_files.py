@@ -438,3 +438,26 @@ def test_a_bug_keeps_its_traceback_and_bad_input_does_not(monkeypatch, capsys):
     monkeypatch.setattr(wtml.cli, "_presets", bug)
     with pytest.raises(ValueError, match="cannot reshape"):
         main(["presets"])
+
+
+def test_an_interrupted_export_leaves_no_manifest(fluid_copy, flow, monkeypatch, capsys):
+    """`wtml export` removes the folder's manifest first and writes the new one last: a
+    re-export that dies half-way leaves a folder that is refused, never old and new graphs
+    mixed under the old manifest."""
+    from wtml.runtime import export
+
+    folder, data, cal = fluid_copy
+    calls = []
+
+    def dies_on_the_second_graph(*args, **kwargs):
+        calls.append(args[2])
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # as a kill would
+        return real(*args, **kwargs)
+
+    real = export._export
+    monkeypatch.setattr(export, "_export", dies_on_the_second_graph)
+    with pytest.raises(KeyboardInterrupt):
+        export.export_model(flow[1], folder)
+    assert not (folder / "manifest.json").exists()
+    one_line(capsys, _predict(folder, data, cal), "manifest.json: missing", "export it again")

@@ -457,12 +457,13 @@ def read_reference(path: str | Path | None, model: OnnxModel, n: int) -> np.ndar
     return np.broadcast_to(ref, (n, freq.size))
 
 
-def load_export(model_dir: str | Path, *, stream: bool = False
+def load_export(model_dir: str | Path, *, stream: bool = False, threads: int = 0
                 ) -> tuple[OnnxModel, ...]:
     """The decoder and the classical model of an export folder (and, ``stream``, its
-    streaming graph), each file checked against the folder's manifest (sha256 and size)
-    before onnxruntime opens it, each graph's metadata against its task's schema, and the
-    graphs against each other and the manifest.
+    streaming graph; ``threads``: onnxruntime's intra-op threads, 0 its default), each file
+    checked against the folder's manifest (sha256 and size) before onnxruntime opens it, each
+    graph's metadata against its task's schema, and the graphs against each other and the
+    manifest.
 
     Raises:
         InputError, FileError, SchemaError: one line naming the file (and the key).
@@ -479,7 +480,7 @@ def load_export(model_dir: str | Path, *, stream: bool = False
         if entry is None:
             raise InputError(f"{model_dir / MANIFEST}: lists no {kind} graph; {REDO}")
         path = model_dir / entry.name
-        model = OnnxModel(path, data=verified_bytes(model_dir, entry))
+        model = OnnxModel(path, threads, data=verified_bytes(model_dir, entry))
         if model.meta.kind != kind:
             raise SchemaError(f"{path}: metadata kind: must be {kind!r} (the manifest lists it "
                               f"so), got {model.meta.kind!r}; {REDO}")

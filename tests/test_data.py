@@ -80,10 +80,14 @@ def test_split_by_shard_and_datamodule(tmp_path):
 
 
 def test_loaders_give_the_batches_of_a_per_sample_loader(tmp_path):
-    """Batches indexed whole are the batches a collating, shuffling DataLoader would give
-    under the same seed, the short last one included."""
+    """Batches indexed whole are the batches a collating DataLoader gives in the epoch's
+    permutation (drawn from ``epoch_seed``), the short last one included; an epoch's order
+    depends on the run's seed and the epoch only, never on the global random state (what makes
+    a resumed run exact), and the epochs differ."""
     import torch
     from torch.utils.data import DataLoader
+
+    from wtml.data.datamodule import epoch_seed
 
     generate(SCENE, tmp_path, progress=False)
     dm = ShardDataModule(str(tmp_path), batch_size=48)
@@ -91,12 +95,18 @@ def test_loaders_give_the_batches_of_a_per_sample_loader(tmp_path):
                                      (dm.test_dataloader, "test", False)):
         torch.manual_seed(7)
         ours = list(make())
-        torch.manual_seed(7)
+        torch.manual_seed(8)  # another global state: the order must not follow it
+        assert all(torch.equal(x, y) for a, b in zip(ours, make(), strict=True)
+                   for x, y in zip(a, b, strict=True))
         batch = 48 if shuffle else dm.eval_batch
-        theirs = list(DataLoader(dm._dataset(reference), batch_size=batch, shuffle=shuffle))
+        data = dm._dataset(reference)
+        gen = torch.Generator().manual_seed(epoch_seed(0))  # the first epoch's permutation
+        order = torch.randperm(len(data), generator=gen).tolist() if shuffle else None
+        theirs = list(DataLoader(data, batch_size=batch, sampler=order))
         assert len(ours) == len(theirs) == -(-len(dm._dataset(reference)) // batch)
         for a, b in zip(ours, theirs, strict=True):
             assert all(torch.equal(x, y) for x, y in zip(a, b, strict=True))
+    assert epoch_seed(0) != epoch_seed(1)
 
 
 def test_mapped_inputs_are_the_map_of_each_batch(tmp_path):

@@ -3,6 +3,7 @@ rule, and the exported graphs (ONNX against torch, the streaming graph chunk by 
 the offline one, records read on a device)."""
 
 import dataclasses
+import json
 import subprocess
 import sys
 
@@ -521,3 +522,54 @@ def test_an_onset_starts_the_last_run_of_touches_not_a_lone_noise_step_ahead():
     onset, _ = contacts_from({"contact": prob, "detach_margin": np.where(prob > 0.5, 1.0, -1.0),
                               "touch": touch}, meta)
     np.testing.assert_allclose(onset[:, 0], [0.012, 0.012])
+
+
+ONSET_EDITS = {
+    "negative frame": ({"frame_s": "-0.0024"}, "metadata frame_s: must be in"),
+    "frame not whole samples": ({"frame_s": "0.0023"}, "metadata frame_s: must be a whole"),
+    "onset offset NaN": ({"onset_offset_s": "NaN"}, "metadata onset_offset_s: not valid JSON"),
+    "onset offset -139 s": ({"onset_offset_s": "-139"}, "metadata onset_offset_s: must be in"),
+    "detach offset past the frame": ({"detach_offset_s": "0.5"},
+                                     "metadata detach_offset_s: must be in [0, frame_s"),
+    "merge 1e9 s": ({"merge_s": "1e9"}, "metadata merge_s"),
+    "merge a string": ({"merge_s": '"2"'}, "metadata merge_s: must be a number"),
+    "rate 0": ({"sample_rate_hz": "0"}, "metadata sample_rate_hz: must be in"),
+    "other record length": ({"n_samples": "1000"}, "metadata n_samples: says input 'e'"),
+    "no domain outputs": ({"domain": json.dumps({
+        "score": "x", "quantile": 0.999, "false_alarm_fresh": 0.0, "n_fresh": 1,
+        "outputs": {}})}, "metadata domain.outputs: must give the ranges of 'gap'"),
+    "outputs swapped": ({"outputs": '["sigma", "gap", "contact", "detach_margin", "touch"]'},
+                        "metadata outputs: must be"),
+    "another task": ({"task": "texture"}, "metadata classes: missing"),
+    "no scene": ({"scene": None}, "metadata scene: missing"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(ONSET_EDITS))
+def test_an_onset_export_with_edited_metadata_is_one_line(onset_export, scene, tmp_path,
+                                                          capsys, name):
+    """Metadata edits made consistent with the manifest (what once gave onsets at -139 s,
+    every contact gone, or a traceback) are refused by the schema: one line naming the file
+    and the key. The streaming graph's own keys are checked when it is loaded."""
+    import shutil
+
+    from tests.test_export_files import edit_metadata, one_line
+    from wtml.cli import main
+    from wtml.runtime.predict import load_export
+
+    folder = tmp_path / "export"
+    shutil.copytree(onset_export["model"], folder)
+    rec = scene.simulate(1, np.random.default_rng(6))
+    path = tmp_path / "rec.npz"
+    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
+    cal = calibration_file(tmp_path / "cal.npz", scene, rec)
+    argv = ["predict", "--model", str(folder), "--input", str(path), "--calibration", str(cal)]
+    if name == sorted(ONSET_EDITS)[0]:
+        assert main(argv) == 0
+        edit_metadata(folder, "stream.onnx", chunk_samples=None)
+        with pytest.raises(ValueError, match="stream.onnx: metadata chunk_samples: missing"):
+            load_export(folder, stream=True)
+        capsys.readouterr()
+    change, needle = ONSET_EDITS[name]
+    edit_metadata(folder, "model.onnx", **change)
+    one_line(capsys, argv, "model.onnx: " + needle)

@@ -303,3 +303,37 @@ def test_predict_prints_grades_per_record(texture_export, scene, tmp_path):
         total = sum(v for k, v in r.items() if k.startswith("p("))
         assert abs(total - 1) < 1e-6 and r["grade"] in scene.class_names()
         assert 1 < r["grain (um)"] < 1000
+
+
+TEXTURE_EDITS = {
+    "window": ({"n_samples": "100"}, "metadata window_s: must be n_samples / sample_rate_hz"),
+    "one class": ({"classes": '["P1200"]'}, "metadata classes: must name two or more"),
+    "no calibration grid": ({"calibration_hz": "[]"}, "metadata calibration_hz"),
+    "another task": ({"task": "onset"}, "metadata frame_s: missing"),
+    "grid of another size": ({"calibration_hz": "[1, 2, 3]"},
+                             "metadata calibration_hz: says input 't_re'"),
+    "no domain outputs": ({"domain": json.dumps({
+        "score": "x", "quantile": 0.999, "false_alarm_fresh": 0.0, "n_fresh": 1,
+        "outputs": {}})}, "metadata domain.outputs: must give the ranges of 'grain'"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(TEXTURE_EDITS))
+def test_a_texture_export_with_edited_metadata_is_one_line(texture_export, scene, tmp_path,
+                                                           capsys, name):
+    """Metadata edits made consistent with the manifest are refused by the schema: one line
+    naming the file and the key."""
+    import shutil
+
+    from tests.test_export_files import edit_metadata, one_line
+
+    folder = tmp_path / "export"
+    shutil.copytree(texture_export["model"], folder)
+    rec = scene.simulate(1, np.random.default_rng(8))
+    path, cal = tmp_path / "rec.npz", tmp_path / "cal.npz"
+    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
+    np.savez(cal, frequency_hz=scene.calibration_hz, t=rec["t"])
+    change, needle = TEXTURE_EDITS[name]
+    edit_metadata(folder, "classical.onnx", **change)
+    one_line(capsys, ["predict", "--model", str(folder), "--input", str(path),
+                      "--calibration", str(cal)], "classical.onnx: " + needle)

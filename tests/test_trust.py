@@ -35,7 +35,7 @@ from wtml.physics.beam_presets import build as build_beam
 from wtml.physics.loads import stokes_sphere
 from wtml.physics.twoport import flat_parts
 from wtml.pipeline import Stages, checkpoint_matches, summary
-from wtml.runtime.predict import OnnxModel, predict_file
+from wtml.runtime.predict import InputError, OnnxModel, predict_file
 from wtml.scenes import load_scene
 from wtml.schema import build
 from wtml.signals import complex_noise
@@ -366,10 +366,17 @@ def test_predict_errors_name_the_file_and_what_to_do(flow, tmp_path, capsys):
                                *needles)
 
     predict(tmp_path / "nowhere", sample, "no such model folder", "wtml export")
+    # a folder without the manifest `wtml export` writes last (an older wtml's, or an
+    # interrupted export) is refused before any of its graphs is opened
+    predict(broken, sample, "manifest.json: missing", "wtml export")
+    (broken / "manifest.json").write_bytes((good / "manifest.json").read_bytes())
     (broken / "model.onnx").write_bytes(b"")
     predict(broken, sample, "model.onnx: empty file", "wtml export")
+    # a truncated graph no longer reaches onnxruntime: its sha256 is not the manifest's
     (broken / "model.onnx").write_bytes(raw[: len(raw) // 2])
-    predict(broken, sample, "model.onnx: not a readable ONNX model", "wtml export")
+    predict(broken, sample, "model.onnx: sha256 does not match manifest.json", "wtml export")
+    with pytest.raises(InputError, match="model.onnx: not a readable ONNX model"):
+        OnnxModel(broken / "model.onnx")  # opened alone, onnxruntime refuses it
     (broken / "model.onnx").write_bytes(raw)
     predict(broken, sample, "classical.onnx: no such model file")
     csv_path = tmp_path / "m.csv"
@@ -380,7 +387,9 @@ def test_predict_errors_name_the_file_and_what_to_do(flow, tmp_path, capsys):
     (tmp_path / "junk.npz").write_bytes(os.urandom(300))
     predict(good, tmp_path / "junk.npz", "junk.npz: not a readable .npz")
     np.savez(tmp_path / "objects.npz", frequency_hz=np.array([{"a": 1}], dtype=object))
-    predict(good, tmp_path / "objects.npz", "objects.npz: not a readable .npz")
+    # read from its headers first: the array of objects is named before anything is loaded
+    predict(good, tmp_path / "objects.npz", "objects.npz: key 'frequency_hz' holds Python "
+                                            "objects")
 
 
 def test_export_and_evaluate_errors(flow, radial_flow, tmp_path, capsys):
@@ -517,7 +526,8 @@ def test_every_option_of_every_verb_is_explained():
                 seen += 1
     assert seen >= 30
     text = build_parser()._subparsers._group_actions[0].choices["predict"].format_help()
-    for needle in (".csv", ".npz", "sample_rate_hz", "frequency_hz", "radial", "in_domain"):
+    for needle in (".csv", ".npz", "sample_rate_hz", "frequency_hz", "radial", "in_domain",
+                   "manifest.json", "ceiling of", "MEMORY_CEILING"):
         assert needle in text
 
 

@@ -10,14 +10,66 @@ from __future__ import annotations
 
 import argparse
 import csv
+import re
 import sys
 import textwrap
+from pathlib import Path
 
 from wtml import __version__
+
+PACKAGE = Path(__file__).resolve().parent
+"""wtml's own source folder: an error raised by code there is one of its checks."""
+
+_EXPECTS = {"int": "a whole number", "float": "a number"}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one line for a bad command line (exit 2): the option and what it expects,
+    instead of the usage dump."""
+
+    def error(self, message: str) -> None:  # argparse's hook; it must not return
+        match = re.match(r"argument (\S+): invalid (\w+) value: (.*)$", message)
+        if match:
+            option, kind, value = match.groups()
+            message = (f"argument {option}: expects {_EXPECTS.get(kind, kind)}, got "
+                       f"{value[:80]}")
+        message = " ".join(message.split())
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _number(low: float, high: float, kind: type = float):
+    """An argparse ``type`` for a number in ``[low, high]`` (``kind`` int: a whole one)."""
+    what = "a whole number" if kind is int else "a number"
+
+    def parse(text: str) -> float | int:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expects {what} in [{low:g}, {high:g}], got "
+                                             f"{text[:80]!r}") from None
+        if not low <= value <= high:  # NaN fails too
+            raise argparse.ArgumentTypeError(f"expects {what} in [{low:g}, {high:g}], got "
+                                             f"{text[:80]!r}")
+        return value
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
+COUNT = _number(0, 10**7, int)
+"""A number of records or samples (0: none)."""
+THREADS = _number(1, 1024, int)
 
 
 def _walkthrough(args: argparse.Namespace) -> int:
     from wtml.walkthrough import format_report, plot_walkthrough, run_walkthrough
+
+    for name, value, low, high in (("--frequency", args.frequency, 1e-3, 1e4),
+                                   ("--repeats", args.repeats, 1, 1000),
+                                   ("--seed", args.seed, 0, 2**63 - 1)):
+        if not low <= value <= high:  # NaN fails too
+            raise ValueError(f"argument {name}: expects a number in [{low:g}, {high:g}], got "
+                             f"{value!r}")
 
     result = run_walkthrough(frequency_hz=args.frequency, noise=args.noise,
                              repeats=args.repeats, seed=args.seed)
@@ -43,11 +95,23 @@ def _presets(args: argparse.Namespace) -> int:
     return 0
 
 
+def _whole_number(option: str, text: str | None) -> int | None:
+    """An option's whole number, parsed here (not by argparse, whose refusal is a usage dump):
+    a bad one is the command's one-line error."""
+    if text is None:
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"{option}: must be a whole number, got {text!r:.40}") from None
+
+
 def _generate(args: argparse.Namespace) -> int:
     from wtml.data import generate
     from wtml.scenes import load_scene
 
-    m = generate(load_scene(args.config), args.out, shards=args.shards, shard=args.shard,
+    shards, shard = _whole_number("--shards", args.shards), _whole_number("--shard", args.shard)
+    m = generate(load_scene(args.config), args.out, shards=shards, shard=shard,
                  progress=not args.quiet)
     state = "complete" if m["complete"] else f"{len(m['shards'])}/{m['n_shards']} shards"
     print(f"{args.out}: {m['samples']} samples, {m['n_shards']} shards, {state}, "
@@ -176,13 +240,14 @@ def _bench_options(parser: argparse.ArgumentParser, task: str) -> None:
     parser.add_argument("--model", default=f"export/{task}", help="the export folder")
     parser.add_argument("--out", default=f"runs/{task}/bench",
                         help="report.md, summary.json and plots go here")
-    parser.add_argument("--threads", type=int, default=2, help="torch and onnxruntime threads")
+    parser.add_argument("--threads", type=THREADS, default=2,
+                        help="torch and onnxruntime threads")
 
 
 def build_parser() -> argparse.ArgumentParser:
     from wtml.runtime.predict import INPUT_FORMATS
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="wtml", formatter_class=_Help,
         description="Decoding a piezoelectric whisker transducer: physics, decoders, devices. "
                     "Training: python train.py fit --config configs/<task>.yaml")
@@ -196,12 +261,14 @@ def build_parser() -> argparse.ArgumentParser:
     walk = verb("walkthrough", "simulate the thesis's calibration of the macro WT (Tables 4.3-4.4)",
                 "Least-squares calibration of the macro WT (lumped preset) at 36 Hz with the "
                 "82x1x0.3 mm steel cantilever at 71-81 mm, validated at 70-80 mm.")
-    walk.add_argument("--frequency", type=float, default=36.0, help="excitation frequency, Hz")
+    walk.add_argument("--frequency", type=float, default=36.0,
+                      help="excitation frequency, Hz")
     walk.add_argument("--noise", type=float, default=2e-4,
                       help="relative std of one Ze measurement (2e-4 = 0.02 %%)")
     walk.add_argument("--repeats", type=int, default=5,
                       help="measurements averaged per load (5, as in the thesis)")
-    walk.add_argument("--seed", type=int, default=0, help="seed of the noise")
+    walk.add_argument("--seed", type=int, default=0,
+                      help="seed of the noise")
     walk.add_argument("--plot", metavar="PNG", default=None,
                       help="also save a plot of Zm and the errors here")
     walk.set_defaults(func=_walkthrough)
@@ -223,12 +290,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     gen = verb("generate", "simulate a scene into dataset shards (resumable)",
                "Simulate a scene into checksummed shards. Re-running skips complete shards, "
-               "remakes damaged ones and removes what an interrupted run left behind.")
+               "remakes damaged ones and removes what an interrupted run left behind. A folder "
+               "holds one scene's shards (its scene.json): generating another scene into it "
+               "is refused.")
     gen.add_argument("--config", required=True, help="scene YAML, e.g. configs/scenes/fluid.yaml")
     gen.add_argument("--out", required=True, help="dataset folder, e.g. datasets/fluid")
-    gen.add_argument("--shards", type=int, default=None,
+    gen.add_argument("--shards", metavar="N", default=None,
                      help="number of shards (default: the scene's 'shards')")
-    gen.add_argument("--shard", type=int, default=None,
+    gen.add_argument("--shard", metavar="K", default=None,
                      help="make only this shard index, for parallel jobs (then one run "
                           "without --shard completes the manifest)")
     gen.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -272,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
                                        "device-spread table (nominal device, the whole spread, "
                                        "each parameter alone).")
     _bench_options(bf, "fluid")
-    bf.add_argument("--device-records", type=int, default=1000,
+    bf.add_argument("--device-records", type=COUNT, default=1000,
                     help="fresh records per row of the device-spread table")
     bf.set_defaults(func=_bench)
 
@@ -288,7 +357,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the thesis decoder's checkpoint")
     br.add_argument("--thesis-model", default="export/radial_thesis",
                     help="the thesis decoder's export folder")
-    br.add_argument("--max-samples", type=int, default=10000,
+    br.add_argument("--max-samples", type=_number(1, 10**8, int), default=10000,
                     help="benchmark the first this many test samples")
     br.add_argument("--spread-data", default="datasets/radial_spread",
                     help="the spread-trained decoder's dataset: its test shard is the "
@@ -298,7 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
     br.add_argument("--spread-scene", default="configs/scenes/radial_spread.yaml",
                     help="without --spread-data's folder, draw the spread's records from this "
                          "scene file")
-    br.add_argument("--spread-samples", type=int, default=2000,
+    br.add_argument("--spread-samples", type=COUNT, default=2000,
                     help="fresh records per parameter-alone row of the device-spread table")
     br.set_defaults(func=_bench_radial)
 
@@ -311,19 +380,19 @@ def build_parser() -> argparse.ArgumentParser:
                                        "tables; the modal convergence table and the "
                                        "simulator's speed.")
     _bench_options(bo, "onset")
-    bo.add_argument("--free-records", type=int, default=50,
+    bo.add_argument("--free-records", type=COUNT, default=50,
                     help="records of 2 s of free whisking (no wall) for false contacts")
-    bo.add_argument("--variant-records", type=int, default=16,
+    bo.add_argument("--variant-records", type=COUNT, default=16,
                     help="records per untrained-drive variant for the domain flag")
-    bo.add_argument("--repeats", type=int, default=3,
+    bo.add_argument("--repeats", type=_number(1, 10**4, int), default=3,
                     help="records per wall position of Figure 5.22 (15 positions)")
-    bo.add_argument("--transfer-records", type=int, default=32,
+    bo.add_argument("--transfer-records", type=COUNT, default=32,
                     help="fresh records per row of the transfer table (each contact law alone, "
                          "the held-out one included; each acquisition effect alone)")
-    bo.add_argument("--independent-records", type=int, default=8,
+    bo.add_argument("--independent-records", type=COUNT, default=8,
                     help="records of the independent simulator (its row of the transfer "
                          "table; 0: none)")
-    bo.add_argument("--device-records", type=int, default=32,
+    bo.add_argument("--device-records", type=COUNT, default=32,
                     help="fresh records per row of the device-spread table (the nominal device, "
                          "the trained spread, each class of issue 21's spread alone; 0: none)")
     bo.set_defaults(func=_bench_onset)
@@ -345,13 +414,14 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--model", default="export/texture", help="the export folder")
     bt.add_argument("--out", default="runs/texture/bench",
                     help="report.md, summary.json and plots go here")
-    bt.add_argument("--peer-kernels", type=int, default=10000, help="MiniRocket's kernels")
-    bt.add_argument("--ablation-records", type=int, default=40,
+    bt.add_argument("--peer-kernels", type=_number(84, 10**6, int), default=10000,
+                    help="MiniRocket's kernels")
+    bt.add_argument("--ablation-records", type=COUNT, default=40,
                     help="fresh records per ablation variant")
-    bt.add_argument("--transfer-records", type=int, default=24,
+    bt.add_argument("--transfer-records", type=COUNT, default=24,
                     help="fresh records per row of the transfer table (each friction law "
                          "alone, the held-out one included; each acquisition effect alone)")
-    bt.add_argument("--device-records", type=int, default=24,
+    bt.add_argument("--device-records", type=COUNT, default=24,
                     help="fresh records per row of the device-spread table")
     bt.set_defaults(func=_bench_texture)
 
@@ -359,10 +429,26 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("task", nargs="?", choices=["all", "fluid", "radial", "onset", "texture"],
                     default="all",
                     help="which slice")
-    pl.add_argument("--max-epochs", type=int, default=None,
+    pl.add_argument("--max-epochs", type=_number(1, 10**6, int), default=None,
                     help="override the training configs' epochs (default: the configs')")
     pl.set_defaults(func=_pipeline)
     return parser
+
+
+def _is_a_check(err: BaseException) -> bool:
+    """Whether ``err`` is bad input rather than a bug: an :class:`OSError` (a file that
+    cannot be opened or written), or a :class:`ValueError` raised by wtml's own code (its
+    checks: FileError, SchemaError, InputError, ...). A ValueError raised inside a library
+    (numpy, onnxruntime, torch) is input that wtml failed to check: a bug, whose traceback is
+    kept."""
+    if isinstance(err, OSError) or type(err).__module__.split(".")[0] == "wtml":
+        return True
+    if not isinstance(err, ValueError):
+        return False
+    tb, last = err.__traceback__, None
+    while tb is not None:
+        last, tb = tb.tb_frame.f_code.co_filename, tb.tb_next
+    return last is not None and Path(last).resolve().is_relative_to(PACKAGE)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -373,8 +459,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return args.func(args)
-    except (ValueError, OSError) as err:  # bad input: one line that says what, not a traceback
-        print(f"wtml {args.command}: error: {err}", file=sys.stderr)
+    except (ValueError, OSError) as err:
+        if not _is_a_check(err):
+            raise
+        # bad input: one line that says what, not a traceback
+        text = " ".join(str(err).split()) or type(err).__name__
+        print(f"wtml {args.command}: error: {text}", file=sys.stderr)
         return 2
 
 

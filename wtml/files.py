@@ -87,11 +87,19 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict:
     return dict(pairs)
 
 
-def parse_json(text: str | bytes, where: str) -> Any:
-    """Strict JSON: ``NaN``, ``Infinity`` and duplicate keys refused (:class:`FileError`
-    naming ``where``)."""
+def _infinity(name: str) -> float:
+    if name == "NaN":
+        raise ValueError("NaN is not a JSON number")
+    return float(name)
+
+
+def parse_json(text: str | bytes, where: str, *, infinity: bool = False) -> Any:
+    """Strict JSON: ``NaN``, ``Infinity`` (unless ``infinity``: an unbounded range, as an
+    export's metadata states one) and duplicate keys refused (:class:`FileError` naming
+    ``where``)."""
     try:
-        return json.loads(text, parse_constant=_no_constant, object_pairs_hook=_unique_keys)
+        return json.loads(text, parse_constant=_infinity if infinity else _no_constant,
+                          object_pairs_hook=_unique_keys)
     except RecursionError:
         raise FileError(f"{where}: nested too deeply to be a wtml file") from None
     except (ValueError, UnicodeDecodeError) as err:
@@ -174,20 +182,29 @@ def read_npz(path: str | Path, *, what: str = ".npz file", max_bytes: int = MEMO
                         f"{type(err).__name__}); write it with numpy.savez") from None
 
 
+def check_header(where: str, key: str, shape: tuple[int, ...], dtype: np.dtype, *,
+                 real: bool = True, ndim: tuple[int, ...] | None = None) -> None:
+    """The checks of :func:`check_array` that need no values (an array's shape and dtype, as
+    :func:`npz_headers` gives them before loading): numbers only (no strings, no booleans),
+    no imaginary part where the quantity is real, the allowed numbers of dimensions."""
+    if dtype.kind not in "iufc":
+        raise FileError(f"{where}: '{key}' must hold numbers, got dtype {dtype}")
+    if real and dtype.kind == "c":
+        raise FileError(f"{where}: '{key}' must be real (it is complex): give the measured "
+                        "signal, not a phasor")
+    if ndim is not None and len(shape) not in ndim:
+        dims = " or ".join(str(n) for n in ndim)
+        raise FileError(f"{where}: '{key}' must have {dims} dimension(s), got shape "
+                        f"{tuple(shape)}")
+
+
 def check_array(where: str, key: str, value: np.ndarray, *, real: bool = True,
                 ndim: tuple[int, ...] | None = None, finite: bool = True) -> np.ndarray:
     """``value`` as a float (``real``) or complex array after checks that name ``where`` (the
     file) and ``key``: numbers only (no strings, no booleans), no imaginary part where the
     quantity is real, the allowed numbers of dimensions, finite."""
     a = np.asarray(value)
-    if a.dtype.kind not in "iufc":
-        raise FileError(f"{where}: '{key}' must hold numbers, got dtype {a.dtype}")
-    if real and a.dtype.kind == "c":
-        raise FileError(f"{where}: '{key}' must be real (it is complex): give the measured "
-                        "signal, not a phasor")
-    if ndim is not None and a.ndim not in ndim:
-        dims = " or ".join(str(n) for n in ndim)
-        raise FileError(f"{where}: '{key}' must have {dims} dimension(s), got shape {a.shape}")
+    check_header(where, key, a.shape, a.dtype, real=real, ndim=ndim)
     a = a.astype(float if real else complex, copy=False)
     if finite and a.size and not np.isfinite(a).all():
         first = np.unravel_index(np.flatnonzero(~np.isfinite(a))[0], a.shape)
@@ -205,3 +222,21 @@ def scalar(where: str, key: str, value: np.ndarray, *, low: float, high: float) 
     if not low <= x <= high:
         raise FileError(f"{where}: '{key}' must be in [{low:g}, {high:g}], got {x:g}")
     return x
+
+
+def within_ceiling(where: str, need: float, doing: str, *,
+                   ceiling: int = MEMORY_CEILING) -> None:
+    """Refuse work that would take more than ``ceiling`` bytes of memory, before doing it.
+
+    Args:
+        where: the input (a file, and the keys that make it large).
+        need: the bytes the work would take (its arrays and their intermediate copies).
+        doing: what the work is (``"resampling to 10 kHz"``).
+
+    Raises:
+        FileError: naming ``where``, the cost and the ceiling.
+    """
+    if need > ceiling:
+        raise FileError(f"{where}: {doing} would take {nbytes_text(need)} of memory, over "
+                        f"the {nbytes_text(ceiling)} ceiling of wtml predict; give fewer or "
+                        "shorter records (or split the file)")

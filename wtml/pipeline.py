@@ -130,13 +130,19 @@ def _train(stages: Stages, slice_: str, config: str, data: Path, scene_hash: str
     args = ["fit", "--config", config, "--data.init_args.data_dir", str(data)]
     if max_epochs is not None:
         args += ["--trainer.max_epochs", str(max_epochs)]
+    finished = False
     if checkpoint_matches(ckpt, scene_hash, config, max_epochs):
+        state = read_checkpoint(ckpt)
+        finished = state["epoch"] + 1 >= state["wtml"]["max_epochs"]  # nothing to resume
         args += ["--ckpt_path", str(ckpt)]
     elif ckpt.exists():
         print(f"{ckpt} is for another scene, model config or run length: training afresh")
         args += ["--overwrite", "true"]
     stages.begin(slice_, f"train {root.name}", "python train.py " + " ".join(args))
-    cli_main(args)
+    if finished:
+        print(f"{ckpt}: trained already ({state['wtml']['max_epochs']} epochs)")
+    else:
+        cli_main(args)
     return ckpt
 
 

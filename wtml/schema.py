@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import re
 import typing
 from collections.abc import Mapping
@@ -72,8 +71,9 @@ def mixture(path: str, weights: Any, family: tuple[str, ...]) -> np.ndarray:
         if name not in family:
             raise SchemaError(f"{path}: unknown law {name!r}; allowed laws: {list(family)}")
         if isinstance(weight, bool) or not isinstance(weight, int | float) or not (
-                0 <= weight < float("inf")):
-            raise SchemaError(f"{path}.{name}: the weight must be a number >= 0, got {weight!r}")
+                0 <= weight <= 1e300):  # finite, and an int that a float holds
+            raise SchemaError(f"{path}.{name}: the weight must be a number in [0, 1e300], "
+                              f"got {weight!r:.80}")
     p = np.array([float(weights.get(name, 0.0)) for name in family])
     if p.sum() <= 0:
         raise SchemaError(f"{path}: the weights must not all be 0 (laws: {list(family)})")
@@ -83,15 +83,15 @@ def mixture(path: str, weights: Any, family: tuple[str, ...]) -> np.ndarray:
 def _check_number(path: str, value: Any, low: float, high: float, kind: type) -> float | int:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise SchemaError(f"{path}: must be a number in [{low:g}, {high:g}], got {value!r:.80}")
-    if isinstance(value, int) and value.bit_length() > 63:  # float() of it may overflow
-        raise SchemaError(f"{path}: must be in [{low:g}, {high:g}], got an integer of "
-                          f"{len(str(abs(value)))} digits")
-    if kind is int and not isinstance(value, int) and not (
-            math.isfinite(value) and value == int(value)):  # 2.0 is 2; 2.5, inf, NaN are not
+    if kind is int and isinstance(value, float) and not value.is_integer():  # inf, NaN too
         raise SchemaError(f"{path}: must be an integer in [{low:g}, {high:g}], got {value!r}")
     if not low <= value <= high:  # NaN fails too
-        raise SchemaError(f"{path}: must be in [{low:g}, {high:g}], got {value!r}")
-    return kind(value)
+        raise SchemaError(f"{path}: must be in [{low:g}, {high:g}], got {value!r:.80}")
+    try:
+        return kind(value)
+    except OverflowError:  # an integer beyond a float's range
+        raise SchemaError(f"{path}: must be in [{low:g}, {high:g}] and within a float's "
+                          f"range, got {value!r:.80}") from None
 
 
 def _convert(path: str, hint: Any, value: Any, meta: Mapping) -> Any:
@@ -109,10 +109,12 @@ def _convert(path: str, hint: Any, value: Any, meta: Mapping) -> Any:
                 raise SchemaError(f"{path}: must be a list of strings, got {value!r:.80}")
             return tuple(value)
         low, high = meta.get("range", (-float("inf"), float("inf")))
+        kind = int if item is int else float  # tuple[int, ...]: whole numbers (a shape)
         if not isinstance(value, list | tuple):
-            raise SchemaError(f"{path}: must be a list of numbers in [{low:g}, {high:g}], "
-                             f"got {value!r}")
-        return tuple(_check_number(f"{path}[{k}]", v, low, high, float)
+            what = "whole numbers" if kind is int else "numbers"
+            raise SchemaError(f"{path}: must be a list of {what} in [{low:g}, {high:g}], "
+                             f"got {value!r:.80}")
+        return tuple(_check_number(f"{path}[{k}]", v, low, high, kind)
                      for k, v in enumerate(value))
     if origin is tuple:  # a (low, high) pair of floats
         low, high = meta.get("range", (-float("inf"), float("inf")))

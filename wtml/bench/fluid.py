@@ -36,7 +36,7 @@ from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.domain import QUANTILE
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
-from wtml.runtime.predict import OnnxModel
+from wtml.runtime.predict import OnnxModel, load_export
 from wtml.scenes.fluid import DeviceSpread, NoiseSpec, NuisanceSpec
 
 BOUND_DRAWS = 200
@@ -115,8 +115,7 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
     data = load_shards(data_dir, test)
     ze, t, eta, rho = data["ze"], data["t"], data["eta"], data["rho"]
     net, _ = load_fluid_net(str(checkpoint))
-    decoder_onnx = OnnxModel(Path(model_dir) / "model.onnx", threads=threads)
-    classical_onnx = OnnxModel(Path(model_dir) / "classical.onnx", threads=threads)
+    decoder_onnx, classical_onnx = load_export(model_dir, threads=threads)
     predictors = [
         ClassicalFluid(scene.excitation.omega, scene.sphere.radius),
         classical_onnx,

@@ -50,7 +50,7 @@ from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.physics.beam_presets import build
 from wtml.physics.modal import Wall, available_cores, convergence_table
 from wtml.runtime.onset import contacts_from, record_inputs, stream_record, thesis_pipeline
-from wtml.runtime.predict import OnnxModel
+from wtml.runtime.predict import OnnxModel, load_export
 
 TOLERANCE_S = 1e-3
 MATCH_S = 50e-3
@@ -253,8 +253,7 @@ def stream_metrics(stream: OnnxModel, offline: dict, labels: dict, frame_s: floa
 
 
 def _methods(model_dir: Path, scene):
-    decoder = OnnxModel(model_dir / "model.onnx")
-    classical = OnnxModel(model_dir / "classical.onnx")
+    decoder, classical = load_export(model_dir)
     peer = RupturesPeer(scene)
 
     def onnx_run(model):
@@ -358,7 +357,7 @@ def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_recor
     offline = decoder.run(*record_inputs(test))
     held_in = float(1 - offline["in_domain"].mean())
     frame_s = json.loads(decoder.metadata["frame_s"])
-    streaming = stream_metrics(OnnxModel(model_dir / "stream.onnx"), offline, test, frame_s)
+    streaming = stream_metrics(load_export(model_dir, stream=True)[2], offline, test, frame_s)
     ref = calibrated_reference(scene, test) - test["gap"]
     reference = [{"name": "reference: true onsets through the calibrated model",
                   "rows": location_rows(ref, frac)},

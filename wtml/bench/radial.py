@@ -36,7 +36,7 @@ from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.domain import QUANTILE
 from wtml.decoders.radial import TorchRadial, load_radial_net
 from wtml.physics import ze_from_zm
-from wtml.runtime.predict import OnnxModel
+from wtml.runtime.predict import OnnxModel, load_export
 
 BINS_UM = (0, 800, 1600, 2400, 3200)
 
@@ -165,16 +165,16 @@ def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_d
     crlb = radial_crlb(scene, d, k)
     ours, _ = load_radial_net(str(checkpoint))
     thesis, _ = load_radial_net(str(thesis_checkpoint))
+    ours_onnx, classical_onnx = load_export(model_dir, threads=threads)
     methods = [
         TorchRadial(thesis, "thesis 2-10-1 torch"),
-        _named(OnnxModel(Path(thesis_model_dir) / "model.onnx", threads), "thesis 2-10-1 ONNX"),
+        _named(load_export(thesis_model_dir, threads=threads)[0], "thesis 2-10-1 ONNX"),
         TorchRadial(ours, "ours torch"),
-        _named(OnnxModel(Path(model_dir) / "model.onnx", threads), "ours ONNX"),
+        _named(ours_onnx, "ours ONNX"),
         *(PolynomialRadial(part, reference=reference).fit(train["ze"], train["ref"],
                                                           train["distance"])
           for reference in (False, True) for part in ("real", "imag")),
-        _named(OnnxModel(Path(model_dir) / "classical.onnx", threads),
-               "polynomial Im Ze/ref ONNX"),
+        _named(classical_onnx, "polynomial Im Ze/ref ONNX"),
         InversionRadial(scene),
     ]
     big = tuple(np.resize(x, (4096, ze.shape[1])) for x in (ze, ref))
@@ -283,8 +283,7 @@ def _spread_table(scene, nominal: dict, methods: list, spread_dir, spread_model_
                          f"frequencies {list(scene.excitation.frequencies_hz)} Hz")
     columns = [methods[3]]
     if spread_model_dir is not None and (Path(spread_model_dir) / "model.onnx").is_file():
-        columns.append(_named(OnnxModel(Path(spread_model_dir) / "model.onnx", threads),
-                              SPREAD_ONNX))
+        columns.append(_named(load_export(spread_model_dir, threads=threads)[0], SPREAD_ONNX))
     columns += [methods[1], methods[8], methods[9]]
     sets = spread_sets(other, nominal, records, n_each)
     table = {name: {m.name: spread_row(m.predict(s["ze"], s["ref"]), s["distance"])

@@ -4,16 +4,31 @@ checkpoint."""
 
 from __future__ import annotations
 
+import math
+import os
 from abc import ABC, abstractmethod
+from pathlib import Path
 
 import lightning as L
 import torch
 
+from wtml.data.datamodule import epoch_seed
 from wtml.decoders.domain import DomainGate
 
 
 class ConfigError(ValueError):
     """A training-config value out of its allowed range (the message names the key)."""
+
+
+class DivergedError(ValueError):
+    """A training or validation loss that is not finite: the run stops, and its last good
+    checkpoint stays as it was."""
+
+
+PARAMETER_CEILING = 2 * 1024**3 // 16
+"""The most parameters a net may have: each costs 16 bytes in training (float32 weight,
+gradient and AdamW's two moments), and the stated memory ceiling is 2 GiB
+(``wtml.files.MEMORY_CEILING``)."""
 
 
 def check_positive(name: str, value: float, high: float = float("inf")) -> None:
@@ -23,21 +38,36 @@ def check_positive(name: str, value: float, high: float = float("inf")) -> None:
 
 
 def check_widths(name: str, widths: list[int]) -> None:
-    """Raise :class:`ConfigError` unless ``widths`` is a list of layer widths in [1, 65536]."""
+    """Raise :class:`ConfigError` unless ``widths`` is a list of layer widths in [1, 65536]
+    whose weights between them stay under :data:`PARAMETER_CEILING`."""
     if not isinstance(widths, list | tuple) or not all(
             isinstance(w, int) and not isinstance(w, bool) and 1 <= w <= 65536 for w in widths):
-        raise ConfigError(f"{name} must be a list of layer widths in [1, 65536], got {widths!r}")
+        raise ConfigError(f"{name} must be a list of layer widths in [1, 65536], "
+                          f"got {widths!r:.80}")
+    weights = sum(a * b for a, b in zip(widths[:-1], widths[1:], strict=True))
+    if weights > PARAMETER_CEILING:
+        raise ConfigError(f"{name} {list(widths)!r:.80} makes {weights:.3g} weights between "
+                          f"its layers, over the {PARAMETER_CEILING:.3g} that train in the 2 GiB "
+                          "memory ceiling (16 bytes each with AdamW)")
 
 
 class DecoderModule(L.LightningModule, ABC):
     """Subclasses build their net in :meth:`build_net` (from the training data) and in
     :meth:`build_from_checkpoint` (shapes only), name the gate's input features in
-    :meth:`domain_features`, and implement :meth:`loss`.
+    :meth:`domain_features`, and implement :meth:`loss`; ``TASK`` names the scene task
+    whose datasets they train on.
+
+    Each training epoch starts from a torch random state drawn from the run's seed and the
+    epoch (:func:`wtml.data.datamodule.epoch_seed`), as the training data's order is: a run
+    resumed from a checkpoint continues as the run never interrupted would have. A loss that
+    is not finite stops the run (:class:`DivergedError`) before anything is saved.
 
     Args:
         lr: peak learning rate (one-cycle schedule over the run).
         weight_decay: AdamW weight decay.
     """
+
+    TASK = ""
 
     def __init__(self, lr: float, weight_decay: float) -> None:
         super().__init__()
@@ -95,9 +125,26 @@ class DecoderModule(L.LightningModule, ABC):
         training tensors themselves, unless a task feeds its net pieces of them."""
         return inputs
 
+    def on_train_epoch_start(self) -> None:
+        torch.manual_seed(epoch_seed(self.current_epoch))
+
     def on_save_checkpoint(self, checkpoint: dict) -> None:
+        for name, value in checkpoint["state_dict"].items():
+            if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                raise DivergedError(self._diverged(f"the weights' {name} hold NaN or infinite "
+                                                   "values"))
         checkpoint["wtml"] = {"scene": self.scene, "shape": self.net_shape(),
-                              "max_epochs": self.trainer.max_epochs}
+                              "max_epochs": self.trainer.max_epochs,
+                              "seed": int(os.environ.get("PL_GLOBAL_SEED", -1))}
+
+    def _diverged(self, what: str) -> str:
+        """The one line a diverged run ends with: where, what, and the checkpoint kept."""
+        last = Path(self.trainer.default_root_dir) / "checkpoints" / "last.ckpt"
+        kept = (f"{last} (after epoch {self.current_epoch}) is kept as it was"
+                if last.exists() else "no checkpoint was written")
+        return (f"epoch {self.current_epoch + 1}, step {self.global_step}: {what}; the run "
+                f"stopped and {kept}. Lower model.init_args.lr ({self.hparams.lr:g}) or check "
+                "the data")
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         from wtml.scenes import scene_from_dict
@@ -109,6 +156,12 @@ class DecoderModule(L.LightningModule, ABC):
 
     def _step(self, batch, stage: str) -> torch.Tensor:
         loss = self.loss(batch)
+        # L-BFGS's line search may try a step whose loss overflows, and step back from it
+        search = stage == "train" and isinstance(self.optimizers(use_pl_optimizer=False),
+                                                 torch.optim.LBFGS)
+        if stage != "test" and not search and not math.isfinite(float(loss.detach())):
+            which = "training" if stage == "train" else "validation"
+            raise DivergedError(self._diverged(f"the {which} loss is {float(loss.detach())}"))
         self.log(f"{stage}_loss", loss, prog_bar=stage == "val", on_epoch=True,
                  on_step=False, batch_size=len(batch[0]))
         return loss

@@ -80,6 +80,8 @@ class FluidDecoder(DecoderModule):
         weight_decay: AdamW weight decay.
     """
 
+    TASK = "fluid"
+
     def __init__(self, hidden: list[int] | None = None, lr: float = 3e-3,
                  weight_decay: float = 1e-5) -> None:
         super().__init__(lr, weight_decay)

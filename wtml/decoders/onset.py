@@ -646,6 +646,8 @@ class OnsetDecoder(DecoderModule):
         lr, weight_decay: as every decoder.
     """
 
+    TASK = "onset"
+
     def __init__(self, channels: int = 32, dilations: list[int] | None = None,
                  contact_weight: float = 30.0, onset_weight: float = 10.0,
                  location_weight: float = 1.0, timing_weight: float = 1.0,

@@ -24,6 +24,8 @@ Outputs (each ``(batch,)`` unless said): ``grain`` (m), ``log_sigma`` (the std o
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import nn
@@ -260,6 +262,8 @@ class TextureDecoder(DecoderModule):
         lr, weight_decay: as every decoder.
     """
 
+    TASK = "texture"
+
     def __init__(self, hidden: list[int] | None = None, window_s: float = 0.25,
                  grain_weight: float = 0.5, lr: float = 3e-3, weight_decay: float = 1e-4
                  ) -> None:
@@ -271,11 +275,19 @@ class TextureDecoder(DecoderModule):
         self.save_hyperparameters()
 
     def window(self, scene) -> int:
-        """The window in samples at the scene's rate."""
-        n = int(round(self.hparams.window_s * scene.acquisition.sample_rate_hz))
-        if n > scene.n_samples:
-            raise ConfigError(f"model.window_s {self.hparams.window_s:g} s is longer than the "
-                              f"scene's records ({scene.drive.record_s:g} s)")
+        """The window in samples at the scene's rate: at least one period of the scene's
+        slowest whisk (the features fit the whisk's harmonics over it; shorter windows
+        also multiply the domain gate's windows, one per window of every training record,
+        until they exhaust memory: 1e-5 s made 16 M), at most a record."""
+        rate = scene.acquisition.sample_rate_hz
+        n = int(round(self.hparams.window_s * rate))
+        lag = WhiskFeatures(scene.calibration_hz, rate).lag
+        shortest = max(math.ceil(rate / scene.drive.whisk_hz[0]), 3 * lag + 1)
+        if not shortest <= n <= scene.n_samples:
+            raise ConfigError(f"model.window_s must be in [{shortest / rate:.4g}, "
+                              f"{scene.n_samples / rate:g}] s for this scene (one period of "
+                              f"its slowest whisk, {scene.drive.whisk_hz[0]:g} Hz, to a whole "
+                              f"record), got {self.hparams.window_s:g}")
         return n
 
     def domain_features(self, scene) -> tuple[nn.Module, int]:

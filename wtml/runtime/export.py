@@ -38,15 +38,16 @@ from wtml.decoders.checkpoint import load_decoder
 from wtml.decoders.domain import QUANTILE, Gated
 from wtml.decoders.layers import StandardPolynomial, ZmFromZe
 from wtml.physics.twoport import flat_parts
+from wtml.runtime.metadata import (  # noqa: F401  (the names this module has always had)
+    FLUID_INPUTS,
+    GATE_OUTPUTS,
+    INPUTS,
+    MANIFEST,
+    RADIAL_INPUTS,
+    write_manifest,
+)
 from wtml.scenes import config_hash, scene_from_dict
 
-INPUTS = ("ze_re", "ze_im")
-FLUID_INPUTS = (*INPUTS, "t_re", "t_im")
-"""The fluid graphs' inputs: Ze and the user's calibrated T, ``(batch, n_freq, 4)`` flattened
-as (t11, t12, t21, t22)."""
-RADIAL_INPUTS = (*INPUTS, "ref_re", "ref_im")
-"""The radial graphs' inputs: Ze and the free whisker's Ze of the same device, ``(batch,
-n_freq)``."""
 REFERENCES = {
     "fluid": {"calibration": "the device's calibrated T (whisker with its sphere) at the "
                              "sweep frequencies, measured with the calibration loads of "
@@ -55,7 +56,6 @@ REFERENCES = {
                             "model's frequencies, measured when it is set up "
                             "(ref_re, ref_im; wtml predict --reference)"}}
 """What each task's export needs besides the measurement (the metadata's ``references``)."""
-GATE_OUTPUTS = ("in_domain", "domain_score")
 FRESH_SAMPLES = 20000
 """Fresh samples of the scene (not the training data) on which the exported decoder's
 false-alarm rate is measured and stated in its metadata."""
@@ -173,7 +173,9 @@ def domain_metadata(scene, false_alarm: float, n_fresh: int) -> dict:
 
 def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     """Write ``model.onnx`` (decoder) and ``classical.onnx`` for the checkpoint's task into
-    ``out`` (radial: and ``sample_reference.npz``); returns the paths.
+    ``out`` (radial: and ``sample_reference.npz``; onset: and ``stream.onnx``), then
+    ``manifest.json`` listing them with their sha256 and size
+    (:func:`wtml.runtime.metadata.write_manifest`); returns the paths.
 
     Raises:
         CheckpointError: the checkpoint is missing, unreadable, unsafe or not wtml's.
@@ -186,14 +188,27 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     scene = scene_from_dict(module.scene)
     task = scene.task
     out.mkdir(parents=True, exist_ok=True)
+    (out / MANIFEST).unlink(missing_ok=True)  # until the new one is written: no export here
     if task == "onset":
         from wtml.runtime.onset import export_onset
 
-        return export_onset(module, scene, out)
-    if task == "texture":
+        paths = export_onset(module, scene, out)
+    elif task == "texture":
         from wtml.runtime.texture import export_texture
 
-        return export_texture(module, scene, out)
+        paths = export_texture(module, scene, out)
+    else:
+        paths = _export_matrix_task(module, scene, out)
+    metadata = {p.name: {m.key: m.value for m in onnx.load(str(p)).metadata_props}
+                for p in paths.values() if p.suffix == ".onnx"}
+    paths["manifest"] = write_manifest(out, paths, metadata, task=task,
+                                       scene_hash=config_hash(scene), version=__version__)
+    return paths
+
+
+def _export_matrix_task(module, scene, out: Path) -> dict[str, Path]:
+    """The fluid and radial graphs (and radial's sample reference) into ``out``."""
+    task = scene.task
     freq = (scene.excitation.frequency_hz if task == "fluid"
             else np.asarray(scene.excitation.frequencies_hz))
     uncertain = tuple(k for k, name in enumerate(scene.OUTPUTS) if name == "sigma")

@@ -30,23 +30,40 @@ from wtml import __version__
 from wtml.baselines.onset_classical import ThesisOnset
 from wtml.data.datamodule import onset_calibration
 from wtml.decoders.domain import Gated
-from wtml.decoders.onset import CALIBRATION, TOUCH_LOOKBACK, frame_period
+from wtml.decoders.onset import TOUCH_LOOKBACK, frame_period
 from wtml.decoders.onset_stream import StreamingOnset
+from wtml.files import (
+    check_array,
+    check_header,
+    npz_headers,
+    read_npz,
+    regular_file,
+    scalar,
+    within_ceiling,
+)
 from wtml.runtime.export import _export, domain_metadata
-from wtml.runtime.predict import InputError, read_calibration
+from wtml.runtime.metadata import (  # noqa: F401  (the names this module has always had)
+    DECODER_OUTPUTS,
+    ONSET_CALIBRATION,
+    ONSET_INPUTS,
+    ONSET_OUTPUTS,
+    STREAM_INPUTS,
+    STREAM_OUTPUTS,
+)
+from wtml.runtime.predict import (
+    ROW_BYTES,
+    InputError,
+    float32_range,
+    read_calibration_arrays,
+)
 from wtml.scenes import config_hash
 from wtml.scenes.onset import intervals
 
-ONSET_INPUTS = ("e", "i", *CALIBRATION)
 ONSET_REFERENCES = {"calibration": "the device's calibrated T at the probe frequency and its "
                                    "HUE(0) (the calibration of physics.md §4 on the user's own "
                                    "device): inputs t_re, t_im (T.reshape(4): t11, t12, t21, "
                                    "t22) and hue0 (m/V)"}
 """What the onset graphs need besides the record (the metadata's ``references``)."""
-ONSET_OUTPUTS = ("gap", "sigma", "contact")
-DECODER_OUTPUTS = ONSET_OUTPUTS + ("detach_margin", "touch")
-STREAM_INPUTS = ("e", "i", *CALIBRATION, "state")
-STREAM_OUTPUTS = ("contact", "detach_margin", "touch", "gap", "sigma", "next_state")
 STREAM_CHUNK_FRAMES = 1
 """Probe periods per chunk of the exported streaming graph (2.4 ms at the defaults)."""
 FRESH_RECORDS = 64
@@ -97,18 +114,19 @@ def read_onset_calibration(path: str | Path | None, probe_hz: float, n: int
                          f"the probe ({probe_hz:g} Hz) and its HUE(0) (npz with frequency_hz "
                          f"[{probe_hz:g}], t complex (1, 2, 2) and hue0 in m/V); "
                          "physics.md §4")
-    t = read_calibration(path, np.array([float(probe_hz)]), n, "onset")[:, 0].reshape(n, 4)
-    with np.load(path, allow_pickle=False) as data:
-        if "hue0" not in data.files:
-            raise InputError(f"{path}: an onset calibration needs 'hue0' (the device's HUE(0), "
-                             f"m/V) beside 'frequency_hz' and 't'; has {sorted(data.files)}")
-        hue0 = np.asarray(data["hue0"], float)
+    t, extra = read_calibration_arrays(path, np.array([float(probe_hz)]), n, ("hue0",))
+    if "hue0" not in extra:
+        raise InputError(f"{path}: an onset calibration needs 'hue0' (the device's HUE(0), "
+                         f"m/V) beside 'frequency_hz' and 't'")
+    hue0 = check_array(str(path), "hue0", extra["hue0"], finite=False)
     if hue0.shape not in ((), (1,), (n,)):
         raise InputError(f"{path}: hue0 must be a scalar or have shape (n={n},), got "
                          f"{hue0.shape}")
     if not np.all(np.isfinite(hue0) & (hue0 > 0)):
         raise InputError(f"{path}: hue0 must be finite and > 0 (m/V), got {hue0.ravel()[:3]}")
+    float32_range(str(path), "hue0", hue0)
     hue0 = np.broadcast_to(hue0.reshape(-1) if hue0.ndim else hue0, (n,))
+    t = t[:, 0].reshape(n, 4)
     return tuple(np.asarray(x, np.float32) for x in (t.real, t.imag, hue0))
 
 
@@ -129,7 +147,9 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
     meta = {"wtml_version": __version__, "task": "onset",
             "inputs": json.dumps(list(ONSET_INPUTS)), "outputs": json.dumps(list(ONSET_OUTPUTS)),
             "units": json.dumps({"gap": "m", "sigma": "m", "contact": "1", "e": "V", "i": "A",
-                                 "t_re": "SI (T)", "t_im": "SI (T)", "hue0": "m/V"}),
+                                 "t_re": "SI (T)", "t_im": "SI (T)", "hue0": "m/V",
+                                 "detach_margin": "m", "touch": "1", "state": "1",
+                                 "next_state": "1"}),
             "references": json.dumps(ONSET_REFERENCES),
             "frequency_hz": json.dumps([scene.drive.probe_hz]),
             "sample_rate_hz": json.dumps(rate), "n_samples": json.dumps(scene.n_samples),
@@ -211,60 +231,85 @@ def contacts_from(pred: dict, metadata: dict) -> tuple[np.ndarray, np.ndarray]:
     return onset, detach
 
 
+def record_cost(n: int, n_in: int, n_out: int, itemsize: int) -> int:
+    """Bytes that reading ``n`` records of ``n_in`` samples per channel (stored with
+    ``itemsize`` bytes a sample) and resampling them to ``n_out`` take at their peak: the
+    float32 answer ``(2, n, n_out)``, then per channel the loaded array, its float64 copy, and
+    the resampled array with scipy's working copy of it."""
+    return 8 * n * n_out + n * n_in * (itemsize + 8) + 16 * n * n_out * (n_out != n_in)
+
+
 def read_record(path: str | Path, sample_rate_hz: float, n_samples: int, *,
-                at_least: bool = False) -> np.ndarray:
+                at_least: bool = False, rows_per_record: int = 2,
+                work_per_sample: int = 0) -> np.ndarray:
     """``e`` and ``i`` of a ``rec.npz`` as float32 ``(2, n, n_samples)`` at the trained rate
     (``at_least``: any length from ``n_samples`` up, for models fed windows).
 
     The file holds ``e`` (V) and ``i`` (A), each ``(n_samples,)`` or ``(n_records,
-    n_samples)``, and ``sample_rate_hz``. Another rate is resampled (polyphase, when the two
-    rates have a ratio of small whole numbers) or refused; the duration must match the
-    trained record's (or reach it, ``at_least``).
+    n_samples)``, real, and ``sample_rate_hz`` (one number). Another rate is resampled
+    (polyphase, when the two rates have a ratio of small whole numbers) or refused; the
+    duration must match the trained record's (or reach it, ``at_least``). Everything is
+    checked from the file's headers before any array is read, the work's memory
+    (:func:`record_cost`, ``rows_per_record`` rows of the answer per record and
+    ``work_per_sample`` bytes per sample of what the caller makes of the records) against
+    :data:`wtml.files.MEMORY_CEILING` included.
 
     Raises:
-        InputError: missing keys, mismatched shapes, NaN, an unusable rate or length.
+        InputError: missing keys, complex or mismatched arrays, no records, NaN, an unusable
+            rate or length, more memory than the ceiling.
     """
     from fractions import Fraction
 
     from scipy.signal import resample_poly
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such input file")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = {"e", "i", "sample_rate_hz"} - set(data.files)
-            if missing:
-                raise InputError(f"{path}: a record needs 'e' (V), 'i' (A) and "
-                                 f"'sample_rate_hz'; missing {sorted(missing)}")
-            e, i = np.atleast_2d(data["e"]).astype(float), np.atleast_2d(data["i"]).astype(float)
-            rate = float(data["sample_rate_hz"])
-    except InputError:
-        raise
-    except (OSError, ValueError, EOFError, KeyError) as err:
-        raise InputError(f"{path}: not a readable .npz of numeric arrays "
-                         f"({type(err).__name__}); write it with numpy.savez") from None
-    if e.shape != i.shape or e.ndim != 2:
+    path = regular_file(path, what="input file")
+    where = str(path)
+    heads = npz_headers(path, what="record")
+    missing = {"e", "i", "sample_rate_hz"} - set(heads)
+    if missing:
+        raise InputError(f"{path}: a record needs 'e' (V), 'i' (A) and "
+                         f"'sample_rate_hz'; missing {sorted(missing)}")
+    for key in ("e", "i"):
+        check_header(where, key, *heads[key], ndim=(1, 2))
+    shape = heads["e"][0]
+    if shape != heads["i"][0]:
         raise InputError(f"{path}: e and i must have the same shape (n_samples,) or "
-                         f"(n_records, n_samples); got {e.shape} and {i.shape}")
-    if not np.isfinite(rate) or rate <= 0:
-        raise InputError(f"{path}: sample_rate_hz must be > 0, got {rate}")
-    if not (np.isfinite(e).all() and np.isfinite(i).all()):
-        raise InputError(f"{path}: e or i holds NaN or inf")
+                         f"(n_records, n_samples); got {shape} and {heads['i'][0]}")
+    n, n_in = (1, *shape) if len(shape) == 1 else shape
+    if n == 0 or n_in == 0:
+        raise InputError(f"{path}: holds no records (e and i have shape {shape}); give "
+                         "(n_samples,) or (n_records, n_samples) with both at least 1")
+    rate = scalar(where, "sample_rate_hz", read_npz(path, keys=("sample_rate_hz",))[
+        "sample_rate_hz"], low=1e-3, high=1e12)
+    up = down = 1
     if rate != sample_rate_hz:
         ratio = Fraction(sample_rate_hz / rate).limit_denominator(1000)
         if abs(float(ratio) - sample_rate_hz / rate) > 1e-9 * sample_rate_hz / rate:
             raise InputError(f"{path}: recorded at {rate:g} Hz; the model was trained at "
                              f"{sample_rate_hz:g} Hz and the ratio is not a ratio of whole "
                              "numbers up to 1000: resample it first")
-        e = resample_poly(e, ratio.numerator, ratio.denominator, axis=1)
-        i = resample_poly(i, ratio.numerator, ratio.denominator, axis=1)
-    if e.shape[1] < n_samples if at_least else e.shape[1] != n_samples:
-        raise InputError(f"{path}: {e.shape[1]} samples at {sample_rate_hz:g} Hz "
-                         f"({e.shape[1] / sample_rate_hz:g} s); the model takes records of "
+        up, down = ratio.numerator, ratio.denominator
+    n_out = -(-n_in * up // down)
+    if n_out < n_samples if at_least else n_out != n_samples:
+        raise InputError(f"{path}: {n_out} samples at {sample_rate_hz:g} Hz "
+                         f"({n_out / sample_rate_hz:g} s); the model takes records of "
                          f"{'at least ' if at_least else ''}{n_samples} "
                          f"({n_samples / sample_rate_hz:g} s)")
-    return np.stack([e, i]).astype(np.float32)
+    need = (record_cost(n, n_in, n_out, heads["e"][1].itemsize)
+            + rows_per_record * n * ROW_BYTES + work_per_sample * n * n_out)
+    within_ceiling(f"{path}: e and i {shape} at sample_rate_hz {rate:g}", need,
+                   f"reading {n} record(s)" + (f" resampled to {sample_rate_hz:g} Hz "
+                                               f"({n_out} samples each)" if up != down else ""))
+    out = np.empty((2, n, n_out), np.float32)
+    for k, key in enumerate(("e", "i")):
+        x = check_array(where, key, read_npz(path, keys=(key,))[key], ndim=(1, 2))
+        x = np.atleast_2d(x)
+        if up != down:
+            x = resample_poly(x, up, down, axis=1)
+        float32_range(where, key, x)
+        out[k] = x[:, :n_out]
+        del x
+    return out
 
 
 def predict_records(model_dir: str | Path, input_path: str | Path, *,
@@ -277,9 +322,12 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
     from wtml.runtime.predict import impossible, load_export
 
     decoder, classical = load_export(model_dir)
-    meta = decoder.metadata
-    x = read_record(input_path, json.loads(meta["sample_rate_hz"]),
-                    json.loads(meta["n_samples"]))
+    meta = decoder.meta
+    # per sample beyond the record: the classical path's per-sample contact state (float32
+    # from the graph, float64 after), and the masks the timing rule makes of it
+    x = read_record(input_path, meta.sample_rate_hz, meta.n_samples,
+                    rows_per_record=2 * (1 + meta.scene.get("max_contacts", 8)),
+                    work_per_sample=24)
     cal = (read_onset_calibration(calibration, float(decoder.frequency_hz[0]), x.shape[1])
            if "calibration" in decoder.references else ())
     rows = []

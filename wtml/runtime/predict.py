@@ -13,14 +13,35 @@ The input formats are documented in :data:`INPUT_FORMATS` (``wtml predict --help
 from __future__ import annotations
 
 import csv
-import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
 
+from wtml.files import (
+    MEMORY_CEILING,
+    FileError,
+    check_array,
+    check_header,
+    nbytes_text,
+    npz_headers,
+    parse_json,
+    read_npz,
+    regular_file,
+    scalar,
+    within_ceiling,
+)
 from wtml.physics.twoport import flat_parts
+from wtml.runtime.metadata import (
+    MANIFEST,
+    MODEL_MAX_BYTES,
+    REDO,
+    check_graph,
+    graph_metadata,
+    read_manifest,
+    verified_bytes,
+)
+from wtml.schema import SchemaError
 from wtml.signals import phasor_lsq
 
 INPUT_FORMATS = """\
@@ -46,63 +67,102 @@ Onset models take a recording instead: .npz with e (V) and i (A), each (n_sample
 ratio is one of whole numbers, else refused) and the device's calibration (--calibration:
 .npz with frequency_hz [the probe's], t, its calibrated T there, complex (1, 2, 2) or
 (n_records, 1, 2, 2), and hue0, its HUE(0) in m/V); they return one row per contact: onset and
-detachment (s), the wall's location gap (m) and sigma (m)."""
+detachment (s), the wall's location gap (m) and sigma (m).
+Texture models take recordings of any length from one window up (the same .npz as onset);
+a long one is cut into whole windows, run in batches.
+Files: an export folder is checked against its manifest.json (each file's sha256) and its
+metadata against its task's schema; inputs are read from their headers first. Memory: an
+input whose reading, resampling or windowing would take more than the ceiling of
+{ceiling} (wtml.files.MEMORY_CEILING) is refused before the work, naming it; CSV inputs up
+to {csv}, calibration and reference files up to {cal}."""
 
 
-class InputError(ValueError):
+class InputError(FileError):
     """An input file or model folder that cannot be used (the message says what to do)."""
+
+
+RUN_BYTES = 8 * 1024**2
+"""Bytes of input per onnxruntime call: longer inputs run in batches of rows, so that the
+graphs' intermediate arrays stay small whatever the number of measurements or windows."""
+ROW_BYTES = 4096
+"""Bytes a row of ``wtml predict``'s answer may take (its Python objects and its line):
+counted in each input's cost against :data:`wtml.files.MEMORY_CEILING`."""
+CSV_MAX_BYTES = 64 * 1024**2
+"""Bytes: the largest CSV input."""
+CALIBRATION_MAX_BYTES = 256 * 1024**2
+"""Bytes: the largest calibration or reference file's arrays."""
+INPUT_FORMATS = INPUT_FORMATS.format(ceiling=nbytes_text(MEMORY_CEILING),
+                                     csv=nbytes_text(CSV_MAX_BYTES),
+                                     cal=nbytes_text(CALIBRATION_MAX_BYTES))
 
 
 class OnnxModel:
     """An exported wtml model (decoder or classical path) behind the predict interface:
     ``predict(ze) -> {output name: (n,) array, "in_domain": (n,) bool,
-    "domain_score": (n,)}``, names and units from its metadata.
+    "domain_score": (n,)}``, names and units from its metadata, which is checked against its
+    task's schema and the graph itself (:mod:`wtml.runtime.metadata`) before it is used.
 
     Args:
-        path: ``model.onnx`` or ``classical.onnx``.
+        path: ``model.onnx``, ``classical.onnx`` or ``stream.onnx``.
         threads: intra-op threads (0: onnxruntime's default).
+        data: the file's bytes, already read and checked against the export's manifest
+            (:func:`load_export`); read from ``path`` when None.
 
     Raises:
         InputError: the file is missing, empty, truncated or not a wtml model.
+        SchemaError: its metadata is not what its task's graphs carry (naming the key).
     """
 
-    def __init__(self, path: str | Path, threads: int = 0) -> None:
+    def __init__(self, path: str | Path, threads: int = 0, *, data: bytes | None = None) -> None:
         path = Path(path)
-        redo = "export it again with `wtml export --checkpoint <last.ckpt> --out <folder>`"
-        if not path.is_file():
-            raise InputError(f"{path}: no such model file; {redo}")
-        if path.stat().st_size == 0:
-            raise InputError(f"{path}: empty file; {redo}")
+        if data is None:
+            regular_file(path, what="model file", max_bytes=MODEL_MAX_BYTES)
+            data = path.read_bytes()
+            if not data:
+                raise InputError(f"{path}: empty file; {REDO}")
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = threads
         opts.inter_op_num_threads = 1
-        opts.log_severity_level = 3  # onnxruntime's own warnings are not ours to print
+        opts.log_severity_level = 4  # onnxruntime's own messages are not ours to print
         try:
-            self.session = ort.InferenceSession(str(path), opts,
-                                                providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
         except Exception as err:  # onnxruntime raises its own classes for a bad protobuf
             raise InputError(f"{path}: not a readable ONNX model (truncated or corrupt: "
-                             f"{str(err).splitlines()[0][:100]}); {redo}") from None
+                             f"{str(err).splitlines()[0][:100]}); {REDO}") from None
         self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
-        need = ("task", "frequency_hz", "outputs", "units", "domain")
-        if any(k not in self.metadata for k in need):
-            raise InputError(f"{path}: not a wtml model of this version (its metadata lacks "
-                             f"{[k for k in need if k not in self.metadata]}); {redo}")
-        self.task = self.metadata["task"]
-        self.frequency_hz = np.array(json.loads(self.metadata["frequency_hz"]))
-        self.outputs = json.loads(self.metadata["outputs"])
-        self.units = json.loads(self.metadata["units"])
-        self.domain = json.loads(self.metadata["domain"])
-        self.references = json.loads(self.metadata.get("references", "{}"))
+        """The graph's metadata as it carries it (strings), checked: :attr:`meta`."""
+        self.meta = graph_metadata(self.metadata, str(path))
+        check_graph(self.meta, self.session.get_inputs(), self.session.get_outputs(), str(path))
+        self.task = self.meta.task
+        self.frequency_hz = np.array(self.meta.frequency_hz)
+        self.outputs = list(self.meta.outputs)
+        self.units = dict(self.meta.units)
+        self.domain = parse_json(self.metadata["domain"], f"{path}: domain", infinity=True)
+        self.references = dict(self.meta.references)
         """What the graph needs besides the measurement, ``{name: description}``."""
-        self.name = f"{self.metadata.get('label', self.metadata['kind'])} ONNX"
+        self.name = f"{self.meta.label or self.meta.kind} ONNX"
+        self._inputs = [i.name for i in self.session.get_inputs()]
 
     def run(self, *inputs: np.ndarray) -> dict[str, np.ndarray]:
-        """The graph on float32 inputs (in the order of its metadata's ``inputs``): each
-        output by name, ``in_domain`` (bool) and ``domain_score``."""
-        names = [i.name for i in self.session.get_inputs()]
-        values = self.session.run(None, {n: np.asarray(x, np.float32)
-                                         for n, x in zip(names, inputs, strict=True)})
+        """The graph on float32 inputs (in the order of its metadata's ``inputs``, each
+        ``(n, ...)``): each output by name, ``in_domain`` (bool) and ``domain_score``. Rows
+        run in batches of about :data:`RUN_BYTES` of input."""
+        arrays = [np.asarray(x) for x in inputs]
+        if len(arrays) != len(self._inputs):
+            raise InputError(f"{self.name}: takes {self._inputs}, got {len(arrays)} inputs")
+        n = len(arrays[0])
+        if n == 0 or any(len(a) != n for a in arrays):
+            raise InputError(f"{self.name}: every input needs the same number of rows (at "
+                             f"least one), got {[a.shape for a in arrays]}")
+        per_row = sum(a[:1].size * 4 for a in arrays) or 1
+        step = max(1, RUN_BYTES // per_row)
+        parts = []
+        for k in range(0, n, step):
+            feed = {name: np.ascontiguousarray(a[k:k + step], np.float32)
+                    for name, a in zip(self._inputs, arrays, strict=True)}
+            parts.append(self.session.run(None, feed))
+        values = [p[0] if len(parts) == 1 else np.concatenate(p)
+                  for p in zip(*parts, strict=True)]
         out = {k: v.astype(float) for k, v in zip(self.outputs, values, strict=False)}
         out["in_domain"] = values[-2].astype(bool)
         out["domain_score"] = values[-1].astype(float)
@@ -113,89 +173,166 @@ class OnnxModel:
         """The graph on Ze (complex ``(n, n_freq)``) and, for a model that needs one (its
         metadata's ``references``), its reference: the calibrated T (complex ``(n, n_freq, 2,
         2)``, ``"calibration"``: fluid) or the free whisker's Ze (complex ``(n, n_freq)``,
-        ``"reference"``: radial)."""
+        ``"reference"``: radial). A reference broadcast over the rows stays one."""
         ze = np.asarray(ze)
         if bool(self.references) != (reference is not None):
             raise InputError(f"{self.name}: needs a reference ({', '.join(self.references)})"
                              if reference is None else f"{self.name}: takes no reference")
         if reference is None:
             extra = ()
-        elif "calibration" in self.references:
-            extra = flat_parts(reference)
         else:
-            extra = (np.asarray(reference).real, np.asarray(reference).imag)
+            ref = np.asarray(reference)
+            shared = ref.ndim and ref.shape[0] > 1 and ref.strides[0] == 0
+            one = ref[:1] if shared else ref
+            if "calibration" in self.references:
+                extra = flat_parts(one)
+            else:
+                extra = (one.real, one.imag)
+            if shared:
+                extra = tuple(np.broadcast_to(x, (ref.shape[0], *x.shape[1:])) for x in extra)
         return self.run(ze.real, ze.imag, *extra)
 
 
-def _npz_signals(path: Path, data, freq: np.ndarray) -> np.ndarray:
-    e, i, fs = data["e"], data["i"], float(data["sample_rate_hz"])
-    if e.shape != i.shape or e.ndim < 2 or e.shape[-2] != freq.size:
-        raise InputError(f"{path}: e and i must both have shape (..., n_freq={freq.size}, n_t);"
-                         f" got {e.shape} and {i.shape}")
-    if not np.isfinite(fs) or fs <= 0:
-        raise InputError(f"{path}: sample_rate_hz must be > 0, got {fs}")
-    t = np.arange(e.shape[-1]) / fs
-    return np.stack([phasor_lsq(e[..., k, :], t, f) / phasor_lsq(i[..., k, :], t, f)
-                     for k, f in enumerate(freq)], -1)
+def _load(path: Path, keys: tuple[str, ...], max_bytes: int = MEMORY_CEILING
+          ) -> dict[str, np.ndarray]:
+    """Arrays ``keys`` of an .npz (headers checked first, never unpickled)."""
+    return read_npz(path, keys=keys, max_bytes=max_bytes)
 
 
-def _from_npz(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            keys = set(data.files)
-            if "frequency_hz" not in keys:
-                raise InputError(f"{path}: needs 'frequency_hz'; has {sorted(keys)}")
-            freq = data["frequency_hz"].astype(float)
-            if "ze" in keys:
-                ze = data["ze"].astype(complex)
-            elif {"ze_real", "ze_imag"} <= keys:
-                ze = data["ze_real"] + 1j * data["ze_imag"]
-            elif {"e", "i", "sample_rate_hz"} <= keys:
-                ze = _npz_signals(path, data, freq)
-            else:
-                raise InputError(f"{path}: needs 'ze', or 'ze_real' and 'ze_imag', or 'e', 'i' "
-                                 f"and 'sample_rate_hz'; has {sorted(keys)}")
-    except InputError:
-        raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
-        # np.load's own message for a non-archive suggests unsafe loading: never pass it on
-        raise InputError(f"{path}: not a readable .npz of numeric arrays (empty, truncated, "
-                         f"or holding objects: {type(err).__name__}); write it with "
-                         "numpy.savez from float or complex arrays") from None
+def _ze_shape(path: Path, heads: dict) -> tuple[str, tuple[int, ...]]:
+    """Which of the .npz input's forms it holds, and its measurements' shape ``(n,
+    n_freq)`` from the headers (or ``(n, n_freq, n_t)`` for raw signals)."""
+    keys = set(heads)
+    if "frequency_hz" not in keys:
+        raise InputError(f"{path}: needs 'frequency_hz'; has {sorted(keys)}")
+    check_header(str(path), "frequency_hz", *heads["frequency_hz"], ndim=(1,))
+    if "ze" in keys:
+        check_header(str(path), "ze", *heads["ze"], real=False, ndim=(1, 2))
+        return "ze", heads["ze"][0]
+    if {"ze_real", "ze_imag"} <= keys:
+        for key in ("ze_real", "ze_imag"):
+            check_header(str(path), key, *heads[key], ndim=(1, 2))
+        if heads["ze_real"][0] != heads["ze_imag"][0]:
+            raise InputError(f"{path}: 'ze_real' and 'ze_imag' must have the same shape, got "
+                             f"{heads['ze_real'][0]} and {heads['ze_imag'][0]}")
+        return "parts", heads["ze_real"][0]
+    if {"e", "i", "sample_rate_hz"} <= keys:
+        for key in ("e", "i"):
+            check_header(str(path), key, *heads[key], ndim=(2, 3))
+        if heads["e"][0] != heads["i"][0]:
+            raise InputError(f"{path}: 'e' and 'i' must have the same shape (..., n_freq, "
+                             f"n_t), got {heads['e'][0]} and {heads['i'][0]}")
+        return "signals", heads["e"][0]
+    raise InputError(f"{path}: needs 'ze', or 'ze_real' and 'ze_imag', or 'e', 'i' "
+                     f"and 'sample_rate_hz'; has {sorted(keys)}")
+
+
+def _from_npz(path: Path, max_bytes: int = MEMORY_CEILING) -> tuple[np.ndarray, np.ndarray]:
+    heads = npz_headers(path, max_bytes=max_bytes, what="input")
+    form, shape = _ze_shape(path, heads)
+    n_freq = heads["frequency_hz"][0][0]
+    where = str(path)
+    if form == "signals":
+        if shape[-2] != n_freq or 0 in shape or shape[-1] < 3:
+            raise InputError(f"{path}: e and i must both have shape (..., n_freq={n_freq}, "
+                             f"n_t) with n_t >= 3 (a phasor fit has 3 unknowns); got {shape}")
+        n = int(np.prod(shape[:-2], dtype=float)) if len(shape) > 2 else 1
+        size = n * n_freq * shape[-1]
+        itemsize = heads["e"][1].itemsize
+        # e and i as loaded and as float64, and one frequency's least-squares fit at a time
+        need = 2 * size * (itemsize + 8) + 4 * n * shape[-1] * 8 + n * ROW_BYTES
+        within_ceiling(f"{path}: e and i {shape}", need, "fitting the phasors")
+        data = _load(path, ("frequency_hz", "e", "i", "sample_rate_hz"), max_bytes)
+        freq = check_array(where, "frequency_hz", data["frequency_hz"], ndim=(1,))
+        fs = scalar(where, "sample_rate_hz", data["sample_rate_hz"], low=1e-3, high=1e12)
+        e = check_array(where, "e", data.pop("e"))
+        i = check_array(where, "i", data.pop("i"))
+        t = np.arange(e.shape[-1]) / fs
+        with np.errstate(divide="ignore", invalid="ignore"):  # a zero current: NaN, refused
+            ze = np.stack([phasor_lsq(e[..., k, :], t, f) / phasor_lsq(i[..., k, :], t, f)
+                           for k, f in enumerate(freq)], -1)
+        return freq, ze
+    n = shape[0] if len(shape) == 2 else 1
+    if n == 0:
+        raise InputError(f"{path}: holds no measurements (Ze has shape {shape})")
+    itemsize = max(heads[k][1].itemsize for k in heads if k != "frequency_hz")
+    need = (n * shape[-1] * (2 * itemsize + 32)) + n * ROW_BYTES
+    within_ceiling(f"{path}: Ze {shape}", need, "reading the measurements")
+    if form == "ze":
+        data = _load(path, ("frequency_hz", "ze"), max_bytes)
+        ze = np.asarray(data["ze"]).astype(complex, copy=False)
+    else:
+        data = _load(path, ("frequency_hz", "ze_real", "ze_imag"), max_bytes)
+        ze = (check_array(where, "ze_real", data["ze_real"], finite=False)
+              + 1j * check_array(where, "ze_imag", data["ze_imag"], finite=False))
+    freq = check_array(where, "frequency_hz", data["frequency_hz"], ndim=(1,))
     return freq, ze
 
 
 def _from_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    regular_file(path, what="CSV input", max_bytes=CSV_MAX_BYTES)
+    need = ("frequency_hz", "ze_real", "ze_imag")
+    values: dict[str, list] = {k: [] for k in ("sample", *need)}
     try:
         with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None or not set(need) <= {h.strip() for h in header}:
+                raise InputError(f"{path}: CSV needs a header with columns {list(need)} (and "
+                                 "optionally 'sample') and at least one row")
+            columns = {h.strip(): k for k, h in enumerate(header)}
+            for line, row in enumerate(reader, start=2):  # line 1 is the header
+                for key in values:
+                    k = columns.get(key)
+                    cell = row[k] if k is not None and k < len(row) else None
+                    if cell is None or cell.strip() == "":
+                        if key == "sample":
+                            values[key].append(0)
+                            continue
+                        raise InputError(f"{path}: line {line} has no value for '{key}'")
+                    try:
+                        values[key].append(int(cell) if key == "sample" else float(cell))
+                    except ValueError:
+                        raise InputError(
+                            f"{path}: line {line}: '{key}' = {cell[:40]!r} is not a "
+                            f"{'whole number' if key == 'sample' else 'number'}") from None
     except (OSError, UnicodeDecodeError, csv.Error) as err:
         raise InputError(f"{path}: not a readable CSV ({err})") from None
-    need = ("frequency_hz", "ze_real", "ze_imag")
-    if not rows or not set(need) <= set(rows[0]):
+    if not values["frequency_hz"]:
         raise InputError(f"{path}: CSV needs a header with columns {list(need)} (and "
                          "optionally 'sample') and at least one row")
-    values = {k: [] for k in ("sample", *need)}
-    for line, row in enumerate(rows, start=2):  # line 1 is the header
-        for key in values:
-            cell = row.get(key)
-            if cell is None or cell.strip() == "":
-                if key == "sample":
-                    values[key].append(0)
-                    continue
-                raise InputError(f"{path}: line {line} has no value for '{key}'")
-            try:
-                values[key].append(int(cell) if key == "sample" else float(cell))
-            except ValueError:
-                raise InputError(f"{path}: line {line}: '{key}' = {cell!r} is not a "
-                                 f"{'whole number' if key == 'sample' else 'number'}") from None
     sample, freq = np.array(values["sample"]), np.array(values["frequency_hz"])
     ze = np.array(values["ze_real"]) + 1j * np.array(values["ze_imag"])
     ids = np.unique(sample)
     grids = [freq[sample == s] for s in ids]
     if any(g.shape != grids[0].shape or not np.array_equal(g, grids[0]) for g in grids):
         raise InputError(f"{path}: every sample must list the same frequencies in the same order")
+    if not np.isfinite(freq).all():
+        raise InputError(f"{path}: 'frequency_hz' is NaN or inf")
     return grids[0], np.stack([ze[sample == s] for s in ids])
+
+
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def float32_range(where: str, key: str, a: np.ndarray) -> None:
+    """Refuse values the float32 graphs cannot hold (beyond ±3.4e38: they would become inf
+    inside the graph), naming ``where`` and ``key``; ``a`` is finite."""
+    a = np.asarray(a)
+    parts = (a.real, a.imag) if np.iscomplexobj(a) else (a,)
+    for part in parts:
+        if part.size and np.abs(part).max() > FLOAT32_MAX:
+            first = np.unravel_index(np.argmax(np.abs(part) > FLOAT32_MAX), part.shape)
+            raise InputError(f"{where}: '{key}' is beyond the float32 range of the graphs "
+                             f"(|x| > 3.4e38) at index {tuple(map(int, first))}")
+
+
+def _span(freq: np.ndarray) -> str:
+    return f"{freq.min():g}-{freq.max():g}" if freq.size else "(empty)"
+
+
+def _same_grid(got: np.ndarray, want: np.ndarray) -> bool:
+    return got.shape == want.shape and bool(np.allclose(got, want, rtol=1e-9))
 
 
 def read_input(path: str | Path, frequency_hz: np.ndarray) -> np.ndarray:
@@ -203,30 +340,68 @@ def read_input(path: str | Path, frequency_hz: np.ndarray) -> np.ndarray:
 
     Raises:
         InputError: missing or unreadable file, unknown format, wrong shapes, a grid other
-            than the model's, NaN or inf.
+            than the model's, NaN or inf, no measurements, or more than the memory ceiling
+            (:data:`wtml.files.MEMORY_CEILING`) would take.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such input file")
     if path.suffix == ".npz":
+        regular_file(path, what="input file")
         freq, ze = _from_npz(path)
     elif path.suffix == ".csv":
         freq, ze = _from_csv(path)
     else:
+        regular_file(path, what="input file")
         raise InputError(f"{path}: input must be .npz or .csv (see wtml predict --help)")
     ze = np.atleast_2d(ze)
     if ze.ndim != 2 or ze.shape[-1] != freq.size:
         raise InputError(f"{path}: Ze must have shape (n, n_freq={freq.size}), got {ze.shape}")
-    if freq.shape != frequency_hz.shape or not np.allclose(freq, frequency_hz, rtol=1e-9):
+    if not _same_grid(freq, frequency_hz):
         raise InputError(
-            f"{path}: frequency grid {freq.min():g}-{freq.max():g} Hz ({freq.size} points) is "
+            f"{path}: frequency grid {_span(freq)} Hz ({freq.size} points) is "
             f"not the model's {frequency_hz.min():g}-{frequency_hz.max():g} Hz "
             f"({frequency_hz.size} points)")
     bad = ~np.isfinite(ze)
     if bad.any():
         n, k = np.argwhere(bad)[0]
         raise InputError(f"{path}: Ze is NaN or inf at sample {n}, {freq[k]:g} Hz")
+    float32_range(str(path), "ze", ze)
     return ze
+
+
+def read_calibration_arrays(path: str | Path, frequency_hz: np.ndarray, n: int,
+                            extra: tuple[str, ...] = ()) -> tuple[np.ndarray, dict]:
+    """The calibrated T of a calibration file as complex ``(n, n_freq, 2, 2)`` on
+    ``frequency_hz`` (one T in the file is every measurement's: a broadcast view), and the
+    file's ``extra`` arrays (those it has; checked by the caller)."""
+    path = Path(path)
+    where = str(path)
+    grid = ", ".join(f"{f:g}" for f in frequency_hz[:3]) + f", ... {frequency_hz[-1]:g} Hz"
+    heads = npz_headers(path, max_bytes=CALIBRATION_MAX_BYTES, what="calibration file")
+    if not {"frequency_hz", "t"} <= set(heads):
+        raise InputError(f"{path}: a calibration needs 'frequency_hz' and 't'; has "
+                         f"{sorted(heads)}")
+    check_header(where, "frequency_hz", *heads["frequency_hz"], ndim=(1,))
+    check_header(where, "t", *heads["t"], real=False)
+    shape = heads["t"][0]
+    k = len(frequency_hz)
+    if heads["frequency_hz"][0] != (k,) or shape not in ((k, 2, 2), (n, k, 2, 2)):
+        data = _load(path, ("frequency_hz",), CALIBRATION_MAX_BYTES)
+        freq = check_array(where, "frequency_hz", data["frequency_hz"], ndim=(1,))
+        if not _same_grid(freq, frequency_hz):
+            raise InputError(f"{path}: calibration grid {_span(freq)} Hz ({freq.size} points) "
+                             f"is not the model's {grid}")
+        raise InputError(f"{path}: t must have shape (n_freq={k}, 2, 2) or (n={n}, n_freq, 2, "
+                         f"2), got {shape}")
+    data = _load(path, ("frequency_hz", "t", *extra), CALIBRATION_MAX_BYTES)
+    freq = check_array(where, "frequency_hz", data["frequency_hz"], ndim=(1,))
+    if not _same_grid(freq, frequency_hz):
+        raise InputError(f"{path}: calibration grid {_span(freq)} Hz "
+                         f"({freq.size} points) is not the model's {grid}")
+    t = np.asarray(data["t"]).astype(complex, copy=False)
+    if not np.all(np.isfinite(t)):
+        raise InputError(f"{path}: t is NaN or inf")
+    float32_range(where, "t", t)
+    return np.broadcast_to(t, (n, k, 2, 2)), {key: data[key] for key in extra if key in data}
 
 
 def read_calibration(path: str | Path | None, frequency_hz: np.ndarray, n: int,
@@ -242,29 +417,9 @@ def read_calibration(path: str | Path | None, frequency_hz: np.ndarray, n: int,
     if path is None:
         raise InputError(f"this {task} export needs --calibration: the device's calibrated T at "
                          f"{grid} (npz with frequency_hz and t, complex (n_freq, 2, 2))")
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such calibration file")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            if not {"frequency_hz", "t"} <= set(data.files):
-                raise InputError(f"{path}: a calibration needs 'frequency_hz' and 't'; has "
-                                 f"{sorted(data.files)}")
-            freq, t = data["frequency_hz"].astype(float), data["t"].astype(complex)
-    except InputError:
-        raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
-        raise InputError(f"{path}: not a readable .npz of numeric arrays "
-                         f"({type(err).__name__}); write it with numpy.savez") from None
-    if freq.shape != frequency_hz.shape or not np.allclose(freq, frequency_hz, rtol=1e-9):
-        raise InputError(f"{path}: calibration grid {freq.min():g}-{freq.max():g} Hz "
-                         f"({freq.size} points) is not the model's {grid}")
-    if t.shape not in ((freq.size, 2, 2), (n, freq.size, 2, 2)):
-        raise InputError(f"{path}: t must have shape (n_freq={freq.size}, 2, 2) or "
-                         f"(n={n}, n_freq, 2, 2), got {t.shape}")
-    if not np.all(np.isfinite(t)):
-        raise InputError(f"{path}: t is NaN or inf")
-    return np.broadcast_to(t, (n, freq.size, 2, 2))
+    return read_calibration_arrays(path, frequency_hz, n)[0]
+
+
 def read_reference(path: str | Path | None, model: OnnxModel, n: int) -> np.ndarray | None:
     """The free reference a radial export needs, complex ``(n, n_freq)`` (one row is
     broadcast to all ``n`` measurements), or None for an export that needs none.
@@ -284,12 +439,13 @@ def read_reference(path: str | Path | None, model: OnnxModel, n: int) -> np.ndar
                          f"{', '.join(f'{f:g}' for f in freq)} Hz (npz with frequency_hz and "
                          "ze), measured on the device when it is set up")
     path = Path(path)
-    if path.suffix != ".npz" or not path.is_file():
-        raise InputError(f"--reference {path}: no such .npz file (frequency_hz and ze)")
-    got, ref = _from_npz(path)
+    if path.suffix != ".npz":
+        raise InputError(f"--reference {path}: must be an .npz file (frequency_hz and ze)")
+    regular_file(path, what="reference file", max_bytes=CALIBRATION_MAX_BYTES)
+    got, ref = _from_npz(path, CALIBRATION_MAX_BYTES)
     ref = np.atleast_2d(ref)
-    if got.shape != freq.shape or not np.allclose(got, freq, rtol=1e-9):
-        raise InputError(f"--reference {path}: frequencies {got.tolist()} Hz are not the "
+    if not _same_grid(got, freq):
+        raise InputError(f"--reference {path}: frequencies {got.tolist()[:8]} Hz are not the "
                          f"model's {freq.tolist()} Hz")
     if ref.ndim != 2 or ref.shape[-1] != freq.size or len(ref) not in (1, n):
         raise InputError(f"--reference {path}: ze must have shape ({freq.size},), "
@@ -297,26 +453,61 @@ def read_reference(path: str | Path | None, model: OnnxModel, n: int) -> np.ndar
                          f"got {ref.shape}")
     if not np.all(np.isfinite(ref)):
         raise InputError(f"--reference {path}: ze is NaN or inf")
+    float32_range(f"--reference {path}", "ze", ref)
     return np.broadcast_to(ref, (n, freq.size))
 
 
-def load_export(model_dir: str | Path) -> tuple[OnnxModel, OnnxModel]:
-    """The decoder and the classical model of an export folder, checked to belong together."""
+def load_export(model_dir: str | Path, *, stream: bool = False, threads: int = 0
+                ) -> tuple[OnnxModel, ...]:
+    """The decoder and the classical model of an export folder (and, ``stream``, its
+    streaming graph; ``threads``: onnxruntime's intra-op threads, 0 its default), each file
+    checked against the folder's manifest (sha256 and size) before onnxruntime opens it, each
+    graph's metadata against its task's schema, and the graphs against each other and the
+    manifest.
+
+    Raises:
+        InputError, FileError, SchemaError: one line naming the file (and the key).
+    """
     model_dir = Path(model_dir)
     if not model_dir.is_dir():
         raise InputError(f"{model_dir}: no such model folder; make one with "
                          "`wtml export --checkpoint <last.ckpt> --out <folder>`")
-    decoder = OnnxModel(model_dir / "model.onnx")
-    classical = OnnxModel(model_dir / "classical.onnx")
-    if decoder.metadata["scene_hash"] != classical.metadata["scene_hash"]:
-        raise InputError(f"{model_dir}: model.onnx and classical.onnx come from different scenes;"
-                         " export the folder again")
-    return decoder, classical
+    manifest = read_manifest(model_dir)
+    kinds = ("decoder", "classical", "stream") if stream else ("decoder", "classical")
+    models = []
+    for kind in kinds:
+        entry = manifest.entry(kind)
+        if entry is None:
+            raise InputError(f"{model_dir / MANIFEST}: lists no {kind} graph; {REDO}")
+        path = model_dir / entry.name
+        model = OnnxModel(path, threads, data=verified_bytes(model_dir, entry))
+        if model.meta.kind != kind:
+            raise SchemaError(f"{path}: metadata kind: must be {kind!r} (the manifest lists it "
+                              f"so), got {model.meta.kind!r}; {REDO}")
+        models.append(model)
+    first = models[0]
+    for kind, model in zip(kinds, models, strict=True):
+        where = model_dir / manifest.entry(kind).name
+        for key, want, got in (("task", manifest.task, model.task),
+                               ("scene_hash", manifest.scene_hash, model.meta.scene_hash)):
+            if want != got:
+                raise SchemaError(f"{where}: metadata {key}: {got!r:.20} is not {MANIFEST}'s "
+                                  f"{want!r:.20}; {REDO}")
+        for key in ("frequency_hz", "sample_rate_hz", "n_samples", "calibration_hz", "classes",
+                    "scene"):
+            if getattr(model.meta, key, None) != getattr(first.meta, key, None):
+                raise SchemaError(f"{where}: metadata {key}: not the decoder's "
+                                  f"({manifest.entry('decoder').name}); {REDO}")
+    return tuple(models)
 
 
 def task_of(model_dir: str | Path) -> str:
-    """The task of an export folder's decoder (reads its metadata only)."""
-    return load_export(model_dir)[0].task
+    """The task of an export folder (reads its manifest only)."""
+    model_dir = Path(model_dir)
+    if not model_dir.is_dir():
+        raise InputError(f"{model_dir}: no such model folder; make one with "
+                         "`wtml export --checkpoint <last.ckpt> --out <folder>`")
+    return read_manifest(model_dir).task
 
 
 def impossible(model: OnnxModel, predictions: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -24,12 +24,10 @@ from wtml.baselines.texture_classical import ClassicalTexture
 from wtml.decoders.domain import Gated
 from wtml.physics.twoport import flat_parts
 from wtml.runtime.export import _export, domain_metadata
+from wtml.runtime.metadata import TEXTURE_INPUTS  # noqa: F401  (its name here as before)
 from wtml.runtime.onset import read_record
 from wtml.scenes import config_hash
 
-TEXTURE_INPUTS = ("e", "i", "t_re", "t_im")
-"""The texture graphs' inputs: the window's two channels and the device's calibrated T at the
-calibration frequencies, ``(batch, K, 4)`` flattened as (t11, t12, t21, t22)."""
 TEXTURE_REFERENCES = {"calibration": "the device's calibrated T (the macro WT with its whisker, "
                                      "tip free) at calibration_hz, measured with the "
                                      "calibration loads of physics.md §4: inputs t_re, t_im"}
@@ -85,6 +83,11 @@ def windows(x: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
 def pool(pred: dict[str, np.ndarray], owner: np.ndarray, n: int) -> dict[str, np.ndarray]:
     """Per record: mean log-probabilities (renormalised), mean ln grain, all windows in
     domain."""
+    with np.errstate(divide="ignore", invalid="ignore"):  # a grain <= 0 pools to NaN, flagged
+        return _pool(pred, owner, n)
+
+
+def _pool(pred: dict[str, np.ndarray], owner: np.ndarray, n: int) -> dict[str, np.ndarray]:
     logp = np.log(np.clip(pred["probabilities"], 1e-12, 1.0))
     out = {"probabilities": np.zeros((n, logp.shape[1])), "grain": np.zeros(n),
            "in_domain": np.zeros(n, bool), "domain_score": np.zeros(n)}
@@ -105,33 +108,54 @@ def run_windows(model, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str,
     return model.run(e, i, *flat_parts(t))
 
 
+def window_batches(x: np.ndarray, window: int, batch: int):
+    """Whole windows of ``(2, n_records, n)`` records, ``batch`` at a time (every record's
+    windows in order, record after record): yields ``(2, b, window)`` copies and each
+    window's record index, so that the windows of a long recording never exist all at once."""
+    per = x.shape[2] // window
+    if per < 1:
+        raise ValueError(f"records of {x.shape[2]} samples are shorter than the model's window "
+                         f"({window} samples)")
+    total = x.shape[1] * per
+    span = np.arange(window)
+    for start in range(0, total, batch):
+        record, k = np.divmod(np.arange(start, min(start + batch, total)), per)
+        yield x[:, record[:, None], k[:, None] * window + span], record
+
+
 def predict_records(model_dir: str | Path, input_path: str | Path, *,
                     calibration: str | Path | None = None) -> list[dict]:
     """One row per record and method: grade probabilities, the likeliest grade, grain size
     (µm), ``in_domain``, ``domain_score`` and flags. ``calibration``: the device's calibrated
     T at the export's ``calibration_hz`` (npz with ``frequency_hz`` and ``t``, complex ``(K,
     2, 2)`` or one per record ``(n, K, 2, 2)``), which the graph needs (:class:`InputError`
-    without it, never a default device)."""
-    from wtml.runtime.predict import InputError, load_export, read_calibration
+    without it, never a default device). A long recording's windows run in batches of
+    :data:`wtml.runtime.predict.RUN_BYTES`: memory grows with the recording, not with its
+    number of windows."""
+    from wtml.runtime.predict import RUN_BYTES, impossible, load_export, read_calibration
 
     decoder, classical = load_export(model_dir)
-    meta = decoder.metadata
-    window = json.loads(meta["n_samples"])
-    if "calibration_hz" not in meta:
-        raise InputError(f"{model_dir}: a texture export without calibration_hz in its "
-                         "metadata (made by an older wtml, before the calibrated T was an "
-                         "input); export it again")
-    freq = np.array(json.loads(meta["calibration_hz"]))
-    x = read_record(input_path, json.loads(meta["sample_rate_hz"]), window, at_least=True)
+    meta = decoder.meta
+    window = meta.n_samples
+    freq = np.array(meta.calibration_hz)
+    x = read_record(input_path, meta.sample_rate_hz, window, at_least=True)
     t = read_calibration(calibration, freq, x.shape[1], "texture")
-    cut, owner = windows(x, window)
-    names = json.loads(meta["classes"])
+    batch = max(1, RUN_BYTES // (8 * window))
+    names = list(meta.classes)
     rows = []
     for label, model in (("decoder", decoder), ("classical", classical)):
-        pred = pool(run_windows(model, cut[0], cut[1], t[owner]), owner, x.shape[1])
+        parts, owners = [], []
+        for cut, owner in window_batches(x, window, batch):
+            parts.append(run_windows(model, cut[0], cut[1], t[owner]))
+            owners.append(owner)
+        pred = pool({k: np.concatenate([p[k] for p in parts]) for k in parts[0]},
+                    np.concatenate(owners), x.shape[1])
+        odd = impossible(model, {"grain": pred["grain"]})["grain"]
         for r in range(x.shape[1]):
             p = pred["probabilities"][r]
             flags = [] if pred["in_domain"][r] else ["outside the trained domain"]
+            if odd[r]:
+                flags.append("grain physically impossible")
             rows.append({"record": r, "method": label, "grade": names[int(np.argmax(p))],
                          **{f"p({n})": float(v) for n, v in zip(names, p, strict=True)},
                          "grain (um)": float(pred["grain"][r] * 1e6),

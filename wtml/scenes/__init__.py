@@ -1,36 +1,62 @@
 """Scenes: typed, validated descriptions of one experiment, and their generators."""
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from wtml.scenes.fluid import FluidScene
 from wtml.scenes.onset import OnsetScene
 from wtml.scenes.radial import RadialScene
 from wtml.scenes.texture import TextureScene
-from wtml.schema import SceneError, config_hash, load_yaml, to_dict, yaml_load
+from wtml.schema import SceneError, build, config_hash, to_dict, yaml_load
 
 SCENES = {"fluid": FluidScene, "radial": RadialScene, "onset": OnsetScene,
           "texture": TextureScene}
 """Scene classes by task name."""
 
+SCENE_MAX_BYTES = 1024**2
+"""Bytes: the largest scene YAML read."""
+
 
 def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene | TextureScene:
-    """Load a scene YAML; its ``task`` key picks the scene class (default ``fluid``)."""
+    """Load a scene YAML; its ``task`` key picks the scene class (default ``fluid``).
+
+    Raises:
+        SceneError: one line naming the file and the key: not a regular file (a FIFO, a
+            device, a folder) of at most :data:`SCENE_MAX_BYTES`, not YAML, not a mapping,
+            or a key the scene refuses.
+    """
     import yaml
 
+    from wtml.files import FileError, regular_file
+
     try:
-        task = (yaml_load(Path(path).read_text()) or {}).get("task", "fluid")
-    except (OSError, yaml.YAMLError, AttributeError) as err:
-        raise SceneError(f"{path}: cannot read a scene: {err}") from err
-    if task not in SCENES:
-        raise SceneError(f"{path}: task: must be one of {sorted(SCENES)}, got {task!r}")
-    return load_yaml(SCENES[task], path)
+        text = regular_file(path, what="scene file", max_bytes=SCENE_MAX_BYTES).read_text()
+        data = yaml_load(text)
+    except FileError as err:
+        raise SceneError(str(err)) from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError, ValueError) as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise SceneError(f"{path}: cannot read a scene: {first}") from None
+    try:
+        return scene_from_dict({} if data is None else data)
+    except SceneError as err:
+        raise SceneError(f"{path}: {err}") from None
 
 
-def scene_from_dict(data: dict) -> FluidScene | RadialScene | OnsetScene | TextureScene:
-    """Rebuild a scene from the mapping stored in a manifest."""
-    from wtml.schema import build
-
-    return build(SCENES[data.get("task", "fluid")], data)
+def scene_from_dict(data: Any, path: str = ""
+                    ) -> FluidScene | RadialScene | OnsetScene | TextureScene:
+    """Rebuild a scene from a mapping (a scene YAML's, or the one stored in a manifest); its
+    ``task`` key picks the class (default ``fluid``). Errors are :class:`SceneError` starting
+    with the key path under ``path`` (``scene.samples: ...``), whatever ``data`` is."""
+    if not isinstance(data, Mapping):
+        raise SceneError(f"{path or 'scene'}: must be a mapping of a scene's keys, got "
+                         f"{type(data).__name__}")
+    task = data.get("task", "fluid")
+    if not isinstance(task, str) or task not in SCENES:
+        raise SceneError(f"{path + '.' if path else ''}task: must be one of {sorted(SCENES)}, "
+                         f"got {task!r:.80}")
+    return build(SCENES[task], data, path)
 
 
 __all__ = ["SCENES", "FluidScene", "OnsetScene", "RadialScene", "SceneError", "TextureScene",

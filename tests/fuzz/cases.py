@@ -127,8 +127,9 @@ PLAN: dict[str, dict[str, tuple[tuple[str, ...], tuple[str, ...]]]] = {
     "scene": {t: (("generate_new",), ("scene.yaml",))
               for t in ("fluid", "radial", "onset", "texture")},
     "config": {"fluid": (("fit",), ("config.yaml",))},
-    "manifest": {"fluid": (("evaluate", "generate", "fit"), ("data/manifest.json",)),
-                 "radial": (("evaluate",), ("data/manifest.json",))},
+    "manifest": {"fluid": (("evaluate", "generate", "fit"), ("data/manifest.json",
+                                                           "data/scene.json")),
+                 "radial": (("evaluate",), ("data/manifest.json", "data/scene.json"))},
     "sidecar": {"fluid": (("generate",), ("data/shard-00000.json", "data/shard-00003.json"))},
     "shard": {"fluid": (("evaluate", "fit"), ("data/shard-00003.npz", "data/shard-00000.npz")),
               "radial": (("evaluate",), ("data/shard-00003.npz",))},
@@ -236,7 +237,7 @@ def resign(root: Path, target: Path) -> None:
 
     if not target.is_file():
         return
-    new = sha256(target)
+    new, size = sha256(target), target.stat().st_size
     for doc_path in (target.with_suffix(".json"), target.parent / "manifest.json"):
         if doc_path == target or not doc_path.is_file():
             continue
@@ -244,15 +245,18 @@ def resign(root: Path, target: Path) -> None:
             doc = json.loads(doc_path.read_text())
         except ValueError:
             continue
-        if _resign(doc, target.name, new):
+        if _resign(doc, target.name, new, size):
             doc_path.write_text(json.dumps(doc, indent=1))
 
 
-def _resign(doc: Any, name: str, new: str) -> bool:
+def _resign(doc: Any, name: str, new: str, size: int) -> bool:
     changed = False
     if isinstance(doc, dict):
         if "sha256" in doc and name in {str(v) for v in doc.values()}:
             doc["sha256"] = new
+            for key in ("bytes", "size"):
+                if key in doc:
+                    doc[key] = size
             changed = True
         for k, v in doc.items():
             if k == name and isinstance(v, str) and len(v) == 64:
@@ -262,10 +266,10 @@ def _resign(doc: Any, name: str, new: str) -> bool:
                 v["sha256"] = new
                 changed = True
             else:
-                changed |= _resign(v, name, new)
+                changed |= _resign(v, name, new, size)
     elif isinstance(doc, list):
         for v in doc:
-            changed |= _resign(v, name, new)
+            changed |= _resign(v, name, new, size)
     return changed
 
 

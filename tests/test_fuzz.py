@@ -123,7 +123,9 @@ def _corpus() -> list:
 def test_corpus(path, request, tmp_path):
     """Each failure the harness has found, replayed: it must now satisfy the property."""
     case = json.loads(path.read_text())
-    bases = request.getfixturevalue("light" if case["task"] in LIGHT else "heavy")
+    named = json.dumps(case["mutation"])  # another task's file: swap, foreign, $base
+    heavy = case["task"] not in LIGHT or any(t in named for t in ("onset", "texture"))
+    bases = request.getfixturevalue("heavy" if heavy else "light")
     limit = 90.0 if case["command"] in cases.SLOW_COMMANDS else 20.0
     result = cases.replay(bases, case, tmp_path, limit_s=limit)
     record("corpus", {**case, "file": f"{path.parent.name}/{path.stem}"}, result)

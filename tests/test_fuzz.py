@@ -87,8 +87,7 @@ def fuzz(bases: cases.Bases, kind: str, n: int, slow: bool, tmp_path_factory) ->
     def one(data):
         case = cases.draw_case(data, bases, kind, slow)
         tmp = tmp_path_factory.mktemp(f"fuzz_{kind}")
-        result = cases.replay(bases, case, tmp,
-                              limit_s=90.0 if case["command"] in cases.SLOW_COMMANDS else 20.0)
+        result = cases.replay(bases, case, tmp, limit_s=cases.time_limit(case["command"]))
         record(kind, case, result)
         if result.outcome not in ("ok", "flagged", "clear"):
             sig = cases.signature(case, result)
@@ -126,7 +125,6 @@ def test_corpus(path, request, tmp_path):
     named = json.dumps(case["mutation"])  # another task's file: swap, foreign, $base
     heavy = case["task"] not in LIGHT or any(t in named for t in ("onset", "texture"))
     bases = request.getfixturevalue("heavy" if heavy else "light")
-    limit = 90.0 if case["command"] in cases.SLOW_COMMANDS else 20.0
-    result = cases.replay(bases, case, tmp_path, limit_s=limit)
+    result = cases.replay(bases, case, tmp_path, limit_s=cases.time_limit(case["command"]))
     record("corpus", {**case, "file": f"{path.parent.name}/{path.stem}"}, result)
     assert result.outcome in ("ok", "flagged", "clear"), result.summary()

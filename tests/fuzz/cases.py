@@ -156,6 +156,14 @@ SLOW_COMMANDS = ("fit", "resume", "export")
 """Commands of several seconds each (Lightning, the ONNX exporter): drawn in the slow run."""
 
 
+def time_limit(command: str) -> float:
+    """Seconds a command may take on one input before it counts as a hang: 20 for reading a
+    small file, 90 for a small training run, 300 for an export (an onset checkpoint's graphs
+    under tracemalloc take minutes; a checkpoint swapped for another task's is a right
+    input there)."""
+    return {"export": 300.0}.get(command, 90.0 if command in SLOW_COMMANDS else 20.0)
+
+
 def workspace(bases: Bases, task: str, command: str, where: Path) -> Path:
     """A fresh case folder with copies of the files ``command`` needs."""
     t = bases.tasks[task]

@@ -94,3 +94,25 @@ def test_generator_is_deterministic():
     b = scene.simulate(100, np.random.default_rng([0, 3]))
     for k in a:
         np.testing.assert_array_equal(a[k], b[k])
+
+
+def test_a_shard_beyond_the_memory_ceiling_is_refused_before_any_work():
+    """A scene whose shards would take more than wtml.files.MEMORY_CEILING to simulate (30000
+    texture records of 1 s in 3 shards: ~65 GB each; the fuzz harness found it as a
+    MemoryError half-way into `wtml generate`) is refused when it is read, naming shards and
+    how many it needs; the shipped time-domain scenes fit (their shards take < 0.6 GB)."""
+    from wtml.files import MEMORY_CEILING
+    from wtml.scenes import load_scene, scene_from_dict
+    from wtml.scenes.onset import BYTES_PER_SAMPLE
+    from wtml.schema import to_dict
+
+    for name in ("texture", "texture_fepa", "onset", "onset_full"):
+        s = load_scene(f"configs/scenes/{name}.yaml")
+        per_shard = -(-s.samples // s.shards) * s.n_samples * BYTES_PER_SAMPLE
+        assert per_shard * getattr(s, "oversample", 1) < 0.3 * MEMORY_CEILING
+    d = to_dict(load_scene("configs/scenes/texture.yaml"))
+    d.update(samples=30000, shards=3)
+    with pytest.raises(SceneError, match=r"^shards: 10000 records .* use at least 92 shards"):
+        scene_from_dict(d)
+    d.update(shards=92)
+    assert scene_from_dict(d).shards == 92

@@ -62,6 +62,30 @@ from wtml.schema import SceneError, bounded, mixture, one_of
 from wtml.signals.excitation import lead_in
 from wtml.signals.noise import quantize
 
+BYTES_PER_SAMPLE = 64
+"""Bytes of working memory per sample of a record while a shard is simulated (the float64
+current, voltage and velocity, the float32 records, the decimation's copies), times the
+oversampling: what a shard's size is checked against before any work."""
+
+
+def check_shard_memory(pre: str, samples: int, shards: int, n_samples: int,
+                       oversample: int = 1) -> None:
+    """Refuse a scene whose shards would take more than :data:`wtml.files.MEMORY_CEILING` to
+    simulate (``pre``: the key path's prefix), naming ``samples`` and the shards it needs."""
+    from wtml.files import MEMORY_CEILING, nbytes_text
+
+    per_record = n_samples * BYTES_PER_SAMPLE * oversample
+    per_shard = -(-samples // shards)
+    if per_record > MEMORY_CEILING:
+        raise SceneError(f"{pre}drive: a record of {n_samples} samples would take about "
+                         f"{nbytes_text(per_record)} to simulate, over the "
+                         f"{nbytes_text(MEMORY_CEILING)} ceiling; shorten the record")
+    if per_shard * per_record > MEMORY_CEILING:
+        fits = MEMORY_CEILING // per_record
+        raise SceneError(f"{pre}shards: {per_shard} records of {n_samples} samples per shard "
+                         f"would take about {nbytes_text(per_shard * per_record)} to simulate, "
+                         f"over the {nbytes_text(MEMORY_CEILING)} ceiling; use at least "
+                         f"{-(-samples // fits)} shards for {samples} samples")
 
 @dataclass(frozen=True)
 class OnsetDrive:
@@ -182,6 +206,7 @@ class OnsetScene:
         if self.shards > self.samples:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
+        check_shard_memory(pre, self.samples, self.shards, self.n_samples)
         nyquist = self.acquisition.sample_rate_hz / 2
         if self.drive.probe_hz >= nyquist / 4:
             raise SceneError(f"{pre}drive.probe_hz: {self.drive.probe_hz:g} Hz must stay below "

@@ -49,7 +49,7 @@ from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.physics.spread import DeviceSpread, draw_factors
-from wtml.scenes.onset import Acquisition
+from wtml.scenes.onset import Acquisition, check_shard_memory
 from wtml.schema import SceneError, bounded, mixture, one_of
 from wtml.signals.excitation import lead_in
 
@@ -237,6 +237,7 @@ class TextureScene:
         if self.shards > self.samples:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
+        check_shard_memory(pre, self.samples, self.shards, self.n_samples, self.oversample)
         if self.drive.lead_s * self.acquisition.sample_rate_hz < 64:
             raise SceneError(f"{pre}drive.lead_s: at least 64 samples "
                              f"({64 / self.acquisition.sample_rate_hz:g} s) for the decimation")

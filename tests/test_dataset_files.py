@@ -232,9 +232,8 @@ def test_non_finite_training_data_is_refused_naming_shard_key_and_row(ds):
 
 
 @pytest.mark.parametrize(("key", "value", "row", "needle"), [
-    ("eta", -1.0, 4, "'eta' gives a NaN or inf training value in row 4"),  # log10 of < 0
     ("ze", 1e300, 0, "'ze' gives a NaN or inf training value in row 0"),  # beyond float32
-    ("rho", 1e39, 9, "'rho' gives a NaN or inf training value in row 9"),
+    ("t", 1e39, 9, "'t' gives a NaN or inf training value in row 9"),
 ])
 def test_values_that_overflow_the_training_tensors_are_refused(ds, key, value, row, needle):
     def edit(a):
@@ -243,6 +242,27 @@ def test_values_that_overflow_the_training_tensors_are_refused(ds, key, value, r
     assert np.all(load_shards(ds, [1])[key][row] == value)  # finite in the shard itself
     dm = ShardDataModule(str(ds), batch_size=8)
     _refused([f"shard-00001.npz: {needle}"], dm.train_tensors)
+
+
+@pytest.mark.parametrize(("key", "value", "row"), [("eta", -1.0, 4), ("rho", 1e39, 9),
+                                                  ("eta", 0.0, 0)])
+def test_labels_outside_the_scene_range_are_refused(ds, key, value, row):
+    """A label the scene cannot have drawn (a negative or zero viscosity, whose log is not a
+    number; a density beyond float32) is refused when its shard loads, naming key and row."""
+    def edit(a):
+        a[key][row] = value
+    _rewrite_shard(ds, 1, edit)
+    _refused([f"shard-00001.npz: '{key}' is {value:.6g} in row {row}", "outside the scene's"],
+             load_shards, ds, [1])
+
+
+def test_a_zero_impedance_is_refused(ds):
+    """Ze of 0 Ω at one frequency (a bimorph is a capacitor in every load): refused naming the
+    key and the row, before any ratio or inversion divides by it."""
+    def edit(a):
+        a["ze"][7, 2] = 0
+    _rewrite_shard(ds, 1, edit)
+    _refused(["shard-00001.npz: 'ze' is 0 Ω in row 7"], load_shards, ds, [1])
 
 
 def test_the_nan_that_onset_records_hold_by_design(rng):

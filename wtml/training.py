@@ -163,6 +163,10 @@ class WtmlCLI(LightningCLI):
             raise ConfigError(f"trainer.max_epochs must be in [1, 1000000], got {epochs}")
         trainer["default_root_dir"] = str(trainer.get("default_root_dir") or DEFAULT_ROOT)
         _check_accelerator(trainer.get("accelerator"))
+        if self.subcommand in ("fit", "validate", "test") and config.get("data") is None:
+            raise ConfigError("data: missing; a training config names its dataset "
+                              "(data.class_path: wtml.data.ShardDataModule, "
+                              "data.init_args.data_dir: a folder of wtml generate)")
 
     def after_instantiate_classes(self) -> None:
         """The model's task against the dataset's, a resumed checkpoint against the run, and
@@ -406,6 +410,12 @@ def usage_line(message: str, argv: list[str], configs: list[str]) -> str:
                 k + 1 == len(argv) or argv[k + 1].startswith("--"))), option)
         key, what = option.lstrip("-").split("="), m[2]
         key = key[0].split(".")
+    elif (m := re.match(r"the following arguments are required: (.*)", first)):
+        keys = [k.strip().removeprefix("fit.") for k in m[1].split(",")]
+        where = f"{configs[-1]}: " if configs else ""
+        return (f"{where}{keys[0]}: missing; a training config names its model and data "
+                "(model.class_path, data.class_path and data.init_args.data_dir: see "
+                "configs/<task>.yaml)")
     elif (m := re.match(r'expected "subcommand" to be one of \{([^}]*)\}', first)):
         return (f"subcommand: expected one of {m[1]} (train.py fit --config "
                 "configs/<task>.yaml)")

@@ -183,7 +183,10 @@ class ShardDataModule(L.LightningDataModule):
                                f"{data_dir}`")
         self.data_dir = data_dir
         self.batch_size = batch_size
-        manifest, self.scene = checked_manifest(data_dir)
+        try:
+            manifest, self.scene = checked_manifest(data_dir)
+        except DatasetError as err:
+            raise DatasetError(f"data.data_dir: {err}") from None
         self.counts = {e.index: e.count for e in manifest.shards}
         self.split = split_shards(manifest.n_shards, val_shards, test_shards)
         self.scene_dict = to_dict(self.scene)

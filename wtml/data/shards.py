@@ -394,10 +394,37 @@ def check_finite(where: str | Path, arrays: dict[str, np.ndarray], task: str) ->
                                "must hold finite numbers: generate it again")
 
 
+IMPEDANCES = ("ze", "ref")
+"""The arrays that hold a transducer's electrical impedance (Ω), never 0: the bimorph is a
+capacitor in every load."""
+
+
+def check_values(where: str | Path, arrays: dict[str, np.ndarray], scene) -> None:
+    """Refuse what the scene cannot have made, named with the key and the row: an impedance
+    (:data:`IMPEDANCES`) of 0, or a label outside the range the scene draws it from
+    (``scene.output_ranges()``'s trained range, to 1e-9 of its span; NaN where
+    :func:`check_finite` allowed it)."""
+    for key in IMPEDANCES:
+        if key in arrays and not np.all(arrays[key] != 0):
+            row = int(np.flatnonzero((arrays[key] == 0).reshape(len(arrays[key]), -1).any(1))[0])
+            raise DatasetError(f"{where}: '{key}' is 0 Ω in row {row}; an electrical impedance "
+                               "is never 0: generate the dataset again")
+    for key, r in scene.output_ranges().items():
+        if key not in arrays:
+            continue
+        a, slack = arrays[key], 1e-9 * max(abs(r.high - r.low), abs(r.high))
+        bad = (a < r.low - slack) | (a > r.high + slack)
+        if bad.any():
+            row = int(np.flatnonzero(bad.reshape(len(a), -1).any(1))[0])
+            raise DatasetError(f"{where}: '{key}' is {a.reshape(len(a), -1)[row, 0]:.6g} in row "
+                               f"{row}, outside the scene's [{r.low:.6g}, {r.high:.6g}]; a "
+                               "dataset holds what its scene makes: generate it again")
+
+
 def load_shards(path: str | Path, indices: list[int] | None = None) -> dict[str, np.ndarray]:
     """Concatenated arrays of the given shards (all by default), every shard checked before
     use: a regular file of bounded size, its arrays those of the manifest (from the zip
-    headers), its sha256, then its values (:func:`check_finite`).
+    headers), its sha256, then its values (:func:`check_finite`, :func:`check_values`).
 
     Raises:
         DatasetError: naming the shard file (and the key and row) that fails a check.
@@ -438,6 +465,7 @@ def load_shards(path: str | Path, indices: list[int] | None = None) -> dict[str,
         except OSError as err:
             raise DatasetError(f"{npz}: cannot read this shard ({err.strerror})") from None
         check_finite(npz, data, scene.task)
+        check_values(npz, data, scene)
         for key, a in data.items():
             out[key][row:row + e.count] = a
         row += e.count

@@ -189,7 +189,7 @@ class HermiteTable(nn.Module):
         u = ((x - self.x0) / self.step).clamp(0.0, self.n - 1.0)
         i = torch.floor(u).clamp(max=self.n - 2)
         t = (u - i)[:, None]
-        row = i.long()
+        row = i.long().clamp(0, self.n - 2)  # a NaN x (cast to any integer) stays NaN in t
         a, b = self.rows[row], self.rows[row + 1]
         t2, t3 = t * t, t * t * t
         h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, 3 * t2 - 2 * t3, t3 - t2

@@ -1,10 +1,14 @@
 """Run one command on one input in a forked child and classify how it ended.
 
-The child (a fork of the test process: imports already paid, state isolated) redirects file
-descriptors 1 and 2 to files, caps its address space (a runaway allocation ends in a
-``MemoryError`` there, not in the machine's swap), starts :mod:`tracemalloc` (numpy registers
-its allocations there) and an alarm, runs ``wtml.cli.main`` or ``wtml.training.cli_main``
-in-process, and reports back through a pipe. The parent kills a child that outlives its limit.
+The child is forked from a forkserver (:mod:`multiprocessing`) that imported wtml, torch and
+lightning once and never ran a torch operation: imports are paid once, state is isolated, and
+no thread pool is inherited. (A fork of the test process itself deadlocks in its first
+parallel torch operation once an earlier test ran one with more than one thread: OpenMP is
+not fork-safe.) The child redirects file descriptors 1 and 2 to files, caps its address space
+(a runaway allocation ends in a ``MemoryError`` there, not in the machine's swap), starts
+:mod:`tracemalloc` (numpy registers its allocations there) and an alarm, runs
+``wtml.cli.main`` or ``wtml.training.cli_main`` in-process, and writes its report to a file.
+The parent kills a child that outlives its limit.
 
 Outcomes (:data:`GOOD` satisfy the contract, the rest are failures):
 
@@ -25,9 +29,9 @@ from __future__ import annotations
 
 import io
 import json
+import multiprocessing
 import os
 import resource
-import select
 import signal
 import sys
 import time
@@ -75,8 +79,7 @@ def _vm_bytes() -> int:
     return 0
 
 
-def _child(entry: str, argv: list[str], cwd: Path, limit_s: float, out_dir: Path, wfd: int
-           ) -> None:
+def _child(entry: str, argv: list[str], cwd: Path, limit_s: float, out_dir: Path) -> None:
     import tracemalloc
     import warnings
 
@@ -138,9 +141,24 @@ def _child(entry: str, argv: list[str], cwd: Path, limit_s: float, out_dir: Path
         sys.stderr.flush()
     except BaseException:  # noqa: B036
         pass
-    os.write(wfd, json.dumps(report).encode())
-    os.close(wfd)
+    (out_dir / "report.json").write_text(json.dumps(report))
     os._exit(0)
+
+
+_CONTEXT: multiprocessing.context.BaseContext | None = None
+
+
+def _context() -> multiprocessing.context.BaseContext:
+    """The forkserver context, its server preloading what every command imports."""
+    global _CONTEXT
+    if _CONTEXT is None:
+        _CONTEXT = multiprocessing.get_context("forkserver")
+        _CONTEXT.set_forkserver_preload(["wtml.cli", "wtml.training", __name__])
+    return _CONTEXT
+
+
+def _read(path: Path) -> str:
+    return path.read_text(errors="replace") if path.exists() else ""
 
 
 def run(entry: str, argv: list[str], *, cwd: Path, limit_s: float = 30.0,
@@ -151,50 +169,26 @@ def run(entry: str, argv: list[str], *, cwd: Path, limit_s: float = 30.0,
     name, its folder)."""
     out_dir = Path(cwd) / ".fuzz_io"
     out_dir.mkdir(parents=True, exist_ok=True)
-    rfd, wfd = os.pipe()
+    (out_dir / "report.json").unlink(missing_ok=True)
     start = time.perf_counter()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    pid = os.fork()
-    if pid == 0:
-        os.close(rfd)
-        try:
-            _child(entry, argv, Path(cwd), limit_s, out_dir, wfd)
-        finally:
-            os._exit(3)
-    os.close(wfd)
-    chunks, deadline = [], start + limit_s + 20.0
-    killed = False
-    while True:
-        left = deadline - time.perf_counter()
-        if left <= 0:
-            os.kill(pid, signal.SIGKILL)
-            killed = True
-            break
-        ready, _, _ = select.select([rfd], [], [], left)
-        if ready:
-            chunk = os.read(rfd, 1 << 16)
-            if not chunk:
-                break
-            chunks.append(chunk)
-    os.close(rfd)
-    _, status = os.waitpid(pid, 0)
+    child = _context().Process(target=_child, args=(entry, list(argv), Path(cwd), limit_s,
+                                                    out_dir), daemon=True)
+    child.start()
+    child.join(limit_s + 20.0)
+    killed = child.is_alive()
+    if killed:
+        child.kill()
+        child.join()
     seconds = time.perf_counter() - start
-    stdout = (out_dir / "stdout").read_text(errors="replace") if (out_dir / "stdout").exists() \
-        else ""
-    stderr = (out_dir / "stderr").read_text(errors="replace") if (out_dir / "stderr").exists() \
-        else ""
-    try:
-        report = json.loads(b"".join(chunks)) if chunks else None
-    except ValueError:
-        report = None
+    stdout, stderr = _read(out_dir / "stdout"), _read(out_dir / "stderr")
     if killed:
         return Result("hang", None, stdout, stderr, "killed after the time limit", 0, seconds,
                       names)
-    if report is None:
-        sig = os.WTERMSIG(status) if os.WIFSIGNALED(status) else None
-        return Result("traceback", None, stdout, stderr, f"the child died (signal {sig})", 0,
-                      seconds, names)
+    try:
+        report = json.loads(_read(out_dir / "report.json"))
+    except ValueError:
+        return Result("traceback", None, stdout, stderr,
+                      f"the child died (exit code {child.exitcode})", 0, seconds, names)
     return classify(report, stdout, stderr, seconds, names)
 
 

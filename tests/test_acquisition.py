@@ -198,7 +198,7 @@ def test_shipped_scenes_are_bench_top_and_the_probe_band_noise_is_the_budget():
         off = {"base"}
         assert [getattr(fx, n).enabled for n in fx.NAMES] == [n not in off for n in fx.NAMES]
     scene = dataclasses.replace(load_scene(ROOT / "configs/scenes/onset.yaml"),
-                                calibration_error=0.0, device=DeviceSpread())  # Cp nominal
+                                calibration_error=0.0, spread=DeviceSpread())  # Cp nominal
     a = scene.acquisition
     noisy = dataclasses.replace(scene, acquisition=dataclasses.replace(
         a, effects=a.effects.only("iv", "adc", "hum")))

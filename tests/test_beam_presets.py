@@ -3,17 +3,21 @@
 import numpy as np
 import pytest
 
-from wtml.physics.beam_presets import PRESETS, build, fidelity_table, fitted_values, resonance
+from wtml.devices import load_device
+from wtml.physics.beam_presets import PRESETS, build, fidelity_table, refit, resonance
 from wtml.physics.presets import fluid_lumped
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
 def test_fit_hits_its_targets_inside_the_allowed_ranges(name):
-    fit = PRESETS[name]["fit"]
-    for value, (lo, hi) in zip(fitted_values(name), fit["ranges"], strict=True):
-        assert lo < value < hi  # not pinned to a bound
-    for cond, hz in fit["targets"]:
-        assert abs(resonance(name, cond) / hz - 1) < 1e-6
+    """The shipped file's fitted lengths are what its provenance's fit gives (to 1e-9 m), not
+    pinned to a bound, and hit the file's target resonances."""
+    device = load_device(name)
+    for free, value in zip(device.provenance.free, refit(device), strict=True):
+        assert free.low < value < free.high  # not pinned to a bound
+        assert abs(device.length_of(free.name) - value) < 1e-9
+    for t in device.provenance.targets:
+        assert abs(resonance(device, t.condition) / t.hz - 1) < 1e-6
 
 
 def test_predictions_against_the_thesis():
@@ -35,6 +39,8 @@ def test_lumped_fluid_model_checked_against_the_beam_preset():
 
 
 def test_unknown_preset():
-    with pytest.raises(ValueError, match="preset must be one of"):
+    with pytest.raises(ValueError, match="unknown device 'nano': not a shipped device"):
         build("nano")
+    with pytest.raises(ValueError, match="'fluid-lumped' is a lumped device; a beam one"):
+        build("fluid-lumped")
     assert np.isfinite(build("macro").length)

@@ -132,7 +132,7 @@ def test_a_sound_dataset_loads(ds):
     (_set("scene_hash", None), ["manifest.json: scene_hash: must be a string"]),
     (_set("format", "wtml.dataset/1"), ["manifest.json: format:", "older wtml",
                                         "generate it again"]),
-    (_set("format", "zip"), ["manifest.json: format: must be one of ['wtml.dataset/2']"]),
+    (_set("format", "zip"), ["manifest.json: format: must be one of ['wtml.dataset/3']"]),
     (_set("shards", None), ["manifest.json: shards: must be a list of mappings"]),
     (_set("shards", {"0": {}}), ["manifest.json: shards: must be a list of mappings"]),
     (lambda m: m["shards"].__setitem__(1, None),

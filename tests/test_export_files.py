@@ -131,12 +131,19 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
         "no decoder": json.dumps(manifest | {"files": manifest["files"][1:]}),
         "size a string": json.dumps(manifest | {"files": [
             manifest["files"][0] | {"bytes": "12"}, manifest["files"][1]]}),
-        "format 2": json.dumps(manifest | {"format": 2}),
+        "format 3": json.dumps(manifest | {"format": 3}),
+        "format 1": json.dumps(manifest | {"format": 1}),
+        "no device": json.dumps({k: v for k, v in manifest.items() if k != "device"}),
+        "another device": json.dumps(manifest | {"device": manifest["device"]
+                                                 | {"sha256": "0" * 64}}),
     }
     needles = {"missing": "manifest.json: missing", "not json": "not valid JSON",
                "a list": "must be a mapping", "no files": "files: missing",
                "a path": "files[0].name", "no decoder": "files: must list one 'decoder'",
-               "size a string": "files[0].bytes", "format 2": "format: must be in [1, 1]"}
+               "size a string": "files[0].bytes", "format 3": "format: must be in [2, 2]",
+               "format 1": "format: 1, exported by an older wtml (it names no device)",
+               "no device": "device: missing",
+               "another device": "metadata scene's device is not manifest.json's fluid-lumped"}
     for name, text in variants.items():
         if text is None:
             (folder / "manifest.json").unlink()
@@ -145,6 +152,37 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
         one_line(capsys, _predict(folder, data, cal), "manifest.json", needles[name])
     (folder / "manifest.json").write_text(good)
     assert main(_predict(folder, data, cal)) == 0
+
+
+def test_predict_refuses_an_export_of_another_device(fluid_copy, tmp_path, capsys):
+    """The export's manifest names its device and content hash; `wtml predict --device` takes
+    the device the measurements come from and refuses an export trained for another: another
+    name, or the same name with other values (a user's copy of the shipped file, edited)."""
+    from wtml.devices import DEVICES_DIR, device_hash, load_device
+
+    folder, data, cal = fluid_copy
+    manifest = json.loads((folder / "manifest.json").read_text())
+    shipped = load_device("fluid-lumped")
+    assert manifest["device"] == {"name": "fluid-lumped", "sha256": device_hash(shipped)}
+    assert main(_predict(folder, data, cal) + ["--device", "fluid-lumped"]) == 0
+    capsys.readouterr()
+    mine = tmp_path / "mine.yaml"  # the same device, commented and spelled otherwise: accepted
+    text = (DEVICES_DIR / "fluid-lumped.yaml").read_text()
+    lines = text.splitlines()
+    first = next(k for k, line in enumerate(lines) if line.startswith("c0:"))
+    lines[first], lines[first + 1] = lines[first + 1], lines[first]  # c0 and phi swapped
+    mine.write_text("# my copy\n" + "\n".join(lines).replace("q: 50.0", "q: 5.0e1") + "\n")
+    assert device_hash(load_device(mine)) == device_hash(shipped)
+    assert main(_predict(folder, data, cal) + ["--device", str(mine)]) == 0
+    capsys.readouterr()
+    mine.write_text(text.replace("q: 50.0", "q: 45.0"))
+    one_line(capsys, _predict(folder, data, cal) + ["--device", str(mine)],
+             f"--device {mine}: {folder} was trained for device 'fluid-lumped' (",
+             "(same name, other values); train and export a decoder")
+    one_line(capsys, _predict(folder, data, cal) + ["--device", "micro"],
+             "was trained for device 'fluid-lumped'", "this is 'micro'")
+    one_line(capsys, _predict(folder, data, cal) + ["--device", "nano"],
+             "unknown device 'nano': not a shipped device")
 
 
 # Metadata edits made consistent with the manifest: each refused by the schema, naming the key.

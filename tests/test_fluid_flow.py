@@ -35,7 +35,7 @@ from wtml.training import cli_main
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = FLUID_SMALL  # the flow fixture's scene (conftest.py)
-SPREAD = build(FluidScene, {"device": {"k": 0.03, "m": 0.01, "c": 0.25, "phi": 0.03,
+SPREAD = build(FluidScene, {"spread": {"k": 0.03, "m": 0.01, "c": 0.25, "phi": 0.03,
                                        "c0": 0.03, "tan_delta": 0.25, "sphere_radius": 0.01}})
 
 
@@ -67,7 +67,7 @@ def test_device_spread_draws_each_device_within_its_stated_bounds():
     """Each record has its own device: its T maps its Ze back to its own sphere's Stokes load
     exactly (no noise, no calibration error), the radius stays in ±1 %, and the lumped
     parameters seen in T (t11 = 1/φ, t21/t11 = jω C0 (1 - j tanδ)) in their half-widths."""
-    clean = build(FluidScene, {"device": to_dict(SPREAD.device), "noise": {"ze_relative": 0.0},
+    clean = build(FluidScene, {"spread": to_dict(SPREAD.spread), "noise": {"ze_relative": 0.0},
                                "nuisance": {"calibration_error": 0.0}})
     d = clean.simulate(400, np.random.default_rng(3))
     omega = clean.excitation.omega
@@ -80,8 +80,8 @@ def test_device_spread_draws_each_device_within_its_stated_bounds():
     assert np.abs(phi / base.phi - 1).max() <= 0.03 and np.std(phi / base.phi) > 0.01
     c0 = (d["t"][:, :, 1, 0] / d["t"][:, :, 0, 0]).imag / omega
     assert np.abs(c0 / base.c0 - 1).max() <= 0.03 + 1e-12
-    with pytest.raises(SceneError, match=r"device.sphere_radius: must be in \[0, 0.2\]"):
-        build(FluidScene, {"device": {"sphere_radius": 0.5}})
+    with pytest.raises(SceneError, match=r"spread.sphere_radius: must be in \[0, 0.2\]"):
+        build(FluidScene, {"spread": {"sphere_radius": 0.5}})
 
 
 def test_an_unmeasured_radius_is_a_fluid_with_scaled_properties():
@@ -89,7 +89,7 @@ def test_an_unmeasured_radius_is_a_fluid_with_scaled_properties():
     radius R(1 + ε) in (η, ρ) is exactly a sphere of radius R in (η(1 + ε), ρ(1 + ε)³): the
     classical path with the nominal radius reads those on clean records, to rounding. (Only a
     prior over (η, ρ) can tell the radius's share apart: the bench's device-spread table.)"""
-    clean = build(FluidScene, {"device": {"sphere_radius": 0.01}, "noise": {"ze_relative": 0.0},
+    clean = build(FluidScene, {"spread": {"sphere_radius": 0.01}, "noise": {"ze_relative": 0.0},
                                "nuisance": {"calibration_error": 0.0}})
     d = clean.simulate(300, np.random.default_rng(11))
     eps = d["sphere_radius"] / clean.sphere.radius - 1

@@ -32,7 +32,7 @@ def nominal():
     from a spread)."""
     base = load_scene(ROOT / "configs/scenes/onset.yaml")
     return dataclasses.replace(
-        base, device=DeviceSpread(), wall=dataclasses.replace(base.wall, law={"linear": 1.0}),
+        base, spread=DeviceSpread(), wall=dataclasses.replace(base.wall, law={"linear": 1.0}),
         acquisition=dataclasses.replace(base.acquisition, e_noise_v=0.0, i_noise_a=0.0,
                                         effects=base.acquisition.effects.only()))
 
@@ -131,7 +131,7 @@ def test_free_whisker_current_is_its_own_T_at_both_tones(short, method, substeps
                          detail=True)
     t = short.times()
     wl, wh = 2 * np.pi * short.drive.whisk_hz, 2 * np.pi * short.drive.probe_hz
-    model = ModalModel.from_beam(build(short.preset), short.n_modes)
+    model = ModalModel.from_beam(build(short.device), short.n_modes)
     poles = -model.zeta * model.omega + 1j * model.omega * np.sqrt(1 - model.zeta**2)
     basis = np.exp(np.outer(t, np.concatenate([[1j * wl, 1j * wh], poles])))
     basis = np.concatenate([basis.real, basis.imag], 1)

@@ -25,7 +25,7 @@ def quiet():
     base = load_scene(ROOT / "configs/scenes/onset.yaml")
     a = base.acquisition
     scene = dataclasses.replace(
-        base, device=DeviceSpread(),
+        base, spread=DeviceSpread(),
         acquisition=dataclasses.replace(a, effects=a.effects.only()),
         wall=dataclasses.replace(base.wall, law={"linear": 1.0}))
     amp = scene.whisk_amplitude_m()

@@ -40,7 +40,7 @@ def spread_scene():
 @pytest.fixture(scope="module")
 def scene(spread_scene):
     """The shipped scene on the nominal device (the preset alone)."""
-    return dataclasses.replace(spread_scene, device=DeviceSpread())
+    return dataclasses.replace(spread_scene, spread=DeviceSpread())
 
 
 def tensors(rec: dict) -> list[torch.Tensor]:

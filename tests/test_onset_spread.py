@@ -28,7 +28,7 @@ import json, sys
 import numpy as np
 from wtml.scenes.onset import OnsetDrive, OnsetScene, WallSpec
 scene = OnsetScene(drive=OnsetDrive(cycles=0.5, lead_s=0.05), wall=WallSpec(free_fraction=0.25))
-assert scene.device.none
+assert scene.spread.none
 rec = scene.simulate(6, np.random.default_rng(5))
 t, hue0 = scene.calibration(scene.transducer())
 json.dump({"gap": rec["gap"].tolist(), "law": rec["law"].tolist(),
@@ -173,7 +173,7 @@ def test_the_spread_tables_rows(shipped):
     coupling = by["coupling"].make(2, np.random.default_rng(1))
     assert np.ptp(coupling["hue0"]) > 0
     # a scene trained on the nominal device gets the issue's spread as its spread row
-    rows = device_variants(dataclasses.replace(shipped, device=DeviceSpread()))
+    rows = device_variants(dataclasses.replace(shipped, spread=DeviceSpread()))
     assert [r.name for r in rows[:2]] == ["nominal device", "issue 21 spread"]
 
 

@@ -27,11 +27,11 @@ SMALL = RADIAL_SMALL
 
 def test_shipped_scenes_load_and_bad_values_are_named(tmp_path):
     scene = load_scene(ROOT / "configs/scenes/radial.yaml")
-    assert scene.excitation.frequencies_hz[0] == 420.0 and scene.preset == "micro"
-    assert scene.device.none  # the shipped scene: the preset's own device
+    assert scene.excitation.frequencies_hz[0] == 420.0 and scene.device.name == "micro"
+    assert scene.spread.none  # the shipped scene: the preset's own device
     spread = load_scene(ROOT / "configs/scenes/radial_spread.yaml")
-    assert spread.device.modulus == 0.03 and spread.device.length == 0.005
-    assert dataclasses.replace(spread, name=scene.name, device=scene.device) == scene
+    assert spread.spread.modulus == 0.03 and spread.spread.length == 0.005
+    assert dataclasses.replace(spread, name=scene.name, spread=scene.spread) == scene
     invalid = load_scene(ROOT / "configs/scenes/radial_invalid.yaml")
     assert invalid.contact.distances_um == (500.0, 1500.0, 2500.0)
     bad = tmp_path / "bad.yaml"
@@ -186,8 +186,8 @@ def test_radial_bench_reports_every_method(radial_flow, tmp_path):
     # the device-spread table's scene: the small scene with configs/scenes/radial_spread's
     # spread
     spread = tmp_path / "spread.yaml"
-    widths = load_scene(ROOT / "configs/scenes/radial_spread.yaml").device
-    spread.write_text(json.dumps(to_dict(dataclasses.replace(SMALL, device=widths))))
+    widths = load_scene(ROOT / "configs/scenes/radial_spread.yaml").spread
+    spread.write_text(json.dumps(to_dict(dataclasses.replace(SMALL, spread=widths))))
     report = run_bench(tmp / "data", tmp / "runs/radial/checkpoints/last.ckpt",
                        tmp / "runs/radial_thesis/checkpoints/last.ckpt", tmp / "export/radial",
                        tmp / "export/radial_thesis", tmp_path, invalid_dir=tmp / "invalid",
@@ -296,7 +296,7 @@ def test_spread_table_rows_and_their_numbers():
     from wtml.bench.radial import format_spread, spread_row, spread_sets
 
     scene = build(RadialScene, {"samples": 100, "shards": 1,
-                                "device": {"modulus": 0.03, "coupling": 0.01}})
+                                "spread": {"modulus": 0.03, "coupling": 0.01}})
     sets = spread_sets(scene, {"distance": np.zeros(4)}, {"distance": np.zeros(3)}, 5)
     assert list(sets) == ["nominal device", "spread",
                           "bimorph.modulus ±3 % alone", "whisker.modulus ±3 % alone",
@@ -326,9 +326,9 @@ def test_spread_variant_trains_reads_the_reference_and_exports(tmp_path):
     from wtml.data import generate
     from wtml.training import cli_main
 
-    spread = load_scene(ROOT / "configs/scenes/radial_spread.yaml").device
+    spread = load_scene(ROOT / "configs/scenes/radial_spread.yaml").spread
     scene = dataclasses.replace(SMALL, samples=800, shards=4,
-                                device=dataclasses.replace(spread, devices=16))
+                                spread=dataclasses.replace(spread, devices=16))
     generate(scene, tmp_path / "data", progress=False)
     cwd = os.getcwd()
     os.chdir(tmp_path)

@@ -31,7 +31,9 @@ def test_the_shipped_scene_loads():
     ("fluid:\n  volume_fraction: [0.5, 0.2]\n", r"fluid.volume_fraction: low 0.5 is above high"),
     ("fluid:\n  temperature_c: [10, 120]\n", r"fluid.temperature_c\[1\]: must be in \[0, 100\]"),
     ("noise:\n  ze_relative: high\n", r"noise.ze_relative: must be a number"),
-    ("transducer:\n  preset: nano\n", r"transducer.preset: must be one of"),
+    ("transducer:\n  preset: nano\n", r"transducer.device: unknown device 'nano': not a shipped"),
+    ("transducer:\n  device: micro\n", r"transducer.device: this scene needs a lumped device; "
+                                       r"'micro' is a beam one"),
     ("transducer:\n  overrides: {q: 3}\n", r"transducer.overrides.q: unknown parameter"),
     ("transducer:\n  overrides: {phi: -1.0}\n", r"transducer.overrides.phi: must be a number >= 0"),
     ("samples: 4\nshards: 8\n", r"shards: 8 shards for 4 samples"),

@@ -74,7 +74,7 @@ def test_drawn_devices_carry_their_factors():
 
 
 def test_unknown_factor_and_parameter_are_named():
-    with pytest.raises(ValueError, match="'block.length' is not a parameter of preset 'micro'"):
+    with pytest.raises(ValueError, match="'block.length' is not a parameter of device 'micro'"):
         build("micro", factors={"block.length": 1.01})
     with pytest.raises(ValueError, match="parameter must be one of"):
         SPREAD.only("sphere.radius", "micro")
@@ -114,7 +114,7 @@ def test_radial_scene_without_spread_is_the_preset_draw_for_draw():
     order of the scene before the device block existed; the reference is the preset's free
     Ze with its own noise, drawn last."""
     scene = build_config(RadialScene, {"samples": 100, "shards": 1})
-    assert scene.device == DeviceSpread() and scene.device.none
+    assert scene.spread == DeviceSpread() and scene.spread.none
     got = scene.simulate(50, np.random.default_rng(3))
     rng = np.random.default_rng(3)
     d = 1e-6 * rng.uniform(*scene.contact.distance_um, 50)
@@ -132,7 +132,7 @@ def test_radial_scene_with_spread_draws_devices_per_record():
     and a parameter alone moves only what it moves."""
     scene = build_config(RadialScene, {"samples": 100, "shards": 1,
                                        "noise": {"reference_relative": 0.0},
-                                       "device": dataclasses.asdict(SPREAD) | {"devices": 5}})
+                                       "spread": dataclasses.asdict(SPREAD) | {"devices": 5}})
     data = scene.simulate(200, np.random.default_rng(4))
     refs = np.unique(data["ref"][:, 0])
     assert 2 <= len(refs) <= 5
@@ -143,9 +143,9 @@ def test_radial_scene_with_spread_draws_devices_per_record():
     # the free Ze hardly sees the whisker's modulus (its first mode is 4× the tones)
     np.testing.assert_allclose(alone["ref"], np.broadcast_to(nominal, alone["ref"].shape),
                                rtol=2e-3)
-    bad = {"contact": {"distance_um": [0.0, 4990.0]}, "device": {"length": 0.01}}
+    bad = {"contact": {"distance_um": [0.0, 4990.0]}, "spread": {"length": 0.01}}
     with pytest.raises(SceneError, match="must stay below the whisker length 4950 µm"):
         build_config(RadialScene, bad)
-    with pytest.raises(SceneError, match=r"device.modulus: must be in \[0, 0.3\]"):
-        build_config(RadialScene, {"device": {"modulus": 0.5}})
+    with pytest.raises(SceneError, match=r"spread.modulus: must be in \[0, 0.3\]"):
+        build_config(RadialScene, {"spread": {"modulus": 0.5}})
 

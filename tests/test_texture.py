@@ -113,7 +113,7 @@ def _short(scene, **device):
 
     from wtml.physics.spread import DeviceSpread
 
-    return replace(scene, specimens_per_grade=1, device=DeviceSpread(**device),
+    return replace(scene, specimens_per_grade=1, spread=DeviceSpread(**device),
                    drive=replace(scene.drive, record_s=0.1, lead_s=0.2))
 
 
@@ -167,7 +167,7 @@ def test_each_record_carries_its_drawn_devices_calibrated_t(scene, monkeypatch):
     ratio = np.array([m.omega_n[0] / preset.omega_n[0] for m in models])
     assert np.all(np.abs(ratio - 1) < 0.03) and np.ptp(ratio) > 1e-3  # √(±3 % modulus) ...
     monkeypatch.undo()
-    nominal = replace(quiet, device=replace(quiet.device, **dict.fromkeys(ISSUE_SPREAD, 0.0)))
+    nominal = replace(quiet, spread=replace(quiet.spread, **dict.fromkeys(ISSUE_SPREAD, 0.0)))
     same = nominal.simulate(6, np.random.default_rng(4))
     for key in ("grade", "mu", "whisk_v", "whisk_hz", "normal_force", "angle"):
         np.testing.assert_array_equal(rec[key], same[key])
@@ -205,7 +205,7 @@ def texture_export(tmp_path_factory):
     root = tmp_path_factory.mktemp("texture")
     cfg = root / "scene.yaml"
     cfg.write_text(yaml.safe_dump({"name": "texture", "task": "texture", **SMALL,
-                                   "device": ISSUE_SPREAD}))
+                                   "spread": ISSUE_SPREAD}))
     data, run, model = root / "data", root / "run", root / "export"
     for args in (["-m", "wtml.cli", "generate", "--config", str(cfg), "--out", str(data)],
                  ["train.py", "fit", "--config", "configs/texture.yaml",
@@ -234,7 +234,7 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     assert graph.shared and module.gate.features is module.net.features
     n = module._n
     spread = replace(scene, **SMALL)
-    assert not spread.device.none  # the shipped scene's tolerances
+    assert not spread.spread.none  # the shipped scene's tolerances
     rec = spread.simulate(5, np.random.default_rng(7))
     assert len({rec["t"][r].tobytes() for r in range(5)}) == 5  # a device per record
     e, i = rec["e"][:, :n], rec["i"][:, :n]

@@ -81,12 +81,12 @@ def test_texture_device_rows_are_the_nominal_device_the_spread_and_each_class_al
     from wtml.physics.spread import CLASSES
 
     scene = load_scene(ROOT / "configs/scenes/texture.yaml")
-    assert scene.device == REFERENCE_SPREAD
+    assert scene.spread == REFERENCE_SPREAD
     short = dataclasses.replace(scene, specimens_per_grade=1, drive=dataclasses.replace(
         scene.drive, record_s=0.05, lead_s=0.1))
     rows = device_variants(short)
     assert [v.name for v in rows] == ["nominal device", "devices of the trained spread"] + [
-        f"{c} ±{100 * getattr(scene.device, c):g} % alone" for c in CLASSES]
+        f"{c} ±{100 * getattr(scene.spread, c):g} % alone" for c in CLASSES]
     seen = []
     out = run_variants(rows, 3, 5, lambda r: seen.append(r) or [{"name": "x"}], paired=True)
     assert [r["name"] for r in out] == [v.name for v in rows]
@@ -102,8 +102,8 @@ def test_texture_device_rows_are_the_nominal_device_the_spread_and_each_class_al
     np.testing.assert_allclose(tan[..., 0, 0], np.broadcast_to(nominal[..., 0, 0],
                                                                tan[..., 0, 0].shape), rtol=1e-9)
     # without a trained spread the rows take the issue's tolerances
-    bare = device_variants(dataclasses.replace(short, device=dataclasses.replace(
-        scene.device, **dict.fromkeys(CLASSES, 0.0))))
+    bare = device_variants(dataclasses.replace(short, spread=dataclasses.replace(
+        scene.spread, **dict.fromkeys(CLASSES, 0.0))))
     assert bare[1].name == "devices of issue 21's spread" and len(bare) == 2 + len(CLASSES)
 
 

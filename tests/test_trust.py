@@ -137,7 +137,7 @@ def fluid_domain():
 @pytest.fixture(scope="module")
 def radial_domain():
     scene = load_scene(ROOT / "configs/scenes/radial.yaml")
-    assert scene.device.none  # the shipped scene: the preset's own device
+    assert scene.spread.none  # the shipped scene: the preset's own device
     return scene, _gate(RadialDecoder(), scene, 60000, 1)
 
 
@@ -185,10 +185,10 @@ def test_fluid_domain_false_alarms_and_detections(fluid_domain):
         zm = stokes_sphere(eta[:, None], rho, scene.sphere.radius, scene.excitation.omega)
         ze = complex_noise(ze_from_zm(t, zm), scene.noise.ze_relative, rng)
         assert np.all(_score(gate, ze, np.broadcast_to(t, (300, *t.shape))) > 1), eta[0]
-    assert scene.device.phi == scene.device.c0 == 0.03 and scene.device.c == 0.25
+    assert scene.spread.phi == scene.spread.c0 == 0.03 and scene.spread.c == 0.25
     fluid = scene.simulate(300, rng)
     for name, factor in (("phi", 1.1), ("phi", 0.9), ("c0", 1.1), ("c", 1.6)):
-        factors = {f: np.ones(300) for f in scene.device.FIELDS} | {name: np.full(300, factor)}
+        factors = {f: np.ones(300) for f in scene.spread.FIELDS} | {name: np.full(300, factor)}
         other = scene.device_t(factors)
         zm = zm_from_ze(fluid["t"], fluid["ze"])  # the same loads, seen by the other device
         assert np.all(_score(gate, ze_from_zm(other, zm), other) > 1), (name, factor)
@@ -209,7 +209,7 @@ def _far_devices(scene, rng: np.random.Generator, length: float):
     ref) for each."""
     k = np.exp(rng.uniform(*np.log(scene.contact.stiffness), 300))
     for factors in ({"bimorph.length": 1 + 4 * length}, {"loss_factor": 2.0}):
-        far = build_beam(scene.preset, factors=factors)
+        far = build_beam(scene.device, factors=factors)
         d = 1e-6 * rng.uniform(0, 3200, 300)
         ze = complex_noise(scene.ze_of(d, k, far), scene.noise.ze_relative, rng)
         yield factors, ze, np.broadcast_to(scene.free_ze(far), ze.shape)
@@ -245,7 +245,7 @@ def test_radial_spread_domain_false_alarms_and_detections(radial_spread_domain):
     # hundred of them would count the stated rate in steps of their number
     _check_held_out_and_variants(scene, gate, 20000, shards=40)
     rng = np.random.default_rng(3)
-    for factors, ze, ref in _far_devices(scene, rng, scene.device.length):
+    for factors, ze, ref in _far_devices(scene, rng, scene.spread.length):
         assert np.all(_score(gate, ze, ref) > 1), factors
 
 

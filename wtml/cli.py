@@ -95,6 +95,33 @@ def _presets(args: argparse.Namespace) -> int:
     return 0
 
 
+def _device(args: argparse.Namespace) -> int:
+    from wtml.devices import device_hash, load_device, shipped_devices
+
+    if args.action == "list":
+        for name in shipped_devices():
+            d = load_device(name)
+            print(f"{name:14s} {d.kind:7s} {device_hash(d)[:12]}  {d.provenance.source[:60]}")
+        return 0
+    d = load_device(args.device)
+    print(f"device {d.name} ({d.kind}), sha256 {device_hash(d)}")
+    print(f"provenance: {d.provenance.source or 'not stated'}")
+    if d.kind == "lumped":
+        t = d.transducer()
+        print(f"c0 {t.c0:.4g} F, phi {t.phi:.4g} N/V, m {t.m:.4g} kg, k {t.k:.4g} N/m, "
+              f"c {t.c:.4g} N s/m, f0 {d.f0:.4g} Hz, Q {d.q:g}, tan_delta {t.tan_delta:g}")
+        return 0
+    from wtml.physics.beam_presets import build
+
+    tr = build(d)
+    modes = ", ".join(f"{f:.2f}" for f in tr.natural_frequencies(3))
+    print(f"natural frequencies (tip free, short circuit): {modes} Hz")
+    print(f"static tip displacement per volt {1e6 * tr.static_tip_displacement_per_volt():.4g}"
+          f" um/V, clamped capacitance {1e9 * abs(tr.capacitance):.4g} nF, length "
+          f"{1e3 * tr.length:.4g} mm")
+    return 0
+
+
 def _whole_number(option: str, text: str | None) -> int | None:
     """An option's whole number, parsed here (not by argparse, whose refusal is a usage dump):
     a bad one is the command's one-line error."""
@@ -137,6 +164,7 @@ def _export(args: argparse.Namespace) -> int:
 def _predict(args: argparse.Namespace) -> int:
     from wtml.runtime.predict import (
         InputError,
+        check_device,
         domain_warning,
         format_predictions,
         predict_file,
@@ -144,6 +172,8 @@ def _predict(args: argparse.Namespace) -> int:
     )
 
     task = task_of(args.model)
+    if args.device is not None:
+        check_device(args.model, args.device)
     if args.reference is not None and task in ("onset", "texture"):
         raise InputError(f"--reference {args.reference}: this {task} export takes no reference")
     if task == "onset":
@@ -276,6 +306,18 @@ def build_parser() -> argparse.ArgumentParser:
     pre = verb("presets", "the beam presets against the thesis (fidelity table)")
     pre.set_defaults(func=_presets)
 
+    dev = verb("device", "device files: the shipped ones, and what a device file builds",
+               "A device file (configs/devices/<name>.yaml, or your own) describes a "
+               "transducer; a scene's `device:` names it. `list` shows the shipped ones, "
+               "`show` builds one and prints its identity and resonances.")
+    dev_sub = dev.add_subparsers(dest="action", metavar="ACTION", required=True)
+    dev_sub.add_parser("list", help="the shipped device files", formatter_class=_Help
+                       ).set_defaults(func=_device)
+    show = dev_sub.add_parser("show", help="one device: identity, resonances",
+                              formatter_class=_Help)
+    show.add_argument("device", help="a shipped name (micro) or a device file's path")
+    show.set_defaults(func=_device)
+
     fid = verb("fidelity", "every reproduction of a thesis number in one report",
                "The presets' resonances, the calibration walkthrough's errors (Tables "
                "4.3-4.4), glycerol-water against Tables 6.1-6.2, the onset slice's Figure "
@@ -328,6 +370,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "frequency_hz and t (its calibrated T there); onset also hue0 (m/V)")
     pr.add_argument("--reference", default=None,
                     help="radial exports: the free whisker's Ze of the device (.npz, below)")
+    pr.add_argument("--device", default=None,
+                    help="the device the measurements come from (a device file, or a shipped "
+                         "name): refused unless the export was trained for it")
     pr.add_argument("--out", default=None,
                     help="write the rows as CSV here (default: print a table)")
     pr.set_defaults(func=_predict)

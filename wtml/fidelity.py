@@ -74,7 +74,7 @@ def texture_fidelity(scene: TextureScene) -> dict:
             "r2_zm_quadratic": r_squared(sizes, nom["zm"].real, 2),
             "v_over_d": speed / (sizes * 1e-6), "peaks_e": peaks_e, "peaks_i": peaks_i,
             "free_modes": scene.transducer().omega_n / (2 * np.pi),
-            "held_modes": held_tip_modes(scene.preset)}
+            "held_modes": held_tip_modes(scene.device)}
 
 
 def format_texture(r: dict) -> str:

@@ -16,6 +16,7 @@ import dataclasses
 import hashlib
 import json
 import re
+import types
 import typing
 from collections.abc import Mapping
 from pathlib import Path
@@ -96,8 +97,28 @@ def _check_number(path: str, value: Any, low: float, high: float, kind: type) ->
 
 def _convert(path: str, hint: Any, value: Any, meta: Mapping) -> Any:
     if dataclasses.is_dataclass(hint):
+        resolve = getattr(hint, "resolve", None)  # a reference (a name, a path) to one
+        if resolve is not None and not isinstance(value, Mapping):
+            return resolve(value, path)
         return build(hint, value, path)
     origin = typing.get_origin(hint)
+    if origin in (types.UnionType, typing.Union):
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        if value is None and len(args) < len(typing.get_args(hint)):
+            return None
+        if len(args) == 1:
+            return _convert(path, args[0], value, meta)
+        if all(dataclasses.is_dataclass(a) for a in args):  # a union of records: a "kind" picks
+            kinds = {f.default: a for a in args for f in dataclasses.fields(a)
+                     if f.name == "kind"}
+            if isinstance(value, Mapping) and value.get("kind") in kinds:
+                return build(kinds[value["kind"]], value, path)
+            resolve = getattr(args[0], "resolve", None)
+            if resolve is not None and not isinstance(value, Mapping):
+                return resolve(value, path)
+            raise SchemaError(f"{path}.kind: must be one of {sorted(kinds)}, got "
+                              f"{value.get('kind') if isinstance(value, Mapping) else value!r:.80}")
+        raise TypeError(f"{path}: unsupported field type {hint!r}")
     if origin is tuple and typing.get_args(hint)[-1] is Ellipsis:  # a list
         item = typing.get_args(hint)[0]
         if dataclasses.is_dataclass(item):  # a list of records

@@ -115,7 +115,7 @@ def onset(folder: Path) -> Task:
                    "acquisition": shipped["acquisition"], "wall": {"free_fraction": 0.25}},
           "configs/onset.yaml", 3)
     scene = dataclasses.replace(load_scene(ROOT / "configs/scenes/onset.yaml"), **SMALL,
-                                device=DeviceSpread())
+                                spread=DeviceSpread())
     rec = scene.simulate(2, np.random.default_rng(3))
     np.savez(folder / "input.npz", e=rec["e"], i=rec["i"],
              sample_rate_hz=scene.acquisition.sample_rate_hz)
@@ -134,7 +134,7 @@ def texture(folder: Path) -> Task:
     from tests.test_texture import ISSUE_SPREAD, SMALL
     from wtml.scenes import load_scene
 
-    _flow(folder, {"name": "texture", "task": "texture", **SMALL, "device": ISSUE_SPREAD},
+    _flow(folder, {"name": "texture", "task": "texture", **SMALL, "spread": ISSUE_SPREAD},
           "configs/texture.yaml", 2)
     scene = load_scene(ROOT / "configs/scenes/texture.yaml")
     rec = scene.simulate(2, np.random.default_rng(8))

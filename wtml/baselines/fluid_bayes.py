@@ -50,7 +50,7 @@ class BayesFluid:
                                np.linspace(*scene.fluid.temperature_c, n_temperature))
         self.eta, self.rho = glycerol_water(cv.ravel(), temp.ravel())  # (n_grid,)
         omega = scene.excitation.omega
-        spread = scene.device.sphere_radius
+        spread = scene.spread.sphere_radius
         nodes, weights = (np.polynomial.legendre.leggauss(n_radius) if spread > 0
                           else (np.zeros(1), np.full(1, 2.0)))
         self.log_w = np.log(weights / 2)  # the uniform prior's quadrature weights

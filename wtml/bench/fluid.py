@@ -10,7 +10,7 @@ calibration of their own device).
 
 The device-spread table: the decoder (ONNX), the classical path (ONNX) and the Bayes reference
 on fresh records of the nominal device, of devices drawn from the trained spread (the scene's
-``device`` block), from issue 21's spread (:data:`REFERENCE_SPREAD`, the sphere's radius
+``spread`` block), from issue 21's spread (:data:`REFERENCE_SPREAD`, the sphere's radius
 included) and from each of its parameters alone: median η and ρ errors and the share flagged
 out of domain, so the report says which parameter limits the task. Writes a markdown report,
 ``summary.json`` and a PNG of error against latency.
@@ -55,14 +55,14 @@ def device_spread(scene, decoder: OnnxModel, classical: OnnxModel, n: int,
     """The device-spread table's rows (module docstring): per device set, ``{"device",
     "methods": [{"name", "eta_median", "rho_median", "flagged"}]}`` on ``n`` fresh records."""
     spread = REFERENCE_SPREAD
-    sets = [("nominal device", DeviceSpread()), ("trained spread", scene.device),
+    sets = [("nominal device", DeviceSpread()), ("trained spread", scene.spread),
             ("issue 21 spread", spread)]
     sets += [(f"{name} ±{100 * getattr(spread, name):g} % only",
               DeviceSpread(**{name: getattr(spread, name)}))
              for name in DeviceSpread.FIELDS if getattr(spread, name) > 0]
     rows = []
     for k, (label, device) in enumerate(sets):
-        variant = replace(scene, device=device)
+        variant = replace(scene, spread=device)
         data = variant.simulate(n, np.random.default_rng([seed, k]))
         methods = []
         for p in (decoder, classical, BayesFluid(variant, **BAYES_GRID)):

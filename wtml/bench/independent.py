@@ -741,7 +741,7 @@ def simulate_onset(scene, gaps, stiffness, damping, coupling, *, law: str = "lin
     check_range("substeps", substeps, 1, 256)
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    model = ModalModel.from_beam(build(scene.preset), n_modes or scene.n_modes)
+    model = ModalModel.from_beam(build(scene.device), n_modes or scene.n_modes)
     if not model.a_r > 0:
         raise ValueError(f"n_modes: {len(model.omega)} leaves no residual compliance "
                          f"(a_r = {model.a_r:.3g} m/N); keep fewer modes")

@@ -364,7 +364,7 @@ def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_recor
                  {"name": "Cramér–Rao bound (the scene's model; g, k, c, s unknown)",
                   "rows": location_rows(cramer_rao_bound(scene, test), frac)}]
     band = 2 * np.pi * np.linspace(0.9, 1.1, 41) * scene.drive.probe_hz
-    conv = convergence_table(build(scene.preset), band)
+    conv = convergence_table(build(scene.device), band)
     speed = simulator_speed(scene)
     report = _report(results, reference, streaming, flags, held_in, conv, speed, scene,
                      len(test["e"]), free_s, transfer, spread)
@@ -429,7 +429,7 @@ def _report(results, reference, streaming, flags, held_in, conv, speed, scene, n
         sm = spread_summary(spread)
         lines += ["", "## Device spread", "",
                   f"Fresh records per row from devices drawn around the preset "
-                  f"(uniform within ±half-width; {scene.device.devices} devices per simulated "
+                  f"(uniform within ±half-width; {scene.spread.devices} devices per simulated "
                   "batch), every record with its own device's calibration (T at the probe and "
                   "HUE(0), the graphs' inputs t_re, t_im, hue0); the coupling's calibration "
                   f"error ({100 * scene.calibration_error:g} %) stays unknown on top. Columns as "

@@ -44,18 +44,18 @@ the structural loss factor and tanδ ±25 %, the piezo coupling ±3 %."""
 
 def device_variants(scene) -> list[Variant]:
     """The device-spread table's rows: the nominal device (the preset), the trained spread
-    (the scene's ``device`` block), the issue's (:data:`ISSUE_SPREAD`, where it differs) and
+    (the scene's ``spread`` block), the issue's (:data:`ISSUE_SPREAD`, where it differs) and
     each class of the issue's alone (kind ``"one class"``). Records from the scene's own
     simulator with the scene's nuisance, each with its device's calibration."""
     def row(name: str, kind: str, device: DeviceSpread) -> Variant:
-        alone = dataclasses.replace(scene, device=dataclasses.replace(
-            device, devices=scene.device.devices))
+        alone = dataclasses.replace(scene, spread=dataclasses.replace(
+            device, devices=scene.spread.devices))
         return Variant(name, kind, lambda n, rng: alone.simulate(n, rng))
 
     rows = [row("nominal device", "nominal", DeviceSpread())]
-    if not scene.device.none:
-        rows.append(row("trained spread", "spread", scene.device))
-    if dataclasses.replace(scene.device, devices=ISSUE_SPREAD.devices) != ISSUE_SPREAD:
+    if not scene.spread.none:
+        rows.append(row("trained spread", "spread", scene.spread))
+    if dataclasses.replace(scene.spread, devices=ISSUE_SPREAD.devices) != ISSUE_SPREAD:
         rows.append(row("issue 21 spread", "spread", ISSUE_SPREAD))
     return rows + [row(f"{c} ±{100 * getattr(ISSUE_SPREAD, c):g} % alone", "one class",
                        DeviceSpread(**{c: getattr(ISSUE_SPREAD, c)})) for c in CLASSES]

@@ -92,11 +92,11 @@ def spread_sets(scene, nominal: dict, spread: dict, n_each: int) -> dict[str, di
     measures the whisker gets."""
     rng = np.random.default_rng([scene.seed, 10**6 + 2])
     sets = {"nominal device": nominal, "spread": spread}
-    widths = scene.device.widths(scene.preset)
+    widths = scene.spread.widths(scene.device)
     for name, width in widths.items():
         if width:
             sets[f"{name} ±{100 * width:g} % alone"] = scene.simulate(
-                n_each, rng, widths=scene.device.only(name, scene.preset))
+                n_each, rng, widths=scene.spread.only(name, scene.device))
     if any(w and name.startswith("whisker.") for name, w in widths.items()):
         sets["spread, whisker measured"] = scene.simulate(
             n_each, rng, widths={p: 0.0 if p.startswith("whisker.") else w
@@ -195,7 +195,7 @@ def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_d
     lines = [
         "# wtml bench radial", "",
         f"Dataset `{data_dir}` (scene `{manifest['scene_hash'][:12]}`), test shard(s) "
-        f"{split['test']}, the first {len(d)} of its {n_test} samples; {scene.preset} preset "
+        f"{split['test']}, the first {len(d)} of its {n_test} samples; {scene.device.name} device "
         f"(device: {_spread_text(scene)}; beam model) at "
         f"{list(scene.excitation.frequencies_hz)} Hz; noise {scene.noise.ze_relative:g} "
         f"relative on Ze; contact stiffness {scene.contact.stiffness[0]:g}–"
@@ -276,10 +276,10 @@ def _spread_table(scene, nominal: dict, methods: list, spread_dir, spread_model_
         where = f"{n_spread} fresh records of `{spread_scene}`"
     else:
         return {}, ""
-    if other.device.none or other.preset != scene.preset \
+    if other.spread.none or other.device != scene.device \
             or other.excitation.frequencies_hz != scene.excitation.frequencies_hz:
         raise ValueError(f"the device-spread scene ({spread_dir or spread_scene}) must draw "
-                         f"devices of the {scene.preset} preset from a spread, at the "
+                         f"devices of the {scene.device.name} device from a spread, at the "
                          f"frequencies {list(scene.excitation.frequencies_hz)} Hz")
     columns = [methods[3]]
     if spread_model_dir is not None and (Path(spread_model_dir) / "model.onnx").is_file():
@@ -346,7 +346,7 @@ def _met(ok: bool) -> str:
 
 
 def _spread_text(scene) -> str:
-    s = scene.device
+    s = scene.spread
     if s.none:
         return "the preset's own, no spread"
     return ", ".join(f"{c.replace('_', ' ')} ±{100 * getattr(s, c):g} %"

@@ -53,20 +53,20 @@ def device_variants(scene) -> list[Variant]:
     :data:`REFERENCE_SPREAD`, where the scene trains on none). A row of n records has n // 5
     specimens of each grade (the scene's own count would give a few records the first grades
     only)."""
-    spread = REFERENCE_SPREAD if scene.device.none else scene.device
+    spread = REFERENCE_SPREAD if scene.spread.none else scene.spread
     sets = [("nominal device", DeviceSpread(devices=spread.devices)),
-            ("devices of the trained spread" if not scene.device.none
+            ("devices of the trained spread" if not scene.spread.none
              else "devices of issue 21's spread", spread)]
     sets += [(f"{cls} ±{100 * getattr(spread, cls):g} % alone",
               DeviceSpread(devices=spread.devices, **{cls: getattr(spread, cls)}))
              for cls in CLASSES if getattr(spread, cls) > 0]
-    scenes = [(label, dataclasses.replace(scene, device=device)) for label, device in sets]
+    scenes = [(label, dataclasses.replace(scene, spread=device)) for label, device in sets]
 
     def make(s, n: int, rng):  # n // 5 specimens per grade: every grade, each record its own
         per = max(1, n // len(s.grade_table))
         return dataclasses.replace(s, specimens_per_grade=per).simulate(n, rng)
 
-    return [Variant(label, "nominal" if s.device.none else "spread",
+    return [Variant(label, "nominal" if s.spread.none else "spread",
                     lambda n, rng, s=s: make(s, n, rng)) for label, s in scenes]
 
 

@@ -439,7 +439,7 @@ class RadialDecoder(DecoderModule):
                     f"distance), got {self.hparams.table_step_um:g}")
             table = contact_table(scene, 1e-6 * self.hparams.table_step_um)
         # the reference's own values are inputs where the scene's devices differ
-        net = self._new(tensors[0].shape[1], table, device=not scene.device.none)
+        net = self._new(tensors[0].shape[1], table, device=not scene.spread.none)
         net.fit_normalization(*tensors)
         return net
 
@@ -448,7 +448,7 @@ class RadialDecoder(DecoderModule):
         preset and its products (:class:`GateParts`) at every frequency of the scene: a
         reference far from the trained devices is out of domain, whatever the decoder
         reads."""
-        device = not scene.device.none
+        device = not scene.spread.none
         return (GateParts(scene.free_ze(), device),
                 GateParts.n_feat(len(scene.excitation.frequencies_hz), device))
 

@@ -1,8 +1,8 @@
 """Lumped single-mode stand-ins for the thesis's transducers (physics.md §7).
 
-The beam model of the structure is a later piece of work; until then each preset here is a
-lumped model (:class:`~wtml.physics.lumped.LumpedTransducer`) whose parameters are chosen,
-not fitted, as follows.
+Each is a lumped model (:class:`~wtml.physics.lumped.LumpedTransducer`), shipped as a device
+file (``configs/devices/macro-lumped.yaml``, ``fluid-lumped.yaml``), whose parameters are
+chosen, not fitted, as follows.
 
 macro (§3.5, §4.1): bimorph 46×2.1 mm, two PZT layers of 0.2 mm, operated at 36 Hz, the
 first resonance with the 2.3338 g clamp.
@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from wtml.constants import EPSILON_0
+from wtml.devices import load_device
 from wtml.physics.lumped import LumpedTransducer
 
 MACRO_C0 = 3400 * EPSILON_0 * 46e-3 * 2.1e-3 / (2 * 0.2e-3)
@@ -39,9 +40,9 @@ MACRO_C0 = 3400 * EPSILON_0 * 46e-3 * 2.1e-3 / (2 * 0.2e-3)
 
 
 def macro_lumped() -> LumpedTransducer:
-    """The macro transducer with its clamp, as one mode at 36 Hz (see the module docstring)."""
-    return LumpedTransducer.from_resonance(c0=MACRO_C0, phi=1e-5, m=2e-5, f0=36.0, q=30.0,
-                                           tan_delta=0.02)
+    """The macro transducer with its clamp, as one mode at 36 Hz (see the module docstring):
+    the shipped device ``macro-lumped``."""
+    return load_device("macro-lumped").transducer()
 
 
 FLUID_SPHERE_RADIUS = 1.9e-3
@@ -52,11 +53,13 @@ FLUID_SPHERE_MASS = 2500.0 * 4 / 3 * np.pi * FLUID_SPHERE_RADIUS**3
 
 def fluid_lumped() -> LumpedTransducer:
     """The fluid sensor's bimorph and whisker as one mode, sphere excluded (module docstring):
-    with the sphere it resonates at 100 Hz free and ≈96 Hz in water."""
-    m_total = 1.9006e-4  # m + ms, from the 100 Hz / 96 Hz pair
-    return LumpedTransducer.from_resonance(
-        c0=MACRO_C0, phi=1.5e-4, m=m_total - FLUID_SPHERE_MASS,
-        f0=100.0 * np.sqrt(m_total / (m_total - FLUID_SPHERE_MASS)), q=50.0, tan_delta=0.02)
+    with the sphere it resonates at 100 Hz free and ≈96 Hz in water: the shipped device
+    ``fluid-lumped`` (``tests/test_devices.py`` derives its numbers again from the docstring's)."""
+    return load_device("fluid-lumped").transducer()
+
+
+FLUID_TOTAL_MASS = 1.9006e-4
+"""kg: the fluid transducer's modal mass with the sphere, from the 100 Hz / 96 Hz pair."""
 
 
 PRESETS = {"macro": macro_lumped, "fluid": fluid_lumped}

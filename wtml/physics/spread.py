@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from wtml.devices import BeamDevice
 from wtml.physics.beam import BeamTransducer, contact_transduction_matrices, device_forms
 from wtml.physics.beam_presets import build, device_parameters
 
@@ -68,7 +69,7 @@ class DeviceSpread:
         """Whether every width is zero (every device is the preset)."""
         return all(getattr(self, c) == 0 for c in CLASSES)
 
-    def only(self, parameter: str, preset: str) -> dict[str, float]:
+    def only(self, parameter: str, preset: BeamDevice | str) -> dict[str, float]:
         """Half-width of each of ``preset``'s parameters with all but ``parameter`` at zero
         (for a one-parameter-at-a-time study)."""
         widths = self.widths(preset)
@@ -76,13 +77,13 @@ class DeviceSpread:
             raise ValueError(f"parameter must be one of {sorted(widths)}, got {parameter!r}")
         return {p: w if p == parameter else 0.0 for p, w in widths.items()}
 
-    def widths(self, preset: str) -> dict[str, float]:
-        """Half-width of each of ``preset``'s named parameters."""
+    def widths(self, preset: BeamDevice | str) -> dict[str, float]:
+        """Half-width of each of ``preset``'s named parameters (a device, or its name)."""
         return {p: getattr(self, cls) for p, cls in device_parameters(preset).items()}
 
 
-def draw_factors(preset: str, widths: dict[str, float], n: int, rng: np.random.Generator
-                 ) -> dict[str, np.ndarray]:
+def draw_factors(preset: BeamDevice | str, widths: dict[str, float], n: int,
+                 rng: np.random.Generator) -> dict[str, np.ndarray]:
     """``n`` devices' factors (actual / nominal), each parameter ``(n,)`` uniform on
     ``1 ± width``; exactly 1 where the width is 0. Draws in the preset's parameter order."""
     if n < 1:
@@ -91,7 +92,7 @@ def draw_factors(preset: str, widths: dict[str, float], n: int, rng: np.random.G
             for p in device_parameters(preset)}
 
 
-def devices(preset: str, factors: dict[str, np.ndarray]) -> list[BeamTransducer]:
+def devices(preset: BeamDevice | str, factors: dict[str, np.ndarray]) -> list[BeamTransducer]:
     """The beam model of each drawn device (``factors`` from :func:`draw_factors`)."""
     n = len(next(iter(factors.values())))
     return [build(preset, factors={p: float(v[i]) for p, v in factors.items()})

@@ -37,6 +37,7 @@ from wtml.baselines.fluid_classical import band_pseudo_inverse
 from wtml.decoders.checkpoint import load_decoder
 from wtml.decoders.domain import QUANTILE, Gated
 from wtml.decoders.layers import StandardPolynomial, ZmFromZe
+from wtml.devices import identity
 from wtml.physics.twoport import flat_parts
 from wtml.runtime.metadata import (  # noqa: F401  (the names this module has always had)
     FLUID_INPUTS,
@@ -46,7 +47,7 @@ from wtml.runtime.metadata import (  # noqa: F401  (the names this module has al
     RADIAL_INPUTS,
     write_manifest,
 )
-from wtml.scenes import config_hash, scene_from_dict
+from wtml.scenes import config_hash, device_of, scene_from_dict
 
 REFERENCES = {
     "fluid": {"calibration": "the device's calibrated T (whisker with its sphere) at the "
@@ -202,7 +203,8 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     metadata = {p.name: {m.key: m.value for m in onnx.load(str(p)).metadata_props}
                 for p in paths.values() if p.suffix == ".onnx"}
     paths["manifest"] = write_manifest(out, paths, metadata, task=task,
-                                       scene_hash=config_hash(scene), version=__version__)
+                                       scene_hash=config_hash(scene),
+                                       device=identity(device_of(scene)), version=__version__)
     return paths
 
 

@@ -25,11 +25,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from wtml.devices import DeviceIdentity
 from wtml.files import FileError, inside, parse_json, read_json, regular_file, sha256
 from wtml.schema import SchemaError, bounded, build, one_of
 
 MANIFEST = "manifest.json"
-MANIFEST_FORMAT = 1
+MANIFEST_FORMAT = 2
 MODEL_MAX_BYTES = 512 * 1024**2
 """Bytes: the largest graph or sample file an export folder may hold."""
 REDO = "export it again with `wtml export --checkpoint <last.ckpt> --out <folder>`"
@@ -415,6 +416,7 @@ class ExportManifest:
     wtml_version: str
     task: str = one_of(*TASKS)
     scene_hash: str
+    device: DeviceIdentity
     files: tuple[ExportFile, ...]
     metadata: dict
 
@@ -450,17 +452,30 @@ class ExportManifest:
         return next((f for f in self.files if f.kind == kind), None)
 
 
+def scene_device(scene: dict) -> dict:
+    """The identity (``{"name", "sha256"}``, :func:`wtml.devices.identity`) of the device in a
+    scene mapping (``scene["device"]``, the fluid scene's ``scene["transducer"]["device"]``)."""
+    device = scene.get("device")
+    if not isinstance(device, dict):
+        device = (scene.get("transducer") or {}).get("device")
+    if not isinstance(device, dict) or not isinstance(device.get("name"), str):
+        raise _fail("scene.device", "must hold the device's mapping (its name and values)")
+    return {"name": device["name"], "sha256": scene_hash(device)}
+
+
 def write_manifest(folder: str | Path, files: dict[str, Path], metadata: dict[str, dict],
-                   *, task: str, scene_hash: str, version: str) -> Path:
+                   *, task: str, scene_hash: str, device: dict, version: str) -> Path:
     """Write ``folder/manifest.json`` listing ``files`` (``{kind: path}``, each inside
-    ``folder``) with sha256 and size, and each graph's ``metadata`` (``{file name: {key:
-    string}}``); atomically (a temporary file renamed), so that a folder whose export was
-    interrupted has no manifest and is refused."""
+    ``folder``) with sha256 and size, the ``device`` the scene simulated (``{"name",
+    "sha256"}``) and each graph's ``metadata`` (``{file name: {key: string}}``);
+    atomically (a temporary file renamed), so that a folder whose export was interrupted has
+    no manifest and is refused."""
     folder = Path(folder)
     listed = [{"name": Path(p).name, "kind": kind, "sha256": sha256(p),
                "bytes": Path(p).stat().st_size} for kind, p in files.items()]
     data = {"format": MANIFEST_FORMAT, "wtml_version": version, "task": task,
-            "scene_hash": scene_hash, "files": listed, "metadata": metadata}
+            "scene_hash": scene_hash, "device": device, "files": listed,
+            "metadata": metadata}
     build(ExportManifest, data)  # what is written is what is read
     tmp = folder / f".{MANIFEST}.tmp"
     tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
@@ -481,6 +496,9 @@ def read_manifest(folder: str | Path) -> ExportManifest:
         raise FileError(f"{path}: missing: not an export folder of this wtml (made by an "
                         f"older one, or not by `wtml export`, or an export interrupted); {REDO}")
     data = read_json(path, what="export manifest")
+    if isinstance(data, dict) and data.get("format") == 1:
+        raise FileError(f"{path}: format: 1, exported by an older wtml (it names no device); "
+                        f"{REDO}")
     try:
         return build(ExportManifest, data)
     except SchemaError as err:

@@ -39,9 +39,10 @@ from wtml.runtime.metadata import (
     check_graph,
     graph_metadata,
     read_manifest,
+    scene_device,
     verified_bytes,
 )
-from wtml.schema import SchemaError
+from wtml.schema import SchemaError, to_dict
 from wtml.signals import phasor_lsq
 
 INPUT_FORMATS = """\
@@ -486,6 +487,10 @@ def load_export(model_dir: str | Path, *, stream: bool = False, threads: int = 0
                               f"so), got {model.meta.kind!r}; {REDO}")
         models.append(model)
     first = models[0]
+    if scene_device(first.meta.scene) != to_dict(manifest.device):
+        raise SchemaError(f"{model_dir / manifest.entry('decoder').name}: metadata scene's "
+                          f"device is not {MANIFEST}'s {manifest.device.name} "
+                          f"{manifest.device.sha256[:12]}…; {REDO}")
     for kind, model in zip(kinds, models, strict=True):
         where = model_dir / manifest.entry(kind).name
         for key, want, got in (("task", manifest.task, model.task),
@@ -499,6 +504,29 @@ def load_export(model_dir: str | Path, *, stream: bool = False, threads: int = 0
                 raise SchemaError(f"{where}: metadata {key}: not the decoder's "
                                   f"({manifest.entry('decoder').name}); {REDO}")
     return tuple(models)
+
+
+def check_device(model_dir: str | Path, device: str | Path) -> None:
+    """Refuse an export folder trained for another device than ``device`` (a device file's
+    path or a shipped name): names and content hashes compared.
+
+    Raises:
+        InputError: one line naming both devices and what to do.
+    """
+    from wtml.devices import identity, load_device
+
+    model_dir = Path(model_dir)
+    if not model_dir.is_dir():
+        raise InputError(f"{model_dir}: no such model folder; make one with "
+                         "`wtml export --checkpoint <last.ckpt> --out <folder>`")
+    theirs = read_manifest(model_dir).device
+    mine = identity(load_device(device))
+    if (theirs.name, theirs.sha256) != (mine["name"], mine["sha256"]):
+        same = " (same name, other values)" if theirs.name == mine["name"] else ""
+        raise InputError(f"--device {device}: {model_dir} was trained for device "
+                         f"{theirs.name!r} ({theirs.sha256[:12]}…), this is {mine['name']!r} "
+                         f"({mine['sha256'][:12]}…){same}; train and export a decoder on a "
+                         f"scene with `device: {device}`")
 
 
 def task_of(model_dir: str | Path) -> str:

@@ -56,9 +56,39 @@ def scene_from_dict(data: Any, path: str = ""
     if not isinstance(task, str) or task not in SCENES:
         raise SceneError(f"{path + '.' if path else ''}task: must be one of {sorted(SCENES)}, "
                          f"got {task!r:.80}")
-    return build(SCENES[task], data, path)
+    return build(SCENES[task], legacy_keys(data), path)
+
+
+def device_of(scene: Any) -> Any:
+    """The device a scene simulates: ``scene.device`` (radial, onset, texture) or
+    ``scene.transducer.device`` (fluid)."""
+    return scene.transducer.device if isinstance(scene, FluidScene) else scene.device
+
+
+LUMPED_PRESETS = {"fluid": "fluid-lumped", "macro": "macro-lumped"}
+"""The fluid scene's ``transducer.preset`` names and the device files that hold them."""
+
+
+def legacy_keys(data: Mapping) -> dict:
+    """A scene written before device files, in today's keys: ``preset: micro`` is
+    ``device: micro``; a ``device:`` mapping without a ``kind`` (the manufacturing spread's
+    half-widths) is ``spread:``; the fluid scene's ``transducer.preset: fluid`` is
+    ``transducer.device: fluid-lumped``. Anything else is left to the schema to judge."""
+    out = dict(data)
+    old = out.get("device")
+    if isinstance(old, Mapping) and "kind" not in old and "spread" not in out:
+        out["spread"] = out.pop("device")
+    if "preset" in out and "device" not in out:
+        out["device"] = out.pop("preset")
+    spec = out.get("transducer")
+    if isinstance(spec, Mapping) and "preset" in spec and "device" not in spec:
+        spec = dict(spec)
+        name = spec.pop("preset")
+        spec["device"] = LUMPED_PRESETS.get(name, name) if isinstance(name, str) else name
+        out["transducer"] = spec
+    return out
 
 
 __all__ = ["SCENES", "FluidScene", "OnsetScene", "RadialScene", "SceneError", "TextureScene",
-           "config_hash",
+           "config_hash", "device_of", "legacy_keys",
            "load_scene", "scene_from_dict", "to_dict"]

@@ -13,7 +13,7 @@ magnitude of water's load at the band centre. This is an error two-port on the m
 so the calibrated classical path sees exactly that error, and the decoder sees the same Ze.
 Noise: complex Gaussian on Ze with relative std ``noise.ze_relative``.
 
-Manufacturing spread (``device``): each record's device is drawn around the preset, each
+Manufacturing spread (``spread``): each record's device is drawn around the preset, each
 lumped parameter and the sphere's radius scaled by ``1 + u``, ``u`` uniform in ``±spread``
 (:class:`DeviceSpread`). The user calibrates their own device with the sphere mounted (the
 calibration loads of physics.md §4), so each record's calibrated T is its own device's
@@ -29,12 +29,12 @@ from typing import ClassVar
 
 import numpy as np
 
+from wtml.devices import LumpedDevice, shipped
 from wtml.interface import OutputRange
 from wtml.physics import cascade, tip_mass, ze_from_zm
 from wtml.physics.fluids import glycerol_water, water
 from wtml.physics.loads import stokes_sphere
 from wtml.physics.lumped import LumpedTransducer
-from wtml.physics.presets import PRESETS
 from wtml.schema import SceneError, bounded, one_of
 from wtml.signals import complex_noise
 
@@ -45,7 +45,7 @@ _LUMPED_FIELDS = ("c0", "phi", "k", "m", "c", "tan_delta")
 class TransducerSpec:
     """Which lumped preset, and any of its parameters overridden (SI units)."""
 
-    preset: str = one_of(*PRESETS, default="fluid")
+    device: LumpedDevice = field(default_factory=shipped("fluid-lumped"))
     overrides: dict = field(default_factory=dict)
 
     def check(self, path: str) -> None:
@@ -61,7 +61,7 @@ class TransducerSpec:
             raise SceneError(f"{path}.overrides: {err}") from None
 
     def build(self) -> LumpedTransducer:
-        base = PRESETS[self.preset]()
+        base = self.device.transducer()
         params = {k: getattr(base, k) for k in _LUMPED_FIELDS} | dict(self.overrides)
         return LumpedTransducer(**params)
 
@@ -185,7 +185,7 @@ class FluidScene:
     fluid: FluidRange = field(default_factory=FluidRange)
     noise: NoiseSpec = field(default_factory=NoiseSpec)
     nuisance: NuisanceSpec = field(default_factory=NuisanceSpec)
-    device: DeviceSpread = field(default_factory=DeviceSpread)
+    spread: DeviceSpread = field(default_factory=DeviceSpread)
 
     def check(self, path: str) -> None:
         if self.shards > self.samples:
@@ -241,9 +241,9 @@ class FluidScene:
         sigma = self.nuisance.calibration_error / np.sqrt(2)
         alpha = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
         beta = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
-        factors = self.device.draw(n, rng)  # all ones, nothing drawn, without a spread
+        factors = self.spread.draw(n, rng)  # all ones, nothing drawn, without a spread
         # the preset: one T for every sample
-        t_cal = self.device_t(factors) if self.device.any() else self.calibrated_t()
+        t_cal = self.device_t(factors) if self.spread.any() else self.calibrated_t()
         radius = self.sphere.radius * factors["sphere_radius"]
         zm = stokes_sphere(eta[:, None], rho[:, None], radius[:, None], omega)
         zm_seen = (1 + alpha[:, None]) * zm + beta[:, None] * self.reference_zm()

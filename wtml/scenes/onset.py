@@ -21,7 +21,7 @@ that much, and no method sees it (the classical path and the decoders use the ca
 
 The device (issue 21 §1): with a ``device:`` block (:class:`wtml.physics.spread.DeviceSpread`,
 relative half-widths of uniform tolerance bands around the preset; all zero by default) each
-record's transducer is drawn from the preset's manufacturing spread: ``device.devices`` built
+record's transducer is drawn from the preset's manufacturing spread: ``spread.devices`` built
 devices per call of :meth:`OnsetScene.simulate`, the records assigned to them at random, each
 device's modal model ``ModalTransducer.from_beam(build(preset, factors=...), n_modes)``. Every
 record carries what its user measures on their own device when it is calibrated (physics.md
@@ -45,8 +45,9 @@ from typing import ClassVar
 import numpy as np
 
 import wtml.signals.acquisition as acq  # as a module: it imports wtml.schema
+from wtml.devices import BeamDevice, shipped
 from wtml.interface import OutputRange
-from wtml.physics.beam_presets import PRESETS, build
+from wtml.physics.beam_presets import build
 from wtml.physics.contact import (
     HUNT_CROSSLEY,
     LAWS,
@@ -191,7 +192,7 @@ class OnsetScene:
     seed: int = bounded(0, 2**32 - 1, default=0)
     samples: int = bounded(1, 10**7, default=480)
     shards: int = bounded(1, 10**5, default=6)
-    preset: str = one_of(*PRESETS, default="micro")
+    device: BeamDevice = field(default_factory=shipped("micro"))
     n_modes: int = bounded(1, 40, default=3)
     drive: OnsetDrive = field(default_factory=OnsetDrive)
     acquisition: Acquisition = field(default_factory=Acquisition)
@@ -199,7 +200,7 @@ class OnsetScene:
     calibration_error: float = bounded(0.0, 0.2, default=0.01)
     max_contacts: int = bounded(1, 1000, default=8)
     merge_periods: float = bounded(0.0, 100.0, default=2.0)
-    device: DeviceSpread = field(default_factory=DeviceSpread)
+    spread: DeviceSpread = field(default_factory=DeviceSpread)
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
@@ -219,7 +220,7 @@ class OnsetScene:
     def transducer(self, factors: dict[str, float] | None = None) -> ModalTransducer:
         """The calibrated modal model of the preset, or of a device off it (``factors``: each
         named parameter's actual / nominal, ``wtml.physics.spread.draw_factors``)."""
-        return ModalTransducer.from_beam(build(self.preset, factors=factors), self.n_modes)
+        return ModalTransducer.from_beam(build(self.device, factors=factors), self.n_modes)
 
     def calibration(self, model: ModalTransducer) -> tuple[np.ndarray, float]:
         """What a user measures on the device ``model`` when calibrating it: its T at the
@@ -233,14 +234,14 @@ class OnsetScene:
                       ) -> tuple[list[ModalTransducer], np.ndarray]:
         """The devices of ``n`` records and which one each record's is, ``(n,)`` int: the
         preset alone without a spread (nothing drawn from ``rng``), else
-        ``device.devices`` devices drawn from the spread (``widths``: each named parameter's
+        ``spread.devices`` devices drawn from the spread (``widths``: each named parameter's
         half-width instead of the device block's, e.g. ``DeviceSpread.only``), the records
         assigned at random; only the devices some record uses are built."""
-        widths = self.device.widths(self.preset) if widths is None else widths
+        widths = self.spread.widths(self.device) if widths is None else widths
         if not any(widths.values()):
             return [self.transducer()], np.zeros(n, int)
-        count = self.device.devices
-        factors = draw_factors(self.preset, widths, count, rng)
+        count = self.spread.devices
+        factors = draw_factors(self.device, widths, count, rng)
         which = rng.integers(0, count, n)
         used, which = np.unique(which, return_inverse=True)
         return [self.transducer({p: float(v[d]) for p, v in factors.items()})
@@ -296,7 +297,7 @@ class OnsetScene:
         """The contact point's distance from the whisker's axis, m: half its thickness (the
         preset's whisker size: a square's side, a rod's diameter), the lever of the wall's
         friction on the tip's slope."""
-        return PRESETS[self.preset]["whisker"]["size"] / 2
+        return self.device.whisker.size / 2
 
     def reference_stiffness(self) -> float:
         """Geometric mean of the contact-stiffness range, N/m (the classical threshold's)."""

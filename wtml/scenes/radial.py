@@ -15,7 +15,7 @@ thesis's three distances: ``contact.distances_um: [500, 1500, 2500]``.
 
 The device (issue 21): with a ``device:`` block (``wtml.physics.spread.DeviceSpread``, relative
 half-widths of uniform tolerance bands; all zero by default, the preset itself) each record's
-transducer is drawn from the preset's manufacturing spread (``device.devices`` devices per
+transducer is drawn from the preset's manufacturing spread (``spread.devices`` devices per
 simulated batch, records assigned at random), and each record also carries ``ref``: the free
 (untouched) whisker's Ze of its device at the same tones, the reference a user measures when
 the device is set up, with its own measurement noise (``noise.reference_relative``). With no
@@ -30,8 +30,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from wtml.devices import BeamDevice, shipped
 from wtml.interface import OutputRange
-from wtml.physics.beam_presets import PRESETS, build
+from wtml.physics.beam_presets import build
 from wtml.physics.spread import DeviceSpread, device_ze, devices, draw_factors
 from wtml.schema import SceneError, bounded, one_of
 from wtml.signals import complex_noise
@@ -92,28 +93,28 @@ class RadialScene:
     seed: int = bounded(0, 2**32 - 1, default=0)
     samples: int = bounded(1, 10**8, default=240000)
     shards: int = bounded(1, 10**5, default=8)
-    preset: str = one_of(*PRESETS, default="micro")
+    device: BeamDevice = field(default_factory=shipped("micro"))
     excitation: ToneSpec = field(default_factory=ToneSpec)
     contact: ContactSpec = field(default_factory=ContactSpec)
     noise: RadialNoise = field(default_factory=RadialNoise)
-    device: DeviceSpread = field(default_factory=DeviceSpread)
+    spread: DeviceSpread = field(default_factory=DeviceSpread)
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
         if self.shards > self.samples:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
-        whisker = 1e6 * self.whisker_length_m() * (1 - self.device.length)
+        whisker = 1e6 * self.whisker_length_m() * (1 - self.spread.length)
         for key, values in (("distance_um", self.contact.distance_um),
                             ("distances_um", self.contact.distances_um)):
             if values and max(values) >= whisker:
                 raise SceneError(f"{pre}contact.{key}: must stay below the whisker length "
-                                 f"{whisker:g} µm (its shortest in device.length), got "
+                                 f"{whisker:g} µm (its shortest in spread.length), got "
                                  f"{max(values):g}")
 
     def whisker_length_m(self) -> float:
         """Length of the preset's whisker (its last beam segment), m."""
-        return build(self.preset).segments[-1].length
+        return build(self.device).segments[-1].length
 
     def reference_stiffness(self) -> float:
         """The contact stiffness at the middle of its log-uniform range (geometric mean), N/m."""
@@ -137,7 +138,7 @@ class RadialScene:
 
     def transducer(self):
         """The preset's beam model (built once per call)."""
-        return build(self.preset)
+        return build(self.device)
 
     def ze_of(self, distance: np.ndarray, stiffness: np.ndarray, transducer=None) -> np.ndarray:
         """Noise-free free-tip Ze (Ω) for contacts at ``distance`` (m from the tip) with
@@ -165,16 +166,16 @@ class RadialScene:
         else:
             d = 1e-6 * rng.uniform(*c.distance_um, n)
         k = np.exp(rng.uniform(*np.log(c.stiffness), n))
-        widths = self.device.widths(self.preset) if widths is None else widths
+        widths = self.spread.widths(self.device) if widths is None else widths
         if not any(widths.values()):
             tr = self.transducer()
             ze = self.ze_of(d, k, tr)
             ref = np.broadcast_to(self.free_ze(tr), ze.shape)
         else:
-            count = self.device.devices
-            factors = draw_factors(self.preset, widths, count, rng)
+            count = self.spread.devices
+            factors = draw_factors(self.device, widths, count, rng)
             which = rng.integers(0, count, n)
-            free, ze = device_ze(devices(self.preset, factors), self.excitation.omega, which, d,
+            free, ze = device_ze(devices(self.device, factors), self.excitation.omega, which, d,
                                  k)
             ref = free[which]
         ze = complex_noise(ze, self.noise.ze_relative, rng)

@@ -15,7 +15,7 @@ N, θ, and the device's coupling (calibration error, times the temperature drift
 ``acquisition.effects``). Both channels go through a 24-bit ADC with noise and the effects of
 :mod:`wtml.signals.acquisition`; the current through an I-V converter.
 
-Manufacturing spread (``device``, :class:`~wtml.physics.spread.DeviceSpread`): each record's
+Manufacturing spread (``spread``, :class:`~wtml.physics.spread.DeviceSpread`): each record's
 transducer is drawn around the preset (``min(device.devices, n)`` devices per call of
 :meth:`TextureScene.simulate`, records assigned to them at random), each its own modal model
 ``ModalTransducer.from_beam(build(preset, factors=...), n_modes)``. The user calibrates their
@@ -44,6 +44,7 @@ from typing import ClassVar
 import numpy as np
 from scipy.signal import resample_poly
 
+from wtml.devices import BeamDevice, shipped
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, grains, pad_grains
@@ -215,7 +216,7 @@ class TextureScene:
     shards: int = bounded(1, 10**5, default=6)
     grades: str = one_of("thesis", "fepa", default="thesis")
     specimens_per_grade: int = bounded(1, 1000, default=2)
-    preset: str = one_of("macro", default="macro")
+    device: BeamDevice = field(default_factory=shipped("macro"))
     n_modes: int = bounded(1, 40, default=14)
     reach_m: float = bounded(1e-4, 0.1, default=5e-3)
     drive: TextureDrive = field(default_factory=TextureDrive)
@@ -225,7 +226,7 @@ class TextureScene:
         sample_rate_hz=51200.0, e_full_scale_v=20.0, i_full_scale_a=1e-4, e_noise_v=1e-4,
         i_noise_a=2e-8))
     calibration_error: float = bounded(0.0, 0.2, default=0.01)
-    device: DeviceSpread = field(default_factory=DeviceSpread)
+    spread: DeviceSpread = field(default_factory=DeviceSpread)
     oversample: int = bounded(1, 16, default=2)
     """The simulation steps at ``oversample`` × the sampling rate (the asperities' impulses
     land on the step grid: at 102.4 kS/s halving the step moves the current's phasor by less
@@ -282,7 +283,7 @@ class TextureScene:
     def transducer(self, factors: dict[str, float] | None = None) -> ModalTransducer:
         """The calibrated modal model: the preset's, or with ``factors`` (actual / nominal,
         :func:`~wtml.physics.spread.draw_factors`) a device off it."""
-        return ModalTransducer.from_beam(build(self.preset, factors=factors), self.n_modes)
+        return ModalTransducer.from_beam(build(self.device, factors=factors), self.n_modes)
 
     CALIBRATION_POINTS: ClassVar[int] = 5
 
@@ -307,10 +308,10 @@ class TextureScene:
         """The records' devices: ``min(device.devices, n)`` modal models drawn from the
         spread and each record's index into them ``(n,)``; with no spread, the preset alone
         and nothing drawn from ``rng``."""
-        if self.device.none:
+        if self.spread.none:
             return [self.transducer()], np.zeros(n, int)
-        k = min(self.device.devices, n)
-        factors = draw_factors(self.preset, self.device.widths(self.preset), k, rng)
+        k = min(self.spread.devices, n)
+        factors = draw_factors(self.device, self.spread.widths(self.device), k, rng)
         models = [self.transducer({p: float(v[j]) for p, v in factors.items()})
                   for j in range(k)]
         return models, rng.permutation(np.arange(n) % k)

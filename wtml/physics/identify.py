@@ -262,8 +262,11 @@ def resonance_table(measured: Sweep, fitted_ze: np.ndarray, *, prominence: float
         for kind, which in (("resonance", "admittance"), ("antiresonance", "impedance")):
             n = sum(r["kind"] == kind for r in meas)
             if n:
-                poles[kind], got = vector_fit_poles(measured.frequency_hz, measured.ze,
-                                                    kind=which, n_complex=n + 1)
+                try:
+                    poles[kind], got = vector_fit_poles(measured.frequency_hz, measured.ze,
+                                                        kind=which, n_complex=n + 1)
+                except (ValueError, np.linalg.LinAlgError) as err:  # a cross-check only
+                    got = [f"VectorFitting failed ({' '.join(str(err).split())[:120]})"]
                 notes += [f"{which}: {w}" for w in got]
     table = []
     for r in meas:
@@ -375,7 +378,7 @@ class DeviceFit:
             params[name] = entry
         corr = self.correlation()
         names = list(self.free)
-        return {
+        return _finite({
             "parameters": params,
             "fixed": {k: v for k, v in self.factors.items() if k not in self.free},
             "correlation": {a: {b: float(corr[i, j]) for j, b in enumerate(names)}
@@ -387,7 +390,7 @@ class DeviceFit:
             "notes": self.notes,
             "unidentifiable": self.unidentifiable,
             "provenance": {"files": self.measurements.files()},
-        }
+        })
 
     def plot(self, path: str | Path) -> Path:
         """Bode plot (PNG) of measured against fitted |Ze| and phase, every sweep."""
@@ -418,6 +421,18 @@ class DeviceFit:
         fig.savefig(path, dpi=120)
         plt.close(fig)
         return path
+
+
+def _finite(x):
+    """``x`` with every non-finite float (an unbounded Q, a singular covariance) as None, so
+    that strict JSON holds it."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_finite(v) for v in x]
+    if isinstance(x, float | np.floating):
+        return float(x) if math.isfinite(x) else None
+    return x
 
 
 def _describe(m: Measurements) -> str:

@@ -317,3 +317,33 @@ def test_clamped_sweep_and_tip_velocity_enter_the_fit():
     # three terms ~9.5σ off among ~800 residuals: +0.34 on the reduced χ² (0.98 -> 1.32)
     assert worse.reduced_chi2 > fit.reduced_chi2 + 0.2
     assert worse.residual_rms()["tip_velocity"] > 0.03
+
+
+def test_load_measurements_from_files(tmp_path):
+    """Every input of §2 from files (a free .csv, a clamped .s1p, a pin's sweep, a tip
+    velocity CSV), their sha256 in the report's provenance; a bad tip velocity refused with
+    one line naming the line and column."""
+    from wtml.physics.identify import clamped_ze
+    from wtml.physics.measured import load_measurements, read_tip_velocity
+
+    tr = micro({})
+    w = 2 * np.pi * NARROW
+    free = write_csv(tmp_path / "free.csv", NARROW, free_ze(tr, w))
+    clamped = write_s1p(tmp_path / "clamped.s1p", NARROW, clamped_ze(tr, w))
+    pin = write_csv(tmp_path / "pin.csv", NARROW, contact_ze(tr, w, 1e-3, 2e4), form="ma")
+    tip = tmp_path / "tip.csv"
+    tip.write_text("# vibrometer\nfrequency_hz,velocity_m_s_per_v\n100,2.1e-4\n300,1.1e-3\n")
+    m = load_measurements(free, sigma=1e-4, clamped=clamped, contacts=[(1e-3, pin, 2e4)],
+                          tip_velocity=tip, hue0=1.3e-6)
+    assert m.contacts[0].stiffness == 2e4 and m.clamped.sigma == 1e-4
+    np.testing.assert_allclose(m.contacts[0].sweep.ze, contact_ze(tr, w, 1e-3, 2e4),
+                               rtol=1e-13)
+    assert [f["role"] for f in m.files()] == ["free", "clamped", "contact at 1 mm",
+                                              "tip velocity"]
+    assert all(f["sha256"] == sha256(f["path"]) for f in m.files())
+    tip.write_text("frequency_hz,velocity_m_s_per_v\n100,-2e-4\n")
+    with pytest.raises(FileError, match=r"tip\.csv: line 2: column 'velocity_m_s_per_v' = "
+                                        r"-0\.0002 must be > 0$"):
+        read_tip_velocity(tip)
+    with pytest.raises(ValueError, match=r"^contacts\[0\]: give \(distance_m, path\)"):
+        load_measurements(free, contacts=[(1e-3,)])

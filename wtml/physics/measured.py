@@ -29,7 +29,7 @@ import numpy as np
 
 from wtml.files import FileError, regular_file, sha256
 
-MEASUREMENT_MAX_BYTES = 64 * 1024**2
+MEASUREMENT_MAX_BYTES = 16 * 1024**2
 """Bytes: the largest sweep file read (an analyser's sweep is kilobytes)."""
 
 _FORMS = {"ri": ("re_ohm", "im_ohm"), "ma": ("magnitude_ohm", "phase_deg")}
@@ -103,12 +103,15 @@ class TipVelocity:
 
     Attributes:
         frequency_hz: shape ``(n,)``; velocity_per_volt: m/s/V, shape ``(n,)`` (its magnitude
-        is fitted: a vibrometer's phase reference is seldom the drive's); sigma: relative.
+        is fitted: a vibrometer's phase reference is seldom the drive's); sigma: relative;
+        source, sha256: the file it came from, if any.
     """
 
     frequency_hz: np.ndarray
     velocity_per_volt: np.ndarray
     sigma: float = 0.01
+    source: str = ""
+    sha256: str = ""
 
     def __post_init__(self) -> None:
         f = np.atleast_1d(np.asarray(self.frequency_hz, dtype=float))
@@ -153,6 +156,7 @@ class Measurements:
         """The files behind these measurements: role, path and sha256."""
         roles = [("free", self.free), ("clamped", self.clamped)]
         roles += [(f"contact at {1e3 * c.distance:g} mm", c.sweep) for c in self.contacts]
+        roles.append(("tip velocity", self.tip_velocity))
         return [{"role": role, "path": s.source, "sha256": s.sha256}
                 for role, s in roles if s is not None and s.source]
 
@@ -171,13 +175,12 @@ def _number(path: Path, line: int, column: str, cell: str | None) -> float:
     return value
 
 
-def read_csv(path: str | Path, *, sigma: float = 1e-3) -> Sweep:
-    """A sweep from CSV (module docstring for the columns).
-
-    Raises:
-        FileError: one line naming the file, and the line and column where there is one.
-    """
-    path = regular_file(path, what="sweep CSV", max_bytes=MEASUREMENT_MAX_BYTES)
+def _read_table(path: str | Path, what: str, forms: dict[str, tuple[str, ...]],
+                allowed: str, positive: tuple[str, ...] = ()) -> tuple[str, np.ndarray]:
+    """The header's form (a key of ``forms``: the columns besides ``frequency_hz``) and the
+    values ``(n_rows, 1 + n_columns)`` of a small CSV, every cell checked (module
+    docstring); ``positive``: columns that must be > 0."""
+    path = regular_file(path, what=what, max_bytes=MEASUREMENT_MAX_BYTES)
     rows: list[tuple[int, list[str]]] = []
     try:
         with open(path, newline="", encoding="utf-8") as fh:
@@ -187,38 +190,49 @@ def read_csv(path: str | Path, *, sigma: float = 1e-3) -> Sweep:
                 rows.append((n, next(csv.reader([text]))))
     except (OSError, UnicodeDecodeError, csv.Error) as err:
         raise FileError(f"{path}: not a readable CSV ({err})") from None
-    allowed = "frequency_hz with re_ohm, im_ohm or with magnitude_ohm, phase_deg"
     if not rows:
-        raise FileError(f"{path}: empty; a sweep CSV needs a header ({allowed}) and rows")
+        raise FileError(f"{path}: empty; a {what} needs a header ({allowed}) and rows")
     header_line, header = rows[0]
     names = [h.strip() for h in header]
-    form = next((k for k, cols in _FORMS.items() if set(cols) <= set(names)), None)
-    if "frequency_hz" not in names or form is None:
+    found = [k for k, cols in forms.items() if set(cols) <= set(names)]
+    if "frequency_hz" not in names or not found:
         raise FileError(f"{path}: line {header_line}: the header must name {allowed}; got "
                         f"{names[:6]}")
-    both = all(set(c) <= set(names) for c in _FORMS.values())
-    if both:
-        raise FileError(f"{path}: line {header_line}: give re_ohm, im_ohm or magnitude_ohm, "
-                        "phase_deg, not both")
-    cols = ("frequency_hz", *_FORMS[form])
+    if len(found) > 1:
+        raise FileError(f"{path}: line {header_line}: give one of {allowed}, not both")
+    form = found[0]
+    cols = ("frequency_hz", *forms[form])
     index = {c: names.index(c) for c in cols}
-    values = np.empty((len(rows) - 1, 3))
+    values = np.empty((len(rows) - 1, len(cols)))
     for r, (n, row) in enumerate(rows[1:]):
         for j, c in enumerate(cols):
             k = index[c]
             values[r, j] = _number(path, n, c, row[k] if k < len(row) else None)
-        if values[r, 0] <= 0:
-            raise FileError(f"{path}: line {n}: column 'frequency_hz' = {values[r, 0]:g} must "
-                            "be > 0")
+            if (c == "frequency_hz" or c in positive) and values[r, j] <= 0:
+                raise FileError(f"{path}: line {n}: column '{c}' = {values[r, j]:g} must be "
+                                "> 0")
         if r and values[r, 0] <= values[r - 1, 0]:
             raise FileError(f"{path}: line {n}: column 'frequency_hz' = {values[r, 0]:g} must "
                             f"be above the line before ({values[r - 1, 0]:g}): frequencies "
                             "strictly increasing")
-        if form == "ma" and values[r, 1] <= 0:
-            raise FileError(f"{path}: line {n}: column 'magnitude_ohm' = {values[r, 1]:g} "
-                            "must be > 0")
-        if form == "ri" and values[r, 1] == 0 and values[r, 2] == 0:
-            raise FileError(f"{path}: line {n}: Ze = 0 Ω (re_ohm and im_ohm both 0)")
+    return form, values
+
+
+def read_csv(path: str | Path, *, sigma: float = 1e-3) -> Sweep:
+    """A sweep from CSV (module docstring for the columns).
+
+    Raises:
+        FileError: one line naming the file, and the line and column where there is one.
+    """
+    form, values = _read_table(
+        path, "sweep CSV", _FORMS,
+        "frequency_hz with re_ohm, im_ohm or with magnitude_ohm, phase_deg",
+        positive=("magnitude_ohm",))
+    if form == "ri":
+        zero = np.flatnonzero((values[:, 1] == 0) & (values[:, 2] == 0))
+        if zero.size:
+            raise FileError(f"{path}: data line {zero[0] + 1}: Ze = 0 Ω (re_ohm and im_ohm "
+                            "both 0)")
     if len(values) < 2:
         raise FileError(f"{path}: {len(values)} data line(s); a sweep needs at least 2")
     if form == "ri":
@@ -226,6 +240,17 @@ def read_csv(path: str | Path, *, sigma: float = 1e-3) -> Sweep:
     else:
         ze = values[:, 1] * np.exp(1j * np.deg2rad(values[:, 2]))
     return Sweep(values[:, 0], ze, sigma, str(path), sha256(path))
+
+
+def read_tip_velocity(path: str | Path, *, sigma: float = 0.01) -> TipVelocity:
+    """Tip velocity per volt from CSV: ``frequency_hz, velocity_m_s_per_v`` (its magnitude,
+    m/s/V, > 0), refused like :func:`read_csv`."""
+    _, values = _read_table(path, "tip velocity CSV", {"v": ("velocity_m_s_per_v",)},
+                            "frequency_hz, velocity_m_s_per_v",
+                            positive=("velocity_m_s_per_v",))
+    if len(values) < 1:
+        raise FileError(f"{path}: no data line; give at least one frequency")
+    return TipVelocity(values[:, 0], values[:, 1], sigma, str(path), sha256(path))
 
 
 def write_csv(path: str | Path, sweep_or_f, ze=None, *, form: str = "ri") -> Path:
@@ -313,5 +338,30 @@ def read_sweep(path: str | Path, *, sigma: float = 1e-3) -> Sweep:
                     "magnitude_ohm, phase_deg) or a Touchstone .s1p")
 
 
+def load_measurements(free: str | Path, *, sigma: float = 1e-3, clamped: str | Path | None = None,
+                      contacts: tuple = (), hue0: float | None = None, hue0_sigma: float = 0.01,
+                      tip_velocity: str | Path | None = None, tip_sigma: float = 0.01
+                      ) -> Measurements:
+    """:class:`Measurements` from files: ``free`` and ``clamped`` sweeps (.csv or .s1p, each
+    with the stated relative uncertainty ``sigma``), ``contacts`` as ``(distance_m, path)`` or
+    ``(distance_m, path, stiffness_n_per_m)`` (rigid when not given), ``hue0`` in m/V and a
+    tip velocity CSV (:func:`read_tip_velocity`)."""
+    pins = []
+    for i, c in enumerate(contacts):
+        if len(c) not in (2, 3):
+            raise ValueError(f"contacts[{i}]: give (distance_m, path) or (distance_m, path, "
+                             f"stiffness_n_per_m), got {c!r}")
+        stiff = float(c[2]) if len(c) == 3 else math.inf
+        pins.append(ContactSweep(float(c[0]), read_sweep(c[1], sigma=sigma), stiff))
+    return Measurements(
+        read_sweep(free, sigma=sigma),
+        clamped=None if clamped is None else read_sweep(clamped, sigma=sigma),
+        hue0=hue0, hue0_sigma=hue0_sigma,
+        tip_velocity=None if tip_velocity is None else read_tip_velocity(tip_velocity,
+                                                                          sigma=tip_sigma),
+        contacts=tuple(pins))
+
+
 __all__ = ["MEASUREMENT_MAX_BYTES", "ContactSweep", "Measurements", "Sweep", "TipVelocity",
-           "read_csv", "read_s1p", "read_sweep", "write_csv", "write_s1p"]
+           "load_measurements", "read_csv", "read_s1p", "read_sweep", "read_tip_velocity",
+           "write_csv", "write_s1p"]

@@ -32,6 +32,9 @@ from wtml.files import FileError, regular_file, sha256
 MEASUREMENT_MAX_BYTES = 16 * 1024**2
 """Bytes: the largest sweep file read (an analyser's sweep is kilobytes)."""
 
+MAX_POINTS = 100_000
+"""Frequencies in one sweep at most (an impedance analyser's sweep has up to ~10 000)."""
+
 _FORMS = {"ri": ("re_ohm", "im_ohm"), "ma": ("magnitude_ohm", "phase_deg")}
 
 
@@ -57,6 +60,8 @@ class Sweep:
         where = self.source or "sweep"
         f = np.asarray(self.frequency_hz, dtype=float)
         ze = np.asarray(self.ze, dtype=complex)
+        if f.size > MAX_POINTS:
+            raise FileError(f"{where}: {f.size} frequencies; a sweep has at most {MAX_POINTS}")
         if f.ndim != 1 or ze.shape != f.shape or f.size < 2:
             raise FileError(f"{where}: frequency_hz and ze must be 1-D of one length ≥ 2, got "
                             f"{f.shape} and {ze.shape}")
@@ -362,6 +367,6 @@ def load_measurements(free: str | Path, *, sigma: float = 1e-3, clamped: str | P
         contacts=tuple(pins))
 
 
-__all__ = ["MEASUREMENT_MAX_BYTES", "ContactSweep", "Measurements", "Sweep", "TipVelocity",
-           "load_measurements", "read_csv", "read_s1p", "read_sweep", "read_tip_velocity",
-           "write_csv", "write_s1p"]
+__all__ = ["MAX_POINTS", "MEASUREMENT_MAX_BYTES", "ContactSweep", "Measurements", "Sweep",
+           "TipVelocity", "load_measurements", "read_csv", "read_s1p", "read_sweep",
+           "read_tip_velocity", "write_csv", "write_s1p"]

@@ -65,6 +65,8 @@ class IdentificationError(ValueError):
 
 
 Make = Callable[[dict[str, float]], BeamTransducer]
+MISFIT = 10.0
+"""A reduced χ² above this is reported as the model not following the measurements."""
 TIP_MASS = "tip_mass"
 """The name of the tip mass's factor among the free parameters (not one of ``make``'s)."""
 
@@ -548,7 +550,11 @@ def fit_device(make: Make, free: Mapping[str, tuple[float, float]], measurements
     smoothers_all = [[_smoother(s.frequency_hz, w) for _, s in _sweeps(m)] for w in smoothing]
 
     def fun(x: np.ndarray, smoothers=None) -> np.ndarray:
-        return residuals(predict(device(x), m), m, smoothers)
+        with np.errstate(all="ignore"):
+            r = residuals(predict(device(x), m), m, smoothers)
+        # a lossless resonance exactly on a measured frequency: a large finite miss, so that
+        # the solver steps away instead of stopping on NaN
+        return np.nan_to_num(r, nan=1e12, posinf=1e12, neginf=-1e12)
 
     x = x0
     for sm in smoothers_all:
@@ -582,6 +588,9 @@ def fit_device(make: Make, free: Mapping[str, tuple[float, float]], measurements
                     f"{lo[i]:g}–{hi[i]:g} (width {hi[i] - lo[i]:.3g}, factors): not "
                     f"identifiable from {_describe(m)}; fix it, narrow its range or measure "
                     "what shows it (contacts at known places show the whisker)")
+    misfit = (f" (and the model misses these measurements: reduced χ² {s2:.3g}, expected ≈1 "
+              "at the stated uncertainty)") if s2 > MISFIT else ""
+    problems = [p + misfit for p in problems]
     if problems and refuse:
         raise IdentificationError(problems[0])
     tr = device(x)
@@ -594,6 +603,11 @@ def fit_device(make: Make, free: Mapping[str, tuple[float, float]], measurements
                 if min(v - a, b - v) < 1e-6 * (b - a)]
     if at_bound:
         notes = notes + [f"{n}: at the edge of its range" for n in at_bound]
+    if s2 > MISFIT:
+        notes = notes + [f"reduced χ² {s2:.3g}: the model does not follow the measurements to "
+                         "their stated uncertainty (a loss law, a mode or a parameter it does "
+                         "not have, or the uncertainty understated); the standard errors are "
+                         "scaled by it"]
     return DeviceFit(factors, {n: (float(a), float(b)) for n, a, b in
                                zip(names, lo, hi, strict=True)},
                      {n: float(v) for n, v in zip(names, se, strict=True)}, cov, s2,

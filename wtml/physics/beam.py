@@ -256,14 +256,18 @@ class BeamTransducer(Structure):
         tip = np.zeros(len(theta))
         tip[-2] = 1.0
         w = omega[:, None, None]
-        d = k[None] - w**2 * m[None] + 1j * w * (alpha_r * m + beta_r * k)[None]
-        g = np.linalg.inv(d)  # (n_freq, n_dof, n_dof), symmetric
-        gb, gt = g @ tip, g @ theta
-        a, beta, delta = gb[:, -2], gt[:, -2], self.capacitance + theta @ gt.T
+        d = k[None] - w**2 * m[None]
+        if alpha_r or beta_r:
+            d = d + 1j * w * (alpha_r * m + beta_r * k)[None]
+        # D⁻¹ applied to b, Θ and each contact's n only (one LU per frequency, not an inverse)
+        vecs, stiff = contact if contact is not None else (np.zeros((0, len(theta))), None)
+        rhs = np.concatenate([tip[None], theta[None], vecs]).T  # (n_dof, 2 + n_contacts)
+        x = np.linalg.solve(d, np.broadcast_to(rhs, (len(omega),) + rhs.shape))
+        gb, gt = x[:, :, 0], x[:, :, 1]  # (n_freq, n_dof); G symmetric: Gb[-2] = bᵀGΘ etc.
+        a, beta, delta = gb[:, -2], gt[:, -2], self.capacitance + gt @ theta
         if contact is None:
             return a, beta, delta
-        vecs, stiff = contact
-        gn = np.einsum("fij,cj->cfi", g, vecs)  # (n_contacts, n_freq, n_dof)
+        gn = np.moveaxis(x[:, :, 2:], -1, 0)  # (n_contacts, n_freq, n_dof)
         nb, nt = gn[..., -2], gn @ theta
         gg = np.einsum("cfi,ci->cf", gn, vecs)
         return _spring_to_ground((a, beta, delta), nb, nt, gg, stiff)

@@ -19,7 +19,7 @@ from wtml.physics.identify import (
     fit_device,
     format_resonance_table,
     free_ze,
-    preset_nominal,
+    nominal_values,
     with_segment_losses,
 )
 from wtml.physics.measured import (
@@ -51,7 +51,7 @@ def main(out: Path) -> None:
     sweep = read_sweep(csv_path, sigma=1e-4)
     print(f"read {csv_path} and {s1p_path}: max |Δ| between them "
           f"{np.max(np.abs(read_sweep(s1p_path).ze / sweep.ze - 1)):.1e}")
-    nominal = preset_nominal("micro")
+    nominal = nominal_values("micro")
     fit = fit_device(micro, free, Measurements(sweep), nominal=nominal)
     print("\nTruth: the micro preset with these factors, its whisker's loss factor 0.035 "
           "(the bimorph's 0.0224): a loss model the fit (one loss factor) does not have;\n"

@@ -12,14 +12,15 @@ import json
 import numpy as np
 import pytest
 
+from wtml.devices import load_device
 from wtml.files import FileError, sha256
-from wtml.physics.beam_presets import build, fitted_values, sphere_mass
+from wtml.physics.beam_presets import build, sphere_mass
 from wtml.physics.identify import (
     IdentificationError,
     contact_ze,
     fit_device,
     free_ze,
-    preset_nominal,
+    nominal_values,
     with_segment_losses,
     with_tip_mass,
 )
@@ -65,7 +66,7 @@ def in_family():
     from factor 1."""
     rng = np.random.default_rng(0)
     m = measure(micro(TRUTH), WIDE, 1e-4, rng)
-    return fit_device(micro, FREE, m, nominal=preset_nominal("micro"))
+    return fit_device(micro, FREE, m, nominal=nominal_values("micro"))
 
 
 def test_fitted_back_within_standard_errors(in_family):
@@ -217,13 +218,14 @@ def test_report_is_json_with_provenance_and_a_bode_plot(tmp_path):
                      hue0_sigma=0.01)
     free = {"bimorph.length": (0.8, 1.2), "coupling": (0.8, 1.2)}
     fit = fit_device(micro, free, m, fixed={"loss_factor": 1.12, "tan_delta": 0.9},
-                     nominal=preset_nominal("micro"))
+                     nominal=nominal_values("micro"))
     report = json.loads(json.dumps(fit.report(), allow_nan=False))
     assert report["provenance"]["files"] == [{"role": "free", "path": str(path),
                                               "sha256": sha256(path)}]
     length = report["parameters"]["bimorph.length"]
     assert length["si"]["unit"] == "m"
-    assert length["si"]["value"] == pytest.approx(length["factor"] * fitted_values("micro")[0])
+    free_length = load_device("micro").bimorph.free_length
+    assert length["si"]["value"] == pytest.approx(length["factor"] * free_length)
     assert report["residual_rms"]["hue0"] < 0.01
     png = fit.plot(tmp_path / "bode.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

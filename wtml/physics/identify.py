@@ -1,7 +1,7 @@
 """Identification: a device's free parameters from what the user measures (physics.md §13).
 
-The model is any ``make(factors) -> BeamTransducer`` (a preset:
-``lambda f: build("micro", factors=f)``), ``factors`` being multipliers of named parameters
+The model is any ``make(factors) -> BeamTransducer`` (a device file:
+``lambda f: build(device, factors=f)``), ``factors`` being multipliers of named parameters
 (``wtml.physics.beam_presets.device_parameters``), with an optional point mass at the tip (a
 sphere). :func:`fit_device` adjusts the free ones, each within its stated factor range, by
 bounded least squares (``scipy.optimize.least_squares``, parameters scaled to their ranges).
@@ -614,30 +614,27 @@ def fit_device(make: Make, free: Mapping[str, tuple[float, float]], measurements
                      float(sol.cost), tr, pred, m, table, notes, nominal, problems)
 
 
-def preset_nominal(name: str) -> dict[str, tuple[float, str]]:
-    """SI value and unit at factor 1 of each parameter of a preset
-    (``wtml.physics.beam_presets``): lengths and thicknesses in m (the bimorph's PZT layer; a
-    round whisker's radius, a square one's side), moduli in Pa, d31 in m/V, loss factor and
-    tanδ unitless."""
-    from wtml.physics.beam import PiezoMaterial
-    from wtml.physics.beam_presets import LOSS, PRESETS, TAN_DELTA, fitted_values
+def nominal_values(device) -> dict[str, tuple[float, str]]:
+    """SI value and unit at factor 1 of each parameter of a beam device (a
+    :class:`~wtml.devices.BeamDevice`, a shipped name or a file's path): lengths and
+    thicknesses in m (the bimorph's free length and PZT layer; a round whisker's radius, a
+    square one's side), moduli in Pa, |d31| in m/V, loss factor and tanδ unitless."""
+    from wtml.physics.beam_presets import beam_device
 
-    p = PRESETS[name]
-    values = dict(zip(p["fit"]["parameters"], fitted_values(name), strict=True))
-    b, w = p["bimorph"], p["whisker"]
-    out = {"bimorph.length": (values.get("bimorph", b["length"]), "m"),
-           "bimorph.thickness": (b["t_piezo"], "m"),
-           "bimorph.modulus": (1 / PiezoMaterial.s11e, "Pa"),
-           "whisker.length": (values.get("whisker", w["length"]), "m"),
-           "whisker.thickness": (w["size"], "m"), "whisker.modulus": (w["material"][0], "Pa"),
-           "loss_factor": (LOSS, "1"), "tan_delta": (TAN_DELTA, "1"),
-           "coupling": (abs(PiezoMaterial.d31), "m/V")}
-    if "block" in p:
-        k = p["block"]
-        out |= {"block.length": (k["length"], "m"), "block.thickness": (k["thickness"], "m"),
-                "block.modulus": (k["material"][0], "Pa")}
-    if b["t_substrate"] > 0:
-        out["substrate.modulus"] = (b["substrate"][0], "Pa")
+    d = beam_device(device)
+    b, w = d.bimorph, d.whisker
+    out = {"bimorph.length": (b.free_length, "m"), "bimorph.thickness": (b.t_piezo, "m"),
+           "bimorph.modulus": (1 / d.piezo.s11e, "Pa"),
+           "whisker.length": (w.length, "m"), "whisker.thickness": (w.size, "m"),
+           "whisker.modulus": (w.material.modulus, "Pa"),
+           "loss_factor": (d.losses.loss_factor, "1"), "tan_delta": (d.losses.tan_delta, "1"),
+           "coupling": (abs(d.piezo.d31), "m/V")}
+    if d.block is not None:
+        k = d.block
+        out |= {"block.length": (k.length, "m"), "block.thickness": (k.thickness, "m"),
+                "block.modulus": (k.material.modulus, "Pa")}
+    if b.t_substrate > 0:
+        out["substrate.modulus"] = (b.substrate.modulus, "Pa")
     return out
 
 
@@ -651,5 +648,5 @@ def with_segment_losses(tr: BeamTransducer, losses: Mapping[str, float]) -> Beam
 
 __all__ = ["TIP_MASS", "DeviceFit", "IdentificationError", "clamped_ze", "contact_ze",
            "device_poles", "fit_device", "format_resonance_table", "free_ze", "predict",
-           "preset_nominal", "resonance_table", "resonances", "residuals", "vector_fit_poles",
+           "nominal_values", "resonance_table", "resonances", "residuals", "vector_fit_poles",
            "with_segment_losses", "with_tip_mass"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import re
 import sys
 import textwrap
@@ -103,6 +104,8 @@ def _device(args: argparse.Namespace) -> int:
             d = load_device(name)
             print(f"{name:14s} {d.kind:7s} {device_hash(d)[:12]}  {d.provenance.source[:60]}")
         return 0
+    if args.action == "fit":
+        return _device_fit(args)
     d = load_device(args.device)
     print(f"device {d.name} ({d.kind}), sha256 {device_hash(d)}")
     print(f"provenance: {d.provenance.source or 'not stated'}")
@@ -119,6 +122,35 @@ def _device(args: argparse.Namespace) -> int:
     print(f"static tip displacement per volt {1e6 * tr.static_tip_displacement_per_volt():.4g}"
           f" um/V, clamped capacitance {1e9 * abs(tr.capacitance):.4g} nF, length "
           f"{1e3 * tr.length:.4g} mm")
+    return 0
+
+
+def _device_fit(args: argparse.Namespace) -> int:
+    from wtml.device_fit import fit, format_report, write_outputs
+    from wtml.physics.measured import load_measurements
+
+    contacts = []
+    for text in args.contact or ():
+        parts = text.split(":")
+        try:
+            distance = float(parts[0]) * 1e-3
+        except ValueError:
+            distance = math.nan
+        if len(parts) not in (2, 3) or not math.isfinite(distance):
+            raise ValueError(f"--contact {text!r}: write DISTANCE_MM:FILE or "
+                             "DISTANCE_MM:FILE:STIFFNESS_N_PER_M (distance from the tip)")
+        contacts.append((distance, parts[1], *parts[2:]))
+    m = load_measurements(args.sweep, sigma=args.sigma, clamped=args.clamped,
+                          contacts=tuple(contacts), hue0=args.hue0,
+                          tip_velocity=args.tip_velocity)
+    device, result = fit(args.device, m, free=args.free)
+    print(format_report(device, result))
+    fitted = write_outputs(device, result, Path(args.out), name=args.name,
+                           plot=None if args.plot is None else Path(args.plot),
+                           report=None if args.report is None else Path(args.report))
+    print(f"fitted device {fitted.name} written to {args.out}"
+          + (f"; Bode plot {args.plot}" if args.plot else "")
+          + (f"; report {args.report}" if args.report else ""))
     return 0
 
 
@@ -317,6 +349,34 @@ def build_parser() -> argparse.ArgumentParser:
                               formatter_class=_Help)
     show.add_argument("device", help="a shipped name (micro) or a device file's path")
     show.set_defaults(func=_device)
+    dfit = dev_sub.add_parser(
+        "fit", help="fit a device file to measurements: a new device file", formatter_class=_Help,
+        description=textwrap.fill(
+            "Least squares of the device's free parameters (its identify.free block, or "
+            "--free) on log|Ze| and phase of the measured sweeps (and HUE(0), tip velocity, "
+            "contacts at known places), each parameter's standard error, the resonances "
+            "measured against fitted (and a rational fit's poles); refused, naming the "
+            "parameter, where a standard error exceeds its range.", 88))
+    dfit.add_argument("--device", required=True, help="the starting device (name or file)")
+    dfit.add_argument("--sweep", required=True,
+                      help="Ze with the tip free: .csv (frequency_hz, re_ohm, im_ohm or "
+                           "magnitude_ohm, phase_deg) or Touchstone .s1p")
+    dfit.add_argument("--clamped", default=None, help="Ze with the tip clamped (same formats)")
+    dfit.add_argument("--contact", action="append", metavar="MM:FILE[:K]",
+                      help="Ze with a pin MM mm from the tip (rigid, or K N/m); repeat")
+    dfit.add_argument("--hue0", type=float, default=None,
+                      help="static tip displacement per volt, m/V")
+    dfit.add_argument("--tip-velocity", default=None,
+                      help="tip velocity per volt: .csv (frequency_hz, re, im in m/s/V)")
+    dfit.add_argument("--sigma", type=float, default=1e-3,
+                      help="relative uncertainty of each Ze point")
+    dfit.add_argument("--free", action="append", metavar="NAME=LOW:HIGH",
+                      help="a free parameter and its factor range (overrides the file's)")
+    dfit.add_argument("--name", default=None, help="the fitted device's name")
+    dfit.add_argument("--out", required=True, help="the fitted device file (.yaml)")
+    dfit.add_argument("--plot", default=None, help="Bode plot, measured against fitted (PNG)")
+    dfit.add_argument("--report", default=None, help="the fit's report (JSON)")
+    dfit.set_defaults(func=_device)
 
     fid = verb("fidelity", "every reproduction of a thesis number in one report",
                "The presets' resonances, the calibration walkthrough's errors (Tables "

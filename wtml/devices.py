@@ -8,9 +8,9 @@ fitted free lengths); a scene's ``device:`` names one of them or gives the path 
 file. Every value is SI (units in the shipped files' comments) and checked like a scene's: one
 line naming the key path and the allowed range.
 
-A device's identity is its name and :func:`device_hash`, the sha256 of its validated contents
-(comments, key order and number spelling do not count): datasets, checkpoints and exports carry
-both, and ``wtml predict --device`` compares them.
+A device's identity is its name and :func:`device_hash`, the sha256 of its validated physical
+contents (comments, key order, number spelling, provenance and fit settings do not count):
+dataset manifests and exports carry both, and ``wtml predict --device`` compares them.
 
 Imports numpy and pyyaml only (through :mod:`wtml.schema`): the device runtime uses it.
 """
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from wtml.schema import SchemaError, bounded, build, config_hash, one_of, read_yaml
+from wtml.schema import SchemaError, bounded, build, one_of, read_yaml, to_dict
 
 DEVICES_DIR = Path(__file__).resolve().parent.parent / "configs" / "devices"
 """Where the shipped device files are (``configs/devices`` of the repository)."""
@@ -164,6 +164,29 @@ class Provenance:
 
 
 @dataclass(frozen=True)
+class FreeFactor:
+    """A parameter ``wtml device fit`` may adjust: a factor of the device's value within
+    ``[low, high]`` (``parameter``: one of ``wtml.physics.beam_presets.device_parameters``, or
+    ``tip_mass``, the sphere's mass)."""
+
+    parameter: str
+    low: float = bounded(1e-3, 1e3)
+    high: float = bounded(1e-3, 1e3)
+
+    def check(self, path: str) -> None:
+        if not self.low < 1.0 < self.high:
+            raise SchemaError(f"{path}: the range must hold factor 1 (the file's value) "
+                              f"inside: low < 1 < high, got [{self.low:g}, {self.high:g}]")
+
+
+@dataclass(frozen=True)
+class Identify:
+    """What ``wtml device fit`` adjusts when this file is its starting point."""
+
+    free: tuple[FreeFactor, ...] = ()
+
+
+@dataclass(frozen=True)
 class BeamDevice:
     """A beam transducer (physics.md §3, §7): segments bimorph [, block], whisker, with an
     optional clamp mass and tip sphere."""
@@ -178,6 +201,7 @@ class BeamDevice:
     piezo: Piezo = field(default_factory=Piezo)
     losses: Losses = field(default_factory=Losses)
     provenance: Provenance = field(default_factory=Provenance)
+    identify: Identify = field(default_factory=Identify)
 
     def check(self, path: str) -> None:
         _check_name(self.name, path)
@@ -342,9 +366,26 @@ def shipped(name: str) -> Any:
     return lambda: load_device(name)
 
 
+NOT_PHYSICS = ("provenance", "identify")
+"""A device's keys that say where it comes from or how to fit it, not what it is: outside its
+hash."""
+
+
+def mapping_hash(device: dict) -> str:
+    """sha256 of the canonical JSON of a device's mapping (as a scene or manifest stores it),
+    :data:`NOT_PHYSICS` left out."""
+    import hashlib
+    import json
+
+    physics = {k: v for k, v in device.items() if k not in NOT_PHYSICS}
+    return hashlib.sha256(json.dumps(physics, sort_keys=True, separators=(",", ":"))
+                          .encode()).hexdigest()
+
+
 def device_hash(device: Device) -> str:
-    """sha256 of the device's validated contents: its identity beside its name."""
-    return config_hash(device)
+    """sha256 of the device's validated physical contents (not its provenance or fit
+    settings): its identity beside its name."""
+    return mapping_hash(to_dict(device))
 
 
 def identity(device: Device) -> dict[str, str]:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from wtml.devices import DeviceIdentity
+from wtml.devices import DeviceIdentity, mapping_hash
 from wtml.files import FileError, inside, parse_json, read_json, regular_file, sha256
 from wtml.schema import SchemaError, bounded, build, one_of
 
@@ -460,7 +460,7 @@ def scene_device(scene: dict) -> dict:
         device = (scene.get("transducer") or {}).get("device")
     if not isinstance(device, dict) or not isinstance(device.get("name"), str):
         raise _fail("scene.device", "must hold the device's mapping (its name and values)")
-    return {"name": device["name"], "sha256": scene_hash(device)}
+    return {"name": device["name"], "sha256": mapping_hash(device)}
 
 
 def write_manifest(folder: str | Path, files: dict[str, Path], metadata: dict[str, dict],

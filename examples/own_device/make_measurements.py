@@ -1,0 +1,52 @@
+"""The shipped example's "measurements": simulated Ze of a hidden device near start.yaml.
+
+The hidden device is start.yaml with the factors in TRUTH, and a whisker lossier than its
+bimorph (a loss model the fit does not have). Written: the free-tip sweep as CSV and Touchstone
+.s1p, and Ze with a rigid pin at 1, 2 and 3 mm from the tip, each with 1e-4 relative noise.
+
+    python examples/own_device/make_measurements.py
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from wtml.physics.beam_presets import build
+from wtml.physics.identify import contact_ze, free_ze, with_segment_losses
+from wtml.physics.measured import write_csv, write_s1p
+from wtml.signals.noise import complex_noise
+
+HERE = Path(__file__).resolve().parent
+TRUTH = {"bimorph.length": 1.06, "coupling": 0.93, "loss_factor": 1.2, "tan_delta": 0.85,
+         "whisker.length": 1.03, "whisker.modulus": 0.95}
+"""The hidden device: factors of start.yaml's values."""
+WHISKER_LOSS = 0.035
+"""The hidden whisker's own loss factor (its bimorph's: 0.02 x 1.2 = 0.024)."""
+NOISE = 1e-4
+PINS_MM = (1.0, 2.0, 3.0)
+
+
+def truth():
+    """The hidden device's beam model."""
+    return with_segment_losses(build(HERE / "start.yaml", factors=TRUTH),
+                               {"whisker": WHISKER_LOSS})
+
+
+def main() -> None:
+    rng = np.random.default_rng(2026)
+    tr = truth()
+    f = np.geomspace(250.0, 3500.0, 300)
+    ze = complex_noise(free_ze(tr, 2 * np.pi * f), NOISE, rng)
+    write_csv(HERE / "free.csv", f, ze, form="ma")
+    write_s1p(HERE / "free.s1p", f, ze)
+    fp = np.geomspace(250.0, 3500.0, 150)
+    for mm in PINS_MM:
+        zp = complex_noise(contact_ze(tr, 2 * np.pi * fp, mm * 1e-3), NOISE, rng)
+        write_csv(HERE / f"pin_{mm:g}mm.csv", fp, zp)
+    print(f"wrote {HERE}/free.csv, free.s1p, pin_*mm.csv")
+
+
+if __name__ == "__main__":
+    main()

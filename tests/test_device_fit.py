@@ -1,0 +1,103 @@
+"""`wtml device fit` (issue 23 §2) on the shipped example of one's own device
+(examples/own_device): simulated measurements of a hidden device near start.yaml, fitted back;
+the fitted device file; refusals in one line."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wtml.cli import main
+from wtml.devices import load_device
+from wtml.physics.beam_presets import build
+from wtml.physics.identify import free_ze
+from wtml.physics.measured import read_sweep
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples/own_device"
+PINS = [f"--contact={mm}:{EXAMPLE}/pin_{mm}mm.csv" for mm in (1, 2, 3)]
+
+
+def _example():
+    spec = importlib.util.spec_from_file_location("make_measurements",
+                                                  EXAMPLE / "make_measurements.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_shipped_measurements_are_what_the_script_makes(tmp_path, monkeypatch):
+    """The files in examples/own_device come from make_measurements.py, bit for bit: the
+    example is reproducible and its truth is the script's."""
+    example = _example()
+    monkeypatch.setattr(example, "HERE", tmp_path)
+    (tmp_path / "start.yaml").write_text((EXAMPLE / "start.yaml").read_text())
+    example.main()
+    for name in ("free.csv", "free.s1p", "pin_1mm.csv", "pin_2mm.csv", "pin_3mm.csv"):
+        assert (tmp_path / name).read_bytes() == (EXAMPLE / name).read_bytes(), name
+
+
+def test_the_example_is_fitted_back_and_written_as_a_device_file(tmp_path, capsys):
+    """Free sweep (.s1p) and three pins at 1e-4: the in-family parameters come back within 3
+    standard errors of the hidden truth; the loss factor lands between the hidden bimorph's and
+    whisker's (the fit has one loss factor, the truth two, and the reduced χ² says so). The
+    written file reads back to a device whose free Ze is the fit's."""
+    truth = _example().TRUTH
+    out = tmp_path / "fitted.yaml"
+    assert main(["device", "fit", "--device", str(EXAMPLE / "start.yaml"), "--sweep",
+                 str(EXAMPLE / "free.s1p"), *PINS, "--sigma", "1e-4", "--out", str(out),
+                 "--plot", str(tmp_path / "bode.png"), "--report",
+                 str(tmp_path / "report.json")]) == 0
+    printed = capsys.readouterr().out
+    assert "| resonance | 337." in printed and "reduced chi2" in printed
+    report = json.loads((tmp_path / "report.json").read_text())
+    params = report["parameters"]
+    for name in ("bimorph.length", "coupling", "tan_delta", "whisker.length",
+                 "whisker.modulus"):
+        p = params[name]
+        assert abs(p["factor"] - truth[name]) < 3 * p["standard_error"], (name, p)
+    loss = params["loss_factor"]["factor"] * 0.02
+    assert 0.02 * truth["loss_factor"] < loss < 0.035
+    assert report["reduced_chi2"] > 10  # and stated: the truth's whisker has its own loss
+    assert (tmp_path / "bode.png").stat().st_size > 10_000
+    fitted = load_device(out)
+    assert fitted.name == "my-wt-fitted" and "wtml device fit of my-wt" in \
+        fitted.provenance.source
+    f = read_sweep(EXAMPLE / "free.csv").frequency_hz
+    start = load_device(EXAMPLE / "start.yaml")
+    factors = {k: params[k]["factor"] for k in params}
+    np.testing.assert_allclose(free_ze(build(fitted), 2 * np.pi * f),
+                               free_ze(build(start, factors=factors), 2 * np.pi * f),
+                               rtol=1e-9)
+
+
+@pytest.mark.parametrize(("extra", "needle"), [
+    (["--free", "whisker.length=0.9:1.1", "--free", "whisker.modulus=0.8:1.2",
+      "--free", "whisker.thickness=0.8:1.2", "--free", "bimorph.length=0.85:1.15"],
+     "whisker.modulus: standard error"),
+    (["--free", "sphere.radius=0.9:1.1"], "'sphere.radius' is not a parameter of device"),
+    (["--free", "coupling=1.1:1.3"], "coupling: the range must be 0 < low < 1 < high"),
+    (["--free", "coupling"], "--free 'coupling': write NAME=LOW:HIGH"),
+    (["--contact", "x:pin.csv"], "--contact 'x:pin.csv': write DISTANCE_MM:FILE"),
+])
+def test_a_request_it_cannot_answer_is_one_line(tmp_path, capsys, extra, needle):
+    """Refusals name what is wrong: a parameter the free sweep cannot pin (the whisker's
+    modulus and thickness trade against each other without contacts), an unknown parameter, a
+    range without factor 1 inside, a malformed option."""
+    argv = ["device", "fit", "--device", str(EXAMPLE / "start.yaml"), "--sweep",
+            str(EXAMPLE / "free.csv"), "--sigma", "1e-4", "--out", str(tmp_path / "x.yaml"),
+            *extra]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err, err
+    assert not (tmp_path / "x.yaml").exists()
+
+
+def test_the_identify_block_is_validated_like_the_rest(tmp_path):
+    text = (EXAMPLE / "start.yaml").read_text().replace(
+        "{parameter: coupling, low: 0.7, high: 1.3}", "{parameter: coupling, low: 1.1, high: 1.3}")
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=r"identify.free\[1\]: the range must hold factor 1"):
+        load_device(path)

@@ -18,7 +18,7 @@ from pathlib import Path
 import yaml
 
 from wtml.devices import BeamDevice, Identify, Provenance, Sphere, device_hash, load_device
-from wtml.physics.beam_presets import apply_factors, beam_device, build, device_parameters
+from wtml.physics.beam_presets import apply_factors, beam_device, build, fit_parameters
 from wtml.physics.identify import DeviceFit, fit_device, format_resonance_table, nominal_values
 from wtml.physics.measured import Measurements
 from wtml.schema import SchemaError, to_dict
@@ -29,7 +29,7 @@ def free_factors(device: BeamDevice, overrides: list[str] | None = None
     """``{parameter: (low, high)}``: the device file's ``identify.free``, or ``overrides``
     (``NAME=LOW:HIGH`` each) where given. Unknown names and bad ranges are one line naming
     them and the allowed names."""
-    allowed = sorted(device_parameters(device)) + (["tip_mass"] if device.sphere else [])
+    allowed = sorted(fit_parameters(device)) + (["tip_mass"] if device.sphere else [])
     if overrides:
         free = {}
         for text in overrides:

@@ -124,11 +124,14 @@ class Sphere:
 
 @dataclass(frozen=True)
 class Losses:
-    """The structural loss factor of every segment (a complex modulus ``E(1 + i η)``) and the
-    PZT's dielectric loss tangent tanδ, both dimensionless."""
+    """The structural loss factor of every segment (a complex modulus ``E(1 + i η)``), the
+    whisker's where it differs, and the PZT's dielectric loss tangent tanδ, dimensionless."""
 
     loss_factor: float = bounded(0.0, 1.0, default=0.02)
     tan_delta: float = bounded(0.0, 1.0, default=0.02)
+    whisker: float | None = bounded(0.0, 1.0, default=None)
+    """The whisker's own loss factor where it differs from the rest (a glued steel wire is
+    not the PZT); ``null``: ``loss_factor``."""
 
 
 @dataclass(frozen=True)

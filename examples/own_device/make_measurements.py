@@ -2,7 +2,10 @@
 
 The hidden device is start.yaml with the factors in TRUTH, and a whisker lossier than its
 bimorph (a loss model the fit does not have). Written: the free-tip sweep as CSV and Touchstone
-.s1p, and Ze with a rigid pin at 1, 2 and 3 mm from the tip, each with 1e-4 relative noise.
+.s1p, and Ze with a rigid pin at 1, 2 and 3 mm from the tip, each with 1e-4 relative noise (what
+`wtml device fit` reads); and, for `wtml predict` on the radial decoder trained on the fitted
+device, ``contacts.npz`` (Ze at radial.yaml's tones with a 1e4 N/m contact at the distances
+in ``distance_m``, 2e-5 noise) and ``reference.npz`` (the free whisker's Ze there, 2e-6).
 
     python examples/own_device/make_measurements.py
 """
@@ -26,6 +29,9 @@ WHISKER_LOSS = 0.035
 """The hidden whisker's own loss factor (its bimorph's: 0.02 x 1.2 = 0.024)."""
 NOISE = 1e-4
 PINS_MM = (1.0, 2.0, 3.0)
+TONES_HZ = np.array([360.0, 320.0, 340.0, 380.0, 400.0])
+"""radial.yaml's tones."""
+CONTACTS_MM = np.arange(0.2, 3.2, 0.2)
 
 
 def truth():
@@ -45,7 +51,13 @@ def main() -> None:
     for mm in PINS_MM:
         zp = complex_noise(contact_ze(tr, 2 * np.pi * fp, mm * 1e-3), NOISE, rng)
         write_csv(HERE / f"pin_{mm:g}mm.csv", fp, zp)
-    print(f"wrote {HERE}/free.csv, free.s1p, pin_*mm.csv")
+    omega = 2 * np.pi * TONES_HZ
+    ze = np.stack([contact_ze(tr, omega, mm * 1e-3, 1e4) for mm in CONTACTS_MM])
+    np.savez(HERE / "contacts.npz", frequency_hz=TONES_HZ, ze=complex_noise(ze, 2e-5, rng),
+             distance_m=CONTACTS_MM * 1e-3)
+    np.savez(HERE / "reference.npz", frequency_hz=TONES_HZ,
+             ze=complex_noise(free_ze(tr, omega), 2e-6, rng))
+    print(f"wrote {HERE}/free.csv, free.s1p, pin_*mm.csv, contacts.npz, reference.npz")
 
 
 if __name__ == "__main__":

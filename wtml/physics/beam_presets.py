@@ -86,10 +86,10 @@ def build(device: BeamDevice | str, fit_values: tuple[float, ...] | None = None,
     if fit_values is not None:
         d = d.with_lengths(dict(zip([f.name for f in d.provenance.free], fit_values,
                                     strict=True)))
-    unknown = sorted(set(factors or {}) - set(device_parameters(d)))
+    unknown = sorted(set(factors or {}) - set(fit_parameters(d)))
     if unknown:
         raise ValueError(f"factors: {unknown[0]!r} is not a parameter of device {d.name!r}; "
-                         f"allowed: {sorted(device_parameters(d))}")
+                         f"allowed: {sorted(fit_parameters(d))}")
 
     def f(key: str) -> float:
         return 1.0 if factors is None else float(factors.get(key, 1.0))
@@ -114,7 +114,9 @@ def build(device: BeamDevice | str, fit_values: tuple[float, ...] | None = None,
     segs.append(_whisker(dataclasses.replace(
         w, length=w.length * f("whisker.length"), size=w.size * f("whisker.thickness"),
         material=dataclasses.replace(w.material,
-                                     modulus=w.material.modulus * f("whisker.modulus"))), loss))
+                                     modulus=w.material.modulus * f("whisker.modulus"))),
+        (d.losses.loss_factor if d.losses.whisker is None else d.losses.whisker)
+        * f("loss_factor") * f("whisker.loss_factor")))
     masses = ()
     if with_clamp and d.clamp is not None:
         # the thesis measures the clamp from the bimorph's fixed end, i.e. the holder
@@ -146,13 +148,18 @@ def apply_factors(device: BeamDevice | str, factors: Mapping[str, float]) -> Bea
     ``build(apply_factors(d, f))`` is ``build(d, factors=f)`` (what an identified device is
     saved as)."""
     d = beam_device(device)
-    unknown = sorted(set(factors) - set(device_parameters(d)))
+    unknown = sorted(set(factors) - set(fit_parameters(d)))
     if unknown:
         raise ValueError(f"factors: {unknown[0]!r} is not a parameter of device {d.name!r}; "
-                         f"allowed: {sorted(device_parameters(d))}")
+                         f"allowed: {sorted(fit_parameters(d))}")
 
     def f(key: str) -> float:
         return float(factors.get(key, 1.0))
+
+    whisker_loss = d.losses.whisker
+    if whisker_loss is not None or "whisker.loss_factor" in factors:
+        whisker_loss = ((d.losses.loss_factor if whisker_loss is None else whisker_loss)
+                        * f("loss_factor") * f("whisker.loss_factor"))
 
     rep = dataclasses.replace
     b = d.bimorph
@@ -178,9 +185,16 @@ def apply_factors(device: BeamDevice | str, factors: Mapping[str, float]) -> Bea
                piezo=rep(d.piezo, d31=d.piezo.d31 * f("coupling"),
                          s11e=d.piezo.s11e / f("bimorph.modulus")),
                losses=rep(d.losses, loss_factor=d.losses.loss_factor * f("loss_factor"),
-                          tan_delta=d.losses.tan_delta * f("tan_delta")),
+                          tan_delta=d.losses.tan_delta * f("tan_delta"), whisker=whisker_loss),
                provenance=Provenance(source=f"{d.name} with factors "
                                             f"{ {k: round(v, 6) for k, v in factors.items()} }"))
+
+
+def fit_parameters(device: BeamDevice | str) -> list[str]:
+    """What :func:`build`'s factors may name: :func:`device_parameters` (the manufacturing
+    spread's) and ``whisker.loss_factor``, the whisker's own loss, which identification may
+    need and the spread does not draw."""
+    return [*device_parameters(device), "whisker.loss_factor"]
 
 
 def resonance(device: BeamDevice | str, condition: str,
@@ -271,5 +285,5 @@ def format_fidelity(rows: list[dict]) -> str:
 
 
 __all__ = ["PRESETS", "THESIS_DEVICES", "apply_factors", "beam_device", "build",
-           "device_parameters", "fidelity_table", "format_fidelity", "refit", "resonance",
-           "sphere_mass"]
+           "device_parameters", "fidelity_table", "fit_parameters", "format_fidelity", "refit",
+           "resonance", "sphere_mass"]

@@ -628,6 +628,8 @@ def nominal_values(device) -> dict[str, tuple[float, str]]:
            "whisker.length": (w.length, "m"), "whisker.thickness": (w.size, "m"),
            "whisker.modulus": (w.material.modulus, "Pa"),
            "loss_factor": (d.losses.loss_factor, "1"), "tan_delta": (d.losses.tan_delta, "1"),
+           "whisker.loss_factor": (d.losses.loss_factor if d.losses.whisker is None
+                                   else d.losses.whisker, "1"),
            "coupling": (abs(d.piezo.d31), "m/V")}
     if d.block is not None:
         k = d.block

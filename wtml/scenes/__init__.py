@@ -39,9 +39,34 @@ def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene | Text
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise SceneError(f"{path}: cannot read a scene: {first}") from None
     try:
-        return scene_from_dict({} if data is None else data)
+        return scene_from_dict(beside(Path(path).parent, {} if data is None else data))
     except SceneError as err:
         raise SceneError(f"{path}: {err}") from None
+
+
+def beside(folder: Path, data: Any) -> Any:
+    """A scene file's mapping with a relative device file path (``device: my.yaml``, the fluid
+    scene's ``transducer.device``) made relative to the scene file's ``folder``, where the
+    file is there; shipped names and everything else unchanged."""
+    from wtml.devices import DEVICES_DIR
+
+    def near(value: Any) -> Any:
+        if (isinstance(value, str) and value.endswith((".yaml", ".yml"))
+                and not Path(value).is_absolute() and (folder / value).is_file()
+                and not (DEVICES_DIR / value).is_file()):
+            return str(folder / value)
+        return value
+
+    if not isinstance(data, Mapping):
+        return data
+    out = dict(data)
+    for key in ("device", "preset"):
+        if key in out:
+            out[key] = near(out[key])
+    spec = out.get("transducer")
+    if isinstance(spec, Mapping) and "device" in spec:
+        out["transducer"] = dict(spec) | {"device": near(spec["device"])}
+    return out
 
 
 def scene_from_dict(data: Any, path: str = ""

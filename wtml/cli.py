@@ -253,6 +253,15 @@ def _bench_radial(args: argparse.Namespace) -> int:
     return 0
 
 
+def _bench_device(args: argparse.Namespace) -> int:
+    from wtml.bench.device import run_device_bench
+
+    print(run_device_bench(args.out, start=args.start, samples=args.samples,
+                           epochs=args.epochs, test_records=args.test_records,
+                           noises=tuple(args.noise or (1e-3, 1e-4)), threads=args.threads))
+    return 0
+
+
 def _bench_onset(args: argparse.Namespace) -> int:
     from wtml.bench.onset import run_bench
 
@@ -501,6 +510,29 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fresh records per row of the device-spread table (the nominal device, "
                          "the trained spread, each class of issue 21's spread alone; 0: none)")
     bo.set_defaults(func=_bench_onset)
+
+    bd = be_sub.add_parser("device", help="what fitting one's own device costs the radial "
+                           "decoder", formatter_class=_Help,
+                           description="A hidden true device near --start is measured "
+                                       "(simulated), fitted with wtml device fit's least "
+                                       "squares, and a radial decoder trained on the fitted "
+                                       "device (over the fit's uncertainty) is tested on the "
+                                       "true device's records, beside one trained on the true "
+                                       "device, per measurement noise and measurement set.")
+    bd.add_argument("--start", default="micro", help="the device the fit starts from")
+    bd.add_argument("--out", default="runs/device_bench",
+                    help="report.md, summary.json, datasets and runs go here")
+    bd.add_argument("--samples", type=COUNT, default=60000, help="samples per dataset")
+    bd.add_argument("--epochs", type=_number(2, 1000, int), default=14,
+                    help="epochs per decoder")
+    bd.add_argument("--test-records", type=COUNT, default=2000,
+                    help="records of the true device to test on")
+    bd.add_argument("--noise", type=_number(1e-7, 0.1, float), action="append",
+                    default=None, help="relative noise of the sweeps (repeat; default 1e-3 "
+                                       "and 1e-4)")
+    bd.add_argument("--threads", type=_number(1, 1024, int), default=2,
+                    help="torch threads")
+    bd.set_defaults(func=_bench_device)
 
     bt = be_sub.add_parser("texture", help="the texture slice", formatter_class=_Help,
                            description="Every texture method on held-out specimens: accuracy "

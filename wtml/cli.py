@@ -154,6 +154,14 @@ def _device_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate(args: argparse.Namespace) -> int:
+    from wtml.device_calibration import calibrate, format_summary
+
+    _, summary = calibrate(args.device, args.loads, out=args.out)
+    print(format_summary(summary))
+    return 0
+
+
 def _whole_number(option: str, text: str | None) -> int | None:
     """An option's whole number, parsed here (not by argparse, whose refusal is a usage dump):
     a bad one is the command's one-line error."""
@@ -343,6 +351,19 @@ def build_parser() -> argparse.ArgumentParser:
     walk.add_argument("--plot", metavar="PNG", default=None,
                       help="also save a plot of Zm and the errors here")
     walk.set_defaults(func=_walkthrough)
+
+    cal = verb("calibrate", "a device's T from its own measured loads (least squares)",
+               "The least-squares calibration of physics.md §4 on measured loads: T(ω) at the "
+               "loads' frequencies from the calibration loads, its Zm error on the validation "
+               "loads, and the device model's T against it; stored beside the device file as "
+               "<name>.calibration.npz (what wtml predict --calibration reads) and .json.")
+    cal.add_argument("--device", required=True, help="the device (a shipped name or a file)")
+    cal.add_argument("--loads", required=True,
+                     help="CSV: frequency_hz, load, validation (0/1), zm_re, zm_im (N s/m), "
+                          "ze_re, ze_im (ohm); one row per load and frequency")
+    cal.add_argument("--out", default=None,
+                     help="folder for the calibration (default: the device file's)")
+    cal.set_defaults(func=_calibrate)
 
     pre = verb("presets", "the beam presets against the thesis (fidelity table)")
     pre.set_defaults(func=_presets)

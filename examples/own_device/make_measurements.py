@@ -5,7 +5,9 @@ bimorph (a loss model the fit does not have). Written: the free-tip sweep as CSV
 .s1p, and Ze with a rigid pin at 1, 2 and 3 mm from the tip, each with 1e-4 relative noise (what
 `wtml device fit` reads); and, for `wtml predict` on the radial decoder trained on the fitted
 device, ``contacts.npz`` (Ze at radial.yaml's tones with a 1e4 N/m contact at the distances
-in ``distance_m``, 2e-5 noise) and ``reference.npz`` (the free whisker's Ze there, 2e-6).
+in ``distance_m``, 2e-5 noise) and ``reference.npz`` (the free whisker's Ze there, 2e-6); for
+`wtml calibrate`, ``loads.csv``: Ze at those tones under tip loads of known Zm (springs and a
+damper around the tip's own impedance, 1e-4 noise), six to calibrate and two to validate.
 
     python examples/own_device/make_measurements.py
 """
@@ -32,6 +34,9 @@ PINS_MM = (1.0, 2.0, 3.0)
 TONES_HZ = np.array([360.0, 320.0, 340.0, 380.0, 400.0])
 """radial.yaml's tones."""
 CONTACTS_MM = np.arange(0.2, 3.2, 0.2)
+LOADS = ((0.0, 0.0, 0), (0.1, -90.0, 0), (0.3, -80.0, 0), (1.0, -90.0, 0), (3.0, -60.0, 0),
+         (10.0, -90.0, 0), (0.5, -85.0, 1), (2.0, -70.0, 1))
+"""Tip loads: (|Zm| over the tip's scale, phase in degrees, validation 0/1)."""
 
 
 def truth():
@@ -57,7 +62,19 @@ def main() -> None:
              distance_m=CONTACTS_MM * 1e-3)
     np.savez(HERE / "reference.npz", frequency_hz=TONES_HZ,
              ze=complex_noise(free_ze(tr, omega), 2e-6, rng))
-    print(f"wrote {HERE}/free.csv, free.s1p, pin_*mm.csv, contacts.npz, reference.npz")
+    t = tr.transduction_matrix(omega)
+    scale = np.abs(t[:, 1, 1] / t[:, 1, 0])  # N s/m: where a tip load starts to show in Ze
+    lines = ["frequency_hz,load,validation,zm_re,zm_im,ze_re,ze_im"]
+    for load, (size, phase, validation) in enumerate(LOADS):
+        zm = size * scale * np.exp(1j * np.deg2rad(phase))
+        ze = complex_noise((t[:, 0, 0] * zm + t[:, 0, 1]) / (t[:, 1, 0] * zm + t[:, 1, 1]),
+                           NOISE, rng)
+        lines += [f"{float(f)!r},{load},{validation},{float(z.real)!r},{float(z.imag)!r},"
+                  f"{float(e.real)!r},{float(e.imag)!r}"
+                  for f, z, e in zip(TONES_HZ, zm, ze, strict=True)]
+    (HERE / "loads.csv").write_text("\n".join(lines) + "\n")
+    print(f"wrote {HERE}/free.csv, free.s1p, pin_*mm.csv, contacts.npz, reference.npz, "
+          "loads.csv")
 
 
 if __name__ == "__main__":

@@ -180,11 +180,13 @@ def _number(path: Path, line: int, column: str, cell: str | None) -> float:
     return value
 
 
-def _read_table(path: str | Path, what: str, forms: dict[str, tuple[str, ...]],
-                allowed: str, positive: tuple[str, ...] = ()) -> tuple[str, np.ndarray]:
+def read_table(path: str | Path, what: str, forms: dict[str, tuple[str, ...]],
+               allowed: str, positive: tuple[str, ...] = (), increasing: bool = True
+               ) -> tuple[str, np.ndarray]:
     """The header's form (a key of ``forms``: the columns besides ``frequency_hz``) and the
     values ``(n_rows, 1 + n_columns)`` of a small CSV, every cell checked (module
-    docstring); ``positive``: columns that must be > 0."""
+    docstring); ``positive``: columns that must be > 0; ``increasing``: frequencies strictly
+    increasing down the rows (a sweep; a table of several loads repeats them)."""
     path = regular_file(path, what=what, max_bytes=MEASUREMENT_MAX_BYTES)
     rows: list[tuple[int, list[str]]] = []
     try:
@@ -216,7 +218,7 @@ def _read_table(path: str | Path, what: str, forms: dict[str, tuple[str, ...]],
             if (c == "frequency_hz" or c in positive) and values[r, j] <= 0:
                 raise FileError(f"{path}: line {n}: column '{c}' = {values[r, j]:g} must be "
                                 "> 0")
-        if r and values[r, 0] <= values[r - 1, 0]:
+        if increasing and r and values[r, 0] <= values[r - 1, 0]:
             raise FileError(f"{path}: line {n}: column 'frequency_hz' = {values[r, 0]:g} must "
                             f"be above the line before ({values[r - 1, 0]:g}): frequencies "
                             "strictly increasing")
@@ -229,7 +231,7 @@ def read_csv(path: str | Path, *, sigma: float = 1e-3) -> Sweep:
     Raises:
         FileError: one line naming the file, and the line and column where there is one.
     """
-    form, values = _read_table(
+    form, values = read_table(
         path, "sweep CSV", _FORMS,
         "frequency_hz with re_ohm, im_ohm or with magnitude_ohm, phase_deg",
         positive=("magnitude_ohm",))
@@ -250,7 +252,7 @@ def read_csv(path: str | Path, *, sigma: float = 1e-3) -> Sweep:
 def read_tip_velocity(path: str | Path, *, sigma: float = 0.01) -> TipVelocity:
     """Tip velocity per volt from CSV: ``frequency_hz, velocity_m_s_per_v`` (its magnitude,
     m/s/V, > 0), refused like :func:`read_csv`."""
-    _, values = _read_table(path, "tip velocity CSV", {"v": ("velocity_m_s_per_v",)},
+    _, values = read_table(path, "tip velocity CSV", {"v": ("velocity_m_s_per_v",)},
                             "frequency_hz, velocity_m_s_per_v",
                             positive=("velocity_m_s_per_v",))
     if len(values) < 1:
@@ -368,5 +370,5 @@ def load_measurements(free: str | Path, *, sigma: float = 1e-3, clamped: str | P
 
 
 __all__ = ["MAX_POINTS", "MEASUREMENT_MAX_BYTES", "ContactSweep", "Measurements", "Sweep",
-           "TipVelocity", "load_measurements", "read_csv", "read_s1p", "read_sweep",
+           "TipVelocity", "load_measurements", "read_csv", "read_s1p", "read_sweep", "read_table",
            "read_tip_velocity", "write_csv", "write_s1p"]

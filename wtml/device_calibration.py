@@ -1,0 +1,138 @@
+"""``wtml calibrate``: a device's transduction matrix from its own measured loads (physics.md §4).
+
+The walkthrough's least-squares calibration (:func:`wtml.physics.calibration.
+calibrate_least_squares`) on a user's files: Ze measured under loads of known Zm at the
+operating frequencies, the calibration loads fitting T(ω) and the validation loads (never seen
+by the fit) measuring its error, as the thesis's Tables 4.3–4.4 do. The result is stored beside
+the device file, ``<device>.calibration.npz`` (``frequency_hz``, ``t`` and the diagnostics: the
+form ``wtml predict --calibration`` reads) and ``<device>.calibration.json`` (the summary), and
+compared with the device model's own T.
+
+The loads file is a CSV with the columns ``frequency_hz, load, validation, zm_re, zm_im, ze_re,
+ze_im``: one row per load and frequency, ``load`` a whole-number label, ``validation`` 1 for a
+validation load and 0 for a calibration load, Zm in N·s/m and Ze in Ω. Every load is measured
+on the same frequencies.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from wtml.devices import device_hash, device_path, load_device
+from wtml.files import FileError, sha256
+from wtml.physics.calibration import Calibration, calibrate_least_squares
+from wtml.physics.measured import read_table
+from wtml.physics.twoport import ze_from_zm
+
+COLUMNS = ("load", "validation", "zm_re", "zm_im", "ze_re", "ze_im")
+
+
+def read_loads(path: str | Path) -> dict[str, np.ndarray]:
+    """The loads file as arrays on its grid: ``frequency_hz`` (n_freq,), ``zm`` and ``ze``
+    complex (n_loads, n_freq), ``validation`` bool (n_loads,), ``load`` labels (n_loads,).
+
+    Raises:
+        FileError: one line naming the file (and the line, column or load) and what is
+            allowed.
+    """
+    _, v = read_table(path, "loads CSV", {"loads": COLUMNS},
+                      "frequency_hz, " + ", ".join(COLUMNS), increasing=False)
+    f, label, val = v[:, 0], v[:, 1], v[:, 2]
+    if not np.all(label == np.round(label)) or not np.all(np.isin(val, (0, 1))):
+        raise FileError(f"{path}: column 'load' must hold whole numbers and 'validation' 0 or 1")
+    grid = np.unique(f)
+    labels = np.unique(label)
+    n_freq, n_loads = len(grid), len(labels)
+    zm = np.full((n_loads, n_freq), np.nan, complex)
+    ze = np.full((n_loads, n_freq), np.nan, complex)
+    role = np.full(n_loads, -1.0)
+    for row in v:
+        i, j = np.searchsorted(labels, row[1]), np.searchsorted(grid, row[0])
+        if not np.isnan(ze[i, j]):
+            raise FileError(f"{path}: load {row[1]:g} is given twice at {row[0]:g} Hz")
+        if role[i] not in (-1.0, row[2]):
+            raise FileError(f"{path}: load {row[1]:g} is both a calibration and a validation "
+                            "load; give each load one role")
+        zm[i, j], ze[i, j], role[i] = row[3] + 1j * row[4], row[5] + 1j * row[6], row[2]
+    missing = np.argwhere(np.isnan(ze))
+    if len(missing):
+        i, j = missing[0]
+        raise FileError(f"{path}: load {labels[i]:g} has no row at {grid[j]:g} Hz: measure every "
+                        f"load on the same frequencies ({n_freq} here)")
+    if np.sum(role == 0) < 4:
+        raise FileError(f"{path}: {int(np.sum(role == 0))} calibration loads (validation 0); "
+                        "the least-squares calibration needs at least 4")
+    return {"frequency_hz": grid, "zm": zm, "ze": ze, "validation": role == 1, "load": labels}
+
+
+def calibrate(device_ref: str | Path, loads_path: str | Path, *,
+              out: str | Path | None = None, max_condition: float = 1e4
+              ) -> tuple[Calibration, dict]:
+    """Calibrate ``device_ref``'s T on ``loads_path`` (module docstring); store it beside the
+    device file (or in folder ``out``) and return it with its summary."""
+    device = load_device(device_ref)
+    loads = read_loads(loads_path)
+    f, zm, ze, val = (loads[k] for k in ("frequency_hz", "zm", "ze", "validation"))
+    omega = 2 * np.pi * f
+    cal = calibrate_least_squares(zm[~val], ze[~val], omega, max_condition=max_condition)
+    summary = {"device": {"name": device.name, "sha256": device_hash(device)},
+               "loads": {"path": str(loads_path), "sha256": sha256(loads_path),
+                         "calibration": int(np.sum(~val)), "validation": int(np.sum(val))},
+               "frequency_hz": f.tolist(), "condition": cal.condition.tolist(),
+               "residual": cal.residual.tolist()}
+    if val.any():
+        err = np.abs(cal.zm_from_ze(ze[val]) / zm[val] - 1)  # (n_val, n_freq)
+        summary["validation_error"] = {"max": float(err.max()), "rms": float(
+            np.sqrt(np.mean(err**2))), "per_frequency_max": err.max(axis=0).tolist()}
+    model = _model_t(device, omega)
+    if model is not None:
+        # the model's T against the calibrated one, as the Ze each predicts for the loads
+        summary["model_vs_calibrated_ze"] = float(np.max(np.abs(
+            ze_from_zm(model, zm) / ze_from_zm(cal.t, zm) - 1)))
+    folder = Path(out) if out is not None else device_path(device_ref).parent
+    folder.mkdir(parents=True, exist_ok=True)
+    npz, js = folder / f"{device.name}.calibration.npz", folder / f"{device.name}.calibration.json"
+    np.savez(npz, frequency_hz=f, t=cal.t, condition=cal.condition,
+             residual=cal.residual,
+             validation_error=np.asarray(summary.get("validation_error", {}).get(
+                 "per_frequency_max", np.full(len(f), np.nan))))
+    summary["files"] = [str(npz), str(js)]
+    js.write_text(json.dumps(summary, indent=1) + "\n")
+    return cal, summary
+
+
+def _model_t(device, omega: np.ndarray) -> np.ndarray | None:
+    """The device model's T at ``omega`` (tip sphere included), or None if it has none."""
+    from wtml.physics import cascade, tip_mass
+
+    if device.kind == "lumped":
+        return device.transducer().transduction_matrix(omega)
+    from wtml.physics.beam_presets import build
+
+    t = build(device).transduction_matrix(omega)
+    if device.sphere is not None:
+        t = cascade(t, tip_mass(omega, device.sphere.mass))
+    return t
+
+
+def format_summary(summary: dict) -> str:
+    """The calibration as text."""
+    lines = [f"calibrated {summary['device']['name']} at "
+             f"{len(summary['frequency_hz'])} frequencies on {summary['loads']['calibration']} "
+             f"loads (condition number max {max(summary['condition']):.3g}, residual max "
+             f"{max(summary['residual']):.2e})"]
+    v = summary.get("validation_error")
+    lines.append(f"validation on {summary['loads']['validation']} loads: Zm error max "
+                 f"{100 * v['max']:.3g} %, rms {100 * v['rms']:.3g} %" if v else
+                 "no validation loads: the calibration's error is not measured")
+    if "model_vs_calibrated_ze" in summary:
+        lines.append(f"the device model's T against the calibrated one: Ze of the loads "
+                     f"differs by up to {100 * summary['model_vs_calibrated_ze']:.3g} %")
+    lines.append("written: " + ", ".join(summary["files"]))
+    return "\n".join(lines)
+
+
+__all__ = ["COLUMNS", "calibrate", "format_summary", "read_loads"]

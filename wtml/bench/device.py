@@ -29,7 +29,7 @@ from wtml.data import generate, load_shards
 from wtml.decoders.radial import TorchRadial, load_radial_net
 from wtml.device_fit import fitted_device
 from wtml.devices import BeamDevice
-from wtml.physics.beam_presets import beam_device, build
+from wtml.physics.beam_presets import apply_factors, beam_device, build
 from wtml.physics.identify import (
     contact_ze,
     fit_device,
@@ -63,8 +63,6 @@ CLASSES = {"length": ("bimorph.length", "whisker.length"), "modulus": ("whisker.
 
 def truth_device(start: BeamDevice) -> tuple[BeamDevice, object]:
     """The hidden device as a device file (the whisker's own loss included) and its beam."""
-    from wtml.physics.beam_presets import apply_factors
-
     loss = start.losses.loss_factor if start.losses.whisker is None else start.losses.whisker
     device = apply_factors(start, TRUTH | {"whisker.loss_factor": WHISKER_LOSS})
     device = dataclasses.replace(device, name=f"{start.name}-truth")

@@ -66,3 +66,66 @@ def test_the_loads_are_read_on_one_grid():
     assert loads["zm"].shape == loads["ze"].shape == (8, 5)
     assert loads["validation"].tolist() == [False] * 6 + [True] * 2
     assert np.all(np.diff(loads["frequency_hz"]) > 0)
+
+
+def _fluid_loads(path, scene, noise, rng):
+    """Ze of the fluid scene's device (sphere mounted) under six calibration and two
+    validation loads around the sphere's Stokes load, at 1e-4 (a user's loads file)."""
+    from wtml.signals.noise import complex_noise
+
+    f = scene.excitation.frequency_hz
+    t = scene.calibrated_t()
+    scale = scene.reference_zm()
+    lines = ["frequency_hz,load,validation,zm_re,zm_im,ze_re,ze_im"]
+    sizes = ((0.0, 0), (0.3, 0), (1.0, 0), (3.0, 0), (10.0, 0), (30.0, 0), (0.6, 1), (6.0, 1))
+    for load, (size, validation) in enumerate(sizes):
+        zm = size * scale * np.exp(1j * np.deg2rad(-45.0)) * np.ones(len(f))
+        ze = complex_noise((t[:, 0, 0] * zm + t[:, 0, 1]) / (t[:, 1, 0] * zm + t[:, 1, 1]),
+                           noise, rng)
+        lines += [f"{float(a)!r},{load},{validation},{float(z.real)!r},{float(z.imag)!r},"
+                  f"{float(e.real)!r},{float(e.imag)!r}" for a, z, e in zip(f, zm, ze, strict=True)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_a_fluid_scene_believes_its_devices_own_calibration(tmp_path):
+    """`transducer.calibration:` (the .npz `wtml calibrate` wrote) is what the records' `t`
+    holds, and the records still come from the device's model: the classical path's Zm error
+    is then the calibration's own (measured on its validation loads), not the scene's
+    nuisance model. The scene holds the calibration's values: its hash changes with them."""
+    from wtml.physics.twoport import zm_from_ze
+    from wtml.scenes import config_hash, load_scene
+    from wtml.schema import SchemaError
+
+    base = load_scene(Path(__file__).resolve().parent.parent / "configs/scenes/fluid.yaml")
+    rng = np.random.default_rng(0)
+    loads = _fluid_loads(tmp_path / "loads.csv", base, 1e-4, rng)
+    cal, summary = calibrate("fluid-lumped", loads, out=tmp_path)
+    text = ("task: fluid\nsamples: 400\nshards: 2\nnoise: {ze_relative: 0.0}\n"
+            "nuisance: {calibration_error: 0.0}\n"
+            "transducer:\n  device: fluid-lumped\n  calibration: fluid-lumped.calibration.npz\n")
+    (tmp_path / "scene.yaml").write_text(text)
+    scene = load_scene(tmp_path / "scene.yaml")
+    np.testing.assert_allclose(scene.transducer.calibration.t_at(base.excitation.frequency_hz),
+                               cal.t, rtol=1e-12)
+    r = scene.simulate(400, np.random.default_rng(1))
+    assert np.allclose(r["t"][0], cal.t, rtol=1e-12)
+    from wtml.physics.loads import stokes_sphere
+
+    zm = stokes_sphere(r["eta"][:, None], r["rho"][:, None], scene.sphere.radius,
+                       scene.excitation.omega)
+    err = np.abs(zm_from_ze(r["t"], r["ze"]) / zm - 1)
+    assert 1e-6 < np.median(err) < 0.05  # the calibration's own error, no noise added
+    other = tmp_path / "other.yaml"
+    other.write_text(text.replace("  calibration: fluid-lumped.calibration.npz\n", ""))
+    assert config_hash(load_scene(other)) != config_hash(scene)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace("calibration_error: 0.0", "calibration_error: 0.01"))
+    with pytest.raises(SchemaError, match=r"nuisance.calibration_error: must be 0 with "
+                                          r"transducer.calibration"):
+        load_scene(bad)
+    band = tmp_path / "band.yaml"
+    band.write_text(text + "excitation: {f_start_hz: 80.0, f_stop_hz: 120.0, n_freq: 41}\n")
+    with pytest.raises(SchemaError, match=r"transducer.calibration: the calibration covers "
+                                          r"90-120 Hz"):
+        load_scene(band)

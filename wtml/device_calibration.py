@@ -17,17 +17,87 @@ on the same frequencies.
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from wtml.devices import device_hash, device_path, load_device
-from wtml.files import FileError, sha256
+from wtml.files import FileError, read_npz, sha256
 from wtml.physics.calibration import Calibration, calibrate_least_squares
 from wtml.physics.measured import read_table
 from wtml.physics.twoport import ze_from_zm
+from wtml.schema import SchemaError, bounded, build
 
 COLUMNS = ("load", "validation", "zm_re", "zm_im", "ze_re", "ze_im")
+
+
+CALIBRATION_MAX_BYTES = 64 * 1024**2
+"""Bytes: the largest calibration file a scene reads."""
+
+
+@dataclass(frozen=True)
+class StoredCalibration:
+    """A device's T as ``wtml calibrate`` stored it, carried by a scene (the fluid scene's
+    ``transducer.calibration``: what the classical path and the decoder believe, while the
+    records come from the device's model). A scene file gives the path of the ``.npz``; the
+    scene holds the values (so its hash covers them): ``frequency_hz`` (n,), T's real and
+    imaginary parts flattened row by row, ``(n * 4,)`` each."""
+
+    source: str = ""
+    frequency_hz: tuple[float, ...] = bounded(1e-3, 1e9, default=())
+    t_re: tuple[float, ...] = bounded(-1e300, 1e300, default=())
+    t_im: tuple[float, ...] = bounded(-1e300, 1e300, default=())
+
+    def check(self, path: str) -> None:
+        n = len(self.frequency_hz)
+        if n < 1 or len(self.t_re) != 4 * n or len(self.t_im) != 4 * n:
+            raise SchemaError(f"{path}: a calibration needs frequency_hz (n,) and T's 4 n "
+                              f"parts, got {n} frequencies and {len(self.t_re)}, "
+                              f"{len(self.t_im)} parts")
+        if n > 1 and np.any(np.diff(self.frequency_hz) <= 0):
+            raise SchemaError(f"{path}.frequency_hz: must be strictly increasing")
+
+    @classmethod
+    def resolve(cls, value: Any, path: str) -> StoredCalibration:
+        """Read ``wtml calibrate``'s ``.npz`` at the path ``value``."""
+        if not isinstance(value, str):
+            raise SchemaError(f"{path}: must be the path of a `wtml calibrate` .npz, got "
+                              f"{value!r:.80}")
+        try:
+            data = read_npz(value, what="calibration", max_bytes=CALIBRATION_MAX_BYTES,
+                            keys=("frequency_hz", "t"))
+        except ValueError as err:
+            raise SchemaError(f"{path}: {err}") from None
+        f, t = data.get("frequency_hz"), data.get("t")
+        if f is None or t is None or f.ndim != 1 or t.shape != (len(f), 2, 2) \
+                or not np.all(np.isfinite(t)) or not np.all(np.isfinite(f)):
+            raise SchemaError(f"{path}: {value}: a calibration needs finite frequency_hz (n,) "
+                              "and t (n, 2, 2), as `wtml calibrate` writes it")
+        t = np.asarray(t, complex).reshape(-1)
+        return build(cls, {"source": f"{value} ({sha256(value)[:12]})",
+                           "frequency_hz": [float(x) for x in f],
+                           "t_re": [float(x) for x in t.real],
+                           "t_im": [float(x) for x in t.imag]}, path)
+
+    def t_at(self, frequency_hz: np.ndarray) -> np.ndarray:
+        """T at ``frequency_hz`` (within the calibrated band: linear in each element between
+        calibrated frequencies), complex ``(len(frequency_hz), 2, 2)``.
+
+        Raises:
+            ValueError: a frequency outside the calibrated band.
+        """
+        f = np.asarray(self.frequency_hz)
+        want = np.asarray(frequency_hz, float)
+        if want.min() < f[0] * (1 - 1e-9) or want.max() > f[-1] * (1 + 1e-9):
+            raise ValueError(f"the calibration covers {f[0]:g}-{f[-1]:g} Hz; the scene's grid "
+                             f"{want.min():g}-{want.max():g} Hz lies outside it: calibrate "
+                             "over the scene's band")
+        t = (np.asarray(self.t_re) + 1j * np.asarray(self.t_im)).reshape(-1, 4)
+        out = np.stack([np.interp(want, f, t[:, k].real) + 1j * np.interp(want, f, t[:, k].imag)
+                        for k in range(4)], axis=-1)
+        return out.reshape(-1, 2, 2)
 
 
 def read_loads(path: str | Path) -> dict[str, np.ndarray]:
@@ -135,4 +205,4 @@ def format_summary(summary: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["COLUMNS", "calibrate", "format_summary", "read_loads"]
+__all__ = ["COLUMNS", "StoredCalibration", "calibrate", "format_summary", "read_loads"]

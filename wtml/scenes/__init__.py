@@ -46,12 +46,12 @@ def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene | Text
 
 def beside(folder: Path, data: Any) -> Any:
     """A scene file's mapping with a relative device file path (``device: my.yaml``, the fluid
-    scene's ``transducer.device``) made relative to the scene file's ``folder``, where the
-    file is there; shipped names and everything else unchanged."""
+    scene's ``transducer.device`` and ``transducer.calibration``) made relative to the scene
+    file's ``folder``, where the file is there; shipped names and everything else unchanged."""
     from wtml.devices import DEVICES_DIR
 
-    def near(value: Any) -> Any:
-        if (isinstance(value, str) and value.endswith((".yaml", ".yml"))
+    def near(value: Any, suffixes: tuple[str, ...] = (".yaml", ".yml")) -> Any:
+        if (isinstance(value, str) and value.endswith(suffixes)
                 and not Path(value).is_absolute() and (folder / value).is_file()
                 and not (DEVICES_DIR / value).is_file()):
             return str(folder / value)
@@ -64,8 +64,9 @@ def beside(folder: Path, data: Any) -> Any:
         if key in out:
             out[key] = near(out[key])
     spec = out.get("transducer")
-    if isinstance(spec, Mapping) and "device" in spec:
-        out["transducer"] = dict(spec) | {"device": near(spec["device"])}
+    if isinstance(spec, Mapping):
+        out["transducer"] = dict(spec) | {k: near(spec[k], (".yaml", ".yml", ".npz"))
+                                          for k in ("device", "calibration") if k in spec}
     return out
 
 

@@ -29,6 +29,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from wtml.device_calibration import StoredCalibration
 from wtml.devices import LumpedDevice, shipped
 from wtml.interface import OutputRange
 from wtml.physics import cascade, tip_mass, ze_from_zm
@@ -47,6 +48,10 @@ class TransducerSpec:
 
     device: LumpedDevice = field(default_factory=shipped("fluid-lumped"))
     overrides: dict = field(default_factory=dict)
+    calibration: StoredCalibration | None = None
+    """The device's own calibration (``wtml calibrate``'s ``.npz``, taken with the sphere
+    mounted): the T the classical path and the decoder are given, instead of the model's with
+    ``nuisance.calibration_error``; the records still come from the device's model."""
 
     def check(self, path: str) -> None:
         for key, value in self.overrides.items():
@@ -188,9 +193,22 @@ class FluidScene:
     spread: DeviceSpread = field(default_factory=DeviceSpread)
 
     def check(self, path: str) -> None:
+        p = path + "." if path else ""
         if self.shards > self.samples:
-            raise SceneError(f"{path + '.' if path else ''}shards: {self.shards} shards for "
+            raise SceneError(f"{p}shards: {self.shards} shards for "
                              f"{self.samples} samples; must be <= samples")
+        if self.transducer.calibration is not None:
+            if self.nuisance.calibration_error != 0:
+                raise SceneError(f"{p}nuisance.calibration_error: must be 0 with "
+                                 "transducer.calibration (the calibration's own error is the "
+                                 f"one the records carry), got {self.nuisance.calibration_error:g}")
+            if self.spread.any():
+                raise SceneError(f"{p}spread: must be none with transducer.calibration (one "
+                                 "device's calibration is not every record's)")
+            try:
+                self.transducer.calibration.t_at(self.excitation.frequency_hz)
+            except ValueError as err:
+                raise SceneError(f"{p}transducer.calibration: {err}") from None
 
     def output_ranges(self) -> dict[str, OutputRange]:
         """η and ρ over the scene's volume fractions and temperatures (a 41×41 grid of the
@@ -242,13 +260,15 @@ class FluidScene:
         alpha = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
         beta = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
         factors = self.spread.draw(n, rng)  # all ones, nothing drawn, without a spread
-        # the preset: one T for every sample
+        # the device: one T for every sample
         t_cal = self.device_t(factors) if self.spread.any() else self.calibrated_t()
+        stored = self.transducer.calibration
+        t_seen = t_cal if stored is None else stored.t_at(self.excitation.frequency_hz)
         radius = self.sphere.radius * factors["sphere_radius"]
         zm = stokes_sphere(eta[:, None], rho[:, None], radius[:, None], omega)
         zm_seen = (1 + alpha[:, None]) * zm + beta[:, None] * self.reference_zm()
         ze = complex_noise(ze_from_zm(t_cal, zm_seen), self.noise.ze_relative, rng)
-        t = np.array(np.broadcast_to(t_cal, (n, *t_cal.shape[-3:])))
+        t = np.array(np.broadcast_to(t_seen, (n, *t_cal.shape[-3:])))
         return {"ze": ze, "t": t, "eta": eta, "rho": rho, "volume_fraction": cv,
                 "temperature_c": temp, "cal_gain": alpha, "cal_offset": beta,
                 "sphere_radius": radius}

@@ -18,11 +18,13 @@ Imports numpy and pyyaml only (through :mod:`wtml.schema`): the device runtime u
 from __future__ import annotations
 
 import dataclasses
+import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from wtml.schema import SchemaError, bounded, build, one_of, read_yaml, to_dict
+from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of, read_yaml, to_dict
 
 DEVICES_DIR = Path(__file__).resolve().parent.parent / "configs" / "devices"
 """Where the shipped device files are (``configs/devices`` of the repository)."""
@@ -117,8 +119,6 @@ class Sphere:
     @property
     def mass(self) -> float:
         """kg."""
-        import math
-
         return self.density * 4 / 3 * math.pi * self.radius**3
 
 
@@ -283,9 +283,7 @@ class DeviceIdentity:
     sha256: str
 
     def check(self, path: str) -> None:
-        import re
-
-        _check_name(self.name, f"{path}" if path else "")
+        _check_name(self.name, path)
         if not re.fullmatch(r"[0-9a-f]{64}", self.sha256):
             raise SchemaError(f"{path + '.' if path else ''}sha256: must be 64 hex digits, got "
                               f"{self.sha256!r:.80}")
@@ -296,8 +294,6 @@ KINDS = {"beam": BeamDevice, "lumped": LumpedDevice}
 
 
 def _check_name(name: str, path: str) -> None:
-    import re
-
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", name):
         raise SchemaError(f"{path + '.' if path else ''}name: must be 1-64 letters, digits, "
                           f"'.', '-' or '_', got {name!r:.80}")
@@ -374,21 +370,16 @@ NOT_PHYSICS = ("provenance", "identify")
 hash."""
 
 
-def mapping_hash(device: dict) -> str:
+def physical_hash(device: dict) -> str:
     """sha256 of the canonical JSON of a device's mapping (as a scene or manifest stores it),
     :data:`NOT_PHYSICS` left out."""
-    import hashlib
-    import json
-
-    physics = {k: v for k, v in device.items() if k not in NOT_PHYSICS}
-    return hashlib.sha256(json.dumps(physics, sort_keys=True, separators=(",", ":"))
-                          .encode()).hexdigest()
+    return mapping_hash({k: v for k, v in device.items() if k not in NOT_PHYSICS})
 
 
 def device_hash(device: Device) -> str:
     """sha256 of the device's validated physical contents (not its provenance or fit
     settings): its identity beside its name."""
-    return mapping_hash(to_dict(device))
+    return physical_hash(to_dict(device))
 
 
 def identity(device: Device) -> dict[str, str]:

@@ -237,7 +237,12 @@ def to_dict(obj: Any) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(obj)))
 
 
+def mapping_hash(mapping: Any) -> str:
+    """sha256 of a plain mapping's canonical JSON (sorted keys, no spaces)."""
+    blob = json.dumps(mapping, sort_keys=True, separators=(",", ":")).encode()
+    return hashlib.sha256(blob).hexdigest()
+
+
 def config_hash(obj: Any) -> str:
     """sha256 of the canonical JSON of a config: the identity of a scene."""
-    blob = json.dumps(to_dict(obj), sort_keys=True, separators=(",", ":")).encode()
-    return hashlib.sha256(blob).hexdigest()
+    return mapping_hash(to_dict(obj))

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from wtml.devices import DeviceIdentity, mapping_hash
+from wtml.devices import DeviceIdentity, physical_hash
 from wtml.files import FileError, inside, parse_json, read_json, regular_file, sha256
-from wtml.schema import SchemaError, bounded, build, one_of
+from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = 2
@@ -307,8 +307,7 @@ SCHEMAS = {"fluid": FluidMetadata, "radial": RadialMetadata, "onset": OnsetMetad
 def scene_hash(scene: dict) -> str:
     """sha256 of a scene mapping's canonical JSON (what ``wtml.schema.config_hash`` gives for
     the scene it was made from)."""
-    blob = json.dumps(scene, sort_keys=True, separators=(",", ":")).encode()
-    return hashlib.sha256(blob).hexdigest()
+    return mapping_hash(scene)
 
 
 def graph_metadata(props: dict[str, str], where: str) -> GraphMetadata:
@@ -460,7 +459,7 @@ def scene_device(scene: dict) -> dict:
         device = (scene.get("transducer") or {}).get("device")
     if not isinstance(device, dict) or not isinstance(device.get("name"), str):
         raise _fail("scene.device", "must hold the device's mapping (its name and values)")
-    return {"name": device["name"], "sha256": mapping_hash(device)}
+    return {"name": device["name"], "sha256": physical_hash(device)}
 
 
 def write_manifest(folder: str | Path, files: dict[str, Path], metadata: dict[str, dict],

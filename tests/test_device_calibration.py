@@ -129,3 +129,63 @@ def test_a_fluid_scene_believes_its_devices_own_calibration(tmp_path):
     with pytest.raises(SchemaError, match=r"transducer.calibration: the calibration covers "
                                           r"90-120 Hz"):
         load_scene(band)
+
+
+def test_onset_and_texture_scenes_believe_a_stored_calibration(tmp_path, capsys):
+    """`wtml calibrate --hue0` stores HUE(0) with T; an onset scene's `calibration:` (read
+    beside the scene file) is then what every record's `t_probe` and `hue0` hold, and a
+    texture scene's is its records' `t`, while the records come from the device's model.
+    Refused in one line: a calibration error of the scene's own beside it, a spread, a probe
+    outside the calibrated band, an onset calibration without HUE(0)."""
+    from wtml.scenes import load_scene
+    from wtml.schema import SchemaError
+
+    assert main(["calibrate", "--device", str(EXAMPLE / "start.yaml"), "--loads",
+                 str(EXAMPLE / "loads.csv"), "--out", str(tmp_path), "--hue0", "1.1e-6"]) == 0
+    assert "HUE(0) stored with it: 1.1e-06 m/V" in capsys.readouterr().out
+    npz = tmp_path / "my-wt.calibration.npz"
+    with np.load(npz) as data:
+        stored_t, f = data["t"], data["frequency_hz"]
+        assert float(data["hue0"]) == 1.1e-6
+    onset = ("task: onset\nsamples: 2\nshards: 1\ndevice: " + str(EXAMPLE / "start.yaml")
+             + "\ncalibration: my-wt.calibration.npz\ncalibration_error: 0.0\n"
+             "drive: {probe_hz: 350.0, cycles: 0.5, whisk_hz: 5.0, lead_s: 0.05}\n"
+             "acquisition: {sample_rate_hz: 22400.0}\n")
+    (tmp_path / "onset.yaml").write_text(onset)
+    scene = load_scene(tmp_path / "onset.yaml")
+    r = scene.simulate(2, np.random.default_rng(0))
+    want = np.stack([np.interp(350.0, f, stored_t[:, i // 2, i % 2].real)
+                     + 1j * np.interp(350.0, f, stored_t[:, i // 2, i % 2].imag)
+                     for i in range(4)]).reshape(2, 2)
+    np.testing.assert_allclose(r["t_probe"], np.broadcast_to(want, (2, 2, 2)), rtol=1e-12)
+    assert np.all(r["hue0"] == 1.1e-6)
+    # the model's own calibration differs: the records believe the stored one
+    model = scene.transducer()
+    model_t = model.transduction_matrix(np.array([2 * np.pi * 350.0]))[0]
+    model_hue0 = model.static_tip_displacement_per_volt()
+    assert np.max(np.abs(model_t / want - 1)) > 1e-3 and abs(model_hue0 / 1.1e-6 - 1) > 1e-3
+    for edit, needle in (
+            (("calibration_error: 0.0", "calibration_error: 0.01"),
+             "calibration_error: must be 0 with calibration"),
+            (("calibration_error: 0.0\n", "calibration_error: 0.0\nspread: {coupling: 0.01}\n"),
+             "spread: must be none with calibration"),
+            (("probe_hz: 350.0", "probe_hz: 420.0"), "calibration: the calibration covers "
+                                                     "320-400 Hz")):
+        (tmp_path / "bad.yaml").write_text(onset.replace(*edit))
+        with pytest.raises(SchemaError, match=needle):
+            load_scene(tmp_path / "bad.yaml")
+    np.savez(tmp_path / "nohue.npz", frequency_hz=f, t=stored_t)
+    (tmp_path / "bad.yaml").write_text(onset.replace("my-wt.calibration.npz", "nohue.npz"))
+    with pytest.raises(SchemaError, match=r"calibration: .*nohue.npz .* holds no HUE\(0\)"):
+        load_scene(tmp_path / "bad.yaml")
+
+    texture = load_scene(Path(__file__).resolve().parent.parent / "configs/scenes/texture.yaml")
+    hz = texture.calibration_hz
+    t_tex = texture.transducer().transduction_matrix(2 * np.pi * hz) * (1 + 0.01j)
+    np.savez(tmp_path / "macro.npz", frequency_hz=hz, t=t_tex)
+    (tmp_path / "texture.yaml").write_text(
+        "task: texture\nsamples: 5\nshards: 1\nspecimens_per_grade: 1\ncalibration: macro.npz\n"
+        "calibration_error: 0.0\ndrive: {record_s: 0.05, lead_s: 0.1}\n")
+    scene = load_scene(tmp_path / "texture.yaml")
+    r = scene.simulate(5, np.random.default_rng(0))
+    np.testing.assert_allclose(r["t"], np.broadcast_to(t_tex, r["t"].shape), rtol=1e-12)

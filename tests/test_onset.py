@@ -353,7 +353,7 @@ def test_predict_needs_the_devices_calibration_and_refuses_without_it(onset_expo
                           str(onset_export["model"]), "--input", str(path)], cwd=ROOT,
                          capture_output=True, text=True)
     assert cli.returncode != 0 and "needs --calibration" in cli.stderr
-    t, hue0 = scene.calibration(scene.transducer())
+    t, hue0 = scene.calibrated(scene.transducer())
     no_hue = tmp_path / "no_hue.npz"
     np.savez(no_hue, frequency_hz=[scene.drive.probe_hz], t=t[None])
     with pytest.raises(InputError, match="needs 'hue0'"):

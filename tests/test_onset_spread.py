@@ -30,7 +30,7 @@ from wtml.scenes.onset import OnsetDrive, OnsetScene, WallSpec
 scene = OnsetScene(drive=OnsetDrive(cycles=0.5, lead_s=0.05), wall=WallSpec(free_fraction=0.25))
 assert scene.spread.none
 rec = scene.simulate(6, np.random.default_rng(5))
-t, hue0 = scene.calibration(scene.transducer())
+t, hue0 = scene.calibrated(scene.transducer())
 json.dump({"gap": rec["gap"].tolist(), "law": rec["law"].tolist(),
            "onset": rec["onset"][:, 0].tolist(), "i": rec["i"][[0, 4], 9000].tolist(),
            "sum": np.abs(rec["i"].astype(float)).sum(1).tolist(),
@@ -115,7 +115,7 @@ def test_each_record_carries_the_calibration_of_the_device_it_was_simulated_with
     assert np.ptp(rec["hue0"]) / rec["hue0"].mean() > 0.01
     frames = OnsetDecoder()._frames(quiet)
     own = [torch.tensor(x) for x in record_inputs(rec)]
-    t, hue0 = quiet.calibration(quiet.transducer())
+    t, hue0 = quiet.calibrated(quiet.transducer())
     t = t.reshape(1, 4).repeat(4, 0)
     nominal = own[:2] + [torch.tensor(x, dtype=torch.float32)
                          for x in (t.real, t.imag, np.full(4, hue0))]
@@ -139,7 +139,7 @@ def test_zm_through_each_records_T_is_eq_5_6_written_by_hand():
 
     rng = np.random.default_rng(0)
     scene = OnsetScene()
-    t0, _ = scene.calibration(scene.transducer())
+    t0, _ = scene.calibrated(scene.transducer())
     t = t0[None] * (1 + 0.05 * (rng.standard_normal((3, 2, 2))
                                 + 1j * rng.standard_normal((3, 2, 2))))
     e = 0.02 * np.exp(1j * rng.uniform(0, 6, (3, 5)))

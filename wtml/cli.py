@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import math
 import re
 import sys
@@ -143,6 +144,10 @@ def _device_fit(args: argparse.Namespace) -> int:
     m = load_measurements(args.sweep, sigma=args.sigma, clamped=args.clamped,
                           contacts=tuple(contacts), hue0=args.hue0,
                           tip_velocity=args.tip_velocity)
+    if args.loads:
+        from wtml.device_calibration import load_sweeps
+
+        m = dataclasses.replace(m, loads=load_sweeps(args.loads, sigma=args.sigma))
     device, result = fit(args.device, m, free=args.free)
     print(format_report(device, result))
     fitted = write_outputs(device, result, Path(args.out), name=args.name,
@@ -157,7 +162,7 @@ def _device_fit(args: argparse.Namespace) -> int:
 def _calibrate(args: argparse.Namespace) -> int:
     from wtml.device_calibration import calibrate, format_summary
 
-    _, summary = calibrate(args.device, args.loads, out=args.out)
+    _, summary = calibrate(args.device, args.loads, out=args.out, hue0=args.hue0)
     print(format_summary(summary))
     return 0
 
@@ -262,11 +267,16 @@ def _bench_radial(args: argparse.Namespace) -> int:
 
 
 def _bench_device(args: argparse.Namespace) -> int:
-    from wtml.bench.device import run_device_bench
+    from wtml.bench.device import NOISES, run_device_bench
 
-    print(run_device_bench(args.out, start=args.start, samples=args.samples,
-                           epochs=args.epochs, test_records=args.test_records,
-                           noises=tuple(args.noise or (1e-3, 1e-4)), threads=args.threads))
+    print(run_device_bench(args.out, start=args.start, tasks=tuple(args.task or
+                                                                   ("radial", "onset")),
+                           samples=args.samples, epochs=args.epochs,
+                           test_records=args.test_records, onset_samples=args.onset_samples,
+                           onset_epochs=args.onset_epochs,
+                           onset_test_records=args.onset_test_records,
+                           noises=tuple(args.noise or NOISES), repeats=args.repeats,
+                           threads=args.threads))
     return 0
 
 
@@ -363,6 +373,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "ze_re, ze_im (ohm); one row per load and frequency")
     cal.add_argument("--out", default=None,
                      help="folder for the calibration (default: the device file's)")
+    cal.add_argument("--hue0", type=float, default=None, metavar="M_PER_V",
+                     help="the measured HUE(0), the tip's static displacement per volt (m/V), "
+                          "stored with T: an onset scene on this calibration needs it")
     cal.set_defaults(func=_calibrate)
 
     pre = verb("presets", "the beam presets against the thesis (fidelity table)")
@@ -396,6 +409,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="Ze with a pin MM mm from the tip (rigid, or K N/m); repeat")
     dfit.add_argument("--hue0", type=float, default=None,
                       help="static tip displacement per volt, m/V")
+    dfit.add_argument("--loads", default=None, metavar="CSV",
+                      help="Ze under tip loads of known Zm: wtml calibrate's loads file (every "
+                           "load, calibration and validation, fitted at --sigma)")
     dfit.add_argument("--tip-velocity", default=None,
                       help="tip velocity per volt: .csv (frequency_hz, re, im in m/s/V)")
     dfit.add_argument("--sigma", type=float, default=1e-3,
@@ -533,24 +549,34 @@ def build_parser() -> argparse.ArgumentParser:
     bo.set_defaults(func=_bench_onset)
 
     bd = be_sub.add_parser("device", help="what fitting one's own device costs the radial "
-                           "decoder", formatter_class=_Help,
+                           "and onset decoders", formatter_class=_Help,
                            description="A hidden true device near --start is measured "
                                        "(simulated), fitted with wtml device fit's least "
-                                       "squares, and a radial decoder trained on the fitted "
-                                       "device (over the fit's uncertainty) is tested on the "
+                                       "squares, and each task's decoder trained on the fitted "
+                                       "device (over the fit's posterior) is tested on the "
                                        "true device's records, beside one trained on the true "
-                                       "device, per measurement noise and measurement set.")
+                                       "device, the spread-trained decoder and the classical "
+                                       "path, per measurement noise and measurement set.")
     bd.add_argument("--start", default="micro", help="the device the fit starts from")
     bd.add_argument("--out", default="runs/device_bench",
                     help="report.md, summary.json, datasets and runs go here")
-    bd.add_argument("--samples", type=COUNT, default=60000, help="samples per dataset")
+    bd.add_argument("--task", choices=("radial", "onset"), action="append", default=None,
+                    help="the tasks (repeat; default both)")
+    bd.add_argument("--samples", type=COUNT, default=60000, help="radial samples per dataset")
     bd.add_argument("--epochs", type=_number(2, 1000, int), default=14,
-                    help="epochs per decoder")
+                    help="epochs per radial decoder")
     bd.add_argument("--test-records", type=COUNT, default=2000,
-                    help="records of the true device to test on")
+                    help="radial records of the true device to test on")
+    bd.add_argument("--onset-samples", type=COUNT, default=384, help="onset records per dataset")
+    bd.add_argument("--onset-epochs", type=_number(2, 1000, int), default=60,
+                    help="epochs per onset decoder")
+    bd.add_argument("--onset-test-records", type=COUNT, default=64,
+                    help="onset records of the true device to test on")
     bd.add_argument("--noise", type=_number(1e-7, 0.1, float), action="append",
-                    default=None, help="relative noise of the sweeps (repeat; default 1e-3 "
-                                       "and 1e-4)")
+                    default=None, help="relative noise of the sweeps (repeat; default 1e-3, "
+                                       "1e-4 and 1e-5)")
+    bd.add_argument("--repeats", type=_number(1, 100, int), default=3,
+                    help="draws of the radial measurements per set and noise")
     bd.add_argument("--threads", type=_number(1, 1024, int), default=2,
                     help="torch threads")
     bd.set_defaults(func=_bench_device)

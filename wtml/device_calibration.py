@@ -6,7 +6,9 @@ operating frequencies, the calibration loads fitting T(ω) and the validation lo
 by the fit) measuring its error, as the thesis's Tables 4.3–4.4 do. The result is stored beside
 the device file, ``<device>.calibration.npz`` (``frequency_hz``, ``t`` and the diagnostics: the
 form ``wtml predict --calibration`` reads) and ``<device>.calibration.json`` (the summary), and
-compared with the device model's own T.
+compared with the device model's own T. A measured HUE(0) (the tip's static displacement per
+volt, m/V: what the onset scene and decoder need beside T at the probe) is stored with it when
+given (``hue0``).
 
 The loads file is a CSV with the columns ``frequency_hz, load, validation, zm_re, zm_im, ze_re,
 ze_im``: one row per load and frequency, ``load`` a whole-number label, ``validation`` 1 for a
@@ -26,9 +28,9 @@ import numpy as np
 from wtml.devices import device_hash, device_path, load_device
 from wtml.files import FileError, read_npz, sha256
 from wtml.physics.calibration import Calibration, calibrate_least_squares
-from wtml.physics.measured import read_table
+from wtml.physics.measured import LoadSweep, Sweep, read_table
 from wtml.physics.twoport import ze_from_zm
-from wtml.schema import SchemaError, bounded, build
+from wtml.schema import SceneError, SchemaError, bounded, build
 
 COLUMNS = ("load", "validation", "zm_re", "zm_im", "ze_re", "ze_im")
 
@@ -40,15 +42,17 @@ CALIBRATION_MAX_BYTES = 64 * 1024**2
 @dataclass(frozen=True)
 class StoredCalibration:
     """A device's T as ``wtml calibrate`` stored it, carried by a scene (the fluid scene's
-    ``transducer.calibration``: what the classical path and the decoder believe, while the
-    records come from the device's model). A scene file gives the path of the ``.npz``; the
-    scene holds the values (so its hash covers them): ``frequency_hz`` (n,), T's real and
-    imaginary parts flattened row by row, ``(n * 4,)`` each."""
+    ``transducer.calibration``, the onset and texture scenes' ``calibration``: what the
+    classical path and the decoder believe, while the records come from the device's model).
+    A scene file gives the path of the ``.npz``; the scene holds the values (so its hash covers
+    them): ``frequency_hz`` (n,), T's real and imaginary parts flattened row by row,
+    ``(n * 4,)`` each, and the measured HUE(0) in m/V where one was given."""
 
     source: str = ""
     frequency_hz: tuple[float, ...] = bounded(1e-3, 1e9, default=())
     t_re: tuple[float, ...] = bounded(-1e300, 1e300, default=())
     t_im: tuple[float, ...] = bounded(-1e300, 1e300, default=())
+    hue0: float | None = bounded(1e-15, 1.0, default=None)
 
     def check(self, path: str) -> None:
         n = len(self.frequency_hz)
@@ -67,7 +71,7 @@ class StoredCalibration:
                               f"{value!r:.80}")
         try:
             data = read_npz(value, what="calibration", max_bytes=CALIBRATION_MAX_BYTES,
-                            keys=("frequency_hz", "t"))
+                            keys=("frequency_hz", "t", "hue0"))
         except ValueError as err:
             raise SchemaError(f"{path}: {err}") from None
         f, t = data.get("frequency_hz"), data.get("t")
@@ -76,10 +80,42 @@ class StoredCalibration:
             raise SchemaError(f"{path}: {value}: a calibration needs finite frequency_hz (n,) "
                               "and t (n, 2, 2), as `wtml calibrate` writes it")
         t = np.asarray(t, complex).reshape(-1)
+        hue0 = data.get("hue0")
+        if hue0 is not None and (hue0.shape not in ((), (1,)) or not np.isfinite(hue0).all()):
+            raise SchemaError(f"{path}: {value}: hue0 must be one finite number (m/V), got "
+                              f"shape {hue0.shape}")
         return build(cls, {"source": f"{value} ({sha256(value)[:12]})",
                            "frequency_hz": [float(x) for x in f],
                            "t_re": [float(x) for x in t.real],
-                           "t_im": [float(x) for x in t.imag]}, path)
+                           "t_im": [float(x) for x in t.imag],
+                           "hue0": None if hue0 is None else float(hue0.reshape(-1)[0])},
+                     path)
+
+    def check_scene(self, pre: str, key: str, error_key: str, error: float, spread: bool,
+                    frequency_hz: np.ndarray, hue0: bool = False) -> None:
+        """What a scene on this calibration must hold (``pre``: the scene's key prefix,
+        ``key``: the calibration's key, ``error_key``: the scene's calibration-error key): no
+        calibration error of its own (the calibration's is the one the records carry), no
+        spread (one device's calibration is not every record's), its grid ``frequency_hz``
+        inside the calibrated band, and HUE(0) stored where the scene needs it (``hue0``).
+
+        Raises:
+            SceneError: one line naming the key and what is allowed.
+        """
+        if error != 0:
+            raise SceneError(f"{pre}{error_key}: must be 0 with {key} (the calibration's own "
+                             f"error is the one the records carry), got {error:g}")
+        if spread:
+            raise SceneError(f"{pre}spread: must be none with {key} (one device's calibration "
+                             "is not every record's)")
+        try:
+            self.t_at(frequency_hz)
+        except ValueError as err:
+            raise SceneError(f"{pre}{key}: {err}") from None
+        if hue0 and self.hue0 is None:
+            raise SceneError(f"{pre}{key}: {self.source} holds no HUE(0), which this scene "
+                             "needs beside T: calibrate with wtml calibrate --hue0 M_PER_V (the "
+                             "tip's measured static displacement per volt)")
 
     def t_at(self, frequency_hz: np.ndarray) -> np.ndarray:
         """T at ``frequency_hz`` (within the calibrated band: linear in each element between
@@ -138,11 +174,25 @@ def read_loads(path: str | Path) -> dict[str, np.ndarray]:
     return {"frequency_hz": grid, "zm": zm, "ze": ze, "validation": role == 1, "load": labels}
 
 
+def load_sweeps(path: str | Path, *, sigma: float = 1e-3) -> tuple[LoadSweep, ...]:
+    """Every load of a loads file as a tip-load sweep for ``wtml device fit`` (relative
+    uncertainty ``sigma``), calibration and validation loads alike."""
+    loads = read_loads(path)
+    f, digest = loads["frequency_hz"], sha256(path)
+    return tuple(LoadSweep(zm, Sweep(f, ze, sigma=sigma, source=str(path), sha256=digest),
+                           label=f"{label:g}")
+                 for label, zm, ze in zip(loads["load"], loads["zm"], loads["ze"], strict=True))
+
+
 def calibrate(device_ref: str | Path, loads_path: str | Path, *,
-              out: str | Path | None = None, max_condition: float = 1e4
-              ) -> tuple[Calibration, dict]:
+              out: str | Path | None = None, max_condition: float = 1e4,
+              hue0: float | None = None) -> tuple[Calibration, dict]:
     """Calibrate ``device_ref``'s T on ``loads_path`` (module docstring); store it beside the
-    device file (or in folder ``out``) and return it with its summary."""
+    device file (or in folder ``out``), with the measured ``hue0`` (m/V) where given, and
+    return it with its summary."""
+    if hue0 is not None and not (np.isfinite(hue0) and 1e-15 <= hue0 <= 1.0):
+        raise FileError(f"--hue0: must be in [1e-15, 1] m/V (the tip's static displacement "
+                        f"per volt), got {hue0!r}")
     device = load_device(device_ref)
     loads = read_loads(loads_path)
     f, zm, ze, val = (loads[k] for k in ("frequency_hz", "zm", "ze", "validation"))
@@ -153,6 +203,8 @@ def calibrate(device_ref: str | Path, loads_path: str | Path, *,
                          "calibration": int(np.sum(~val)), "validation": int(np.sum(val))},
                "frequency_hz": f.tolist(), "condition": cal.condition.tolist(),
                "residual": cal.residual.tolist()}
+    if hue0 is not None:
+        summary["hue0"] = float(hue0)
     if val.any():
         err = np.abs(cal.zm_from_ze(ze[val]) / zm[val] - 1)  # (n_val, n_freq)
         summary["validation_error"] = {"max": float(err.max()), "rms": float(
@@ -165,10 +217,11 @@ def calibrate(device_ref: str | Path, loads_path: str | Path, *,
     folder = Path(out) if out is not None else device_path(device_ref).parent
     folder.mkdir(parents=True, exist_ok=True)
     npz, js = folder / f"{device.name}.calibration.npz", folder / f"{device.name}.calibration.json"
+    extra = {} if hue0 is None else {"hue0": np.float64(hue0)}
     np.savez(npz, frequency_hz=f, t=cal.t, condition=cal.condition,
              residual=cal.residual,
              validation_error=np.asarray(summary.get("validation_error", {}).get(
-                 "per_frequency_max", np.full(len(f), np.nan))))
+                 "per_frequency_max", np.full(len(f), np.nan))), **extra)
     summary["files"] = [str(npz), str(js)]
     js.write_text(json.dumps(summary, indent=1) + "\n")
     return cal, summary
@@ -201,8 +254,11 @@ def format_summary(summary: dict) -> str:
     if "model_vs_calibrated_ze" in summary:
         lines.append(f"the device model's T against the calibrated one: Ze of the loads "
                      f"differs by up to {100 * summary['model_vs_calibrated_ze']:.3g} %")
+    if "hue0" in summary:
+        lines.append(f"HUE(0) stored with it: {summary['hue0']:.4g} m/V")
     lines.append("written: " + ", ".join(summary["files"]))
     return "\n".join(lines)
 
 
-__all__ = ["COLUMNS", "StoredCalibration", "calibrate", "format_summary", "read_loads"]
+__all__ = ["COLUMNS", "StoredCalibration", "calibrate", "format_summary", "load_sweeps",
+           "read_loads"]

@@ -15,9 +15,18 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import yaml
 
-from wtml.devices import BeamDevice, Identify, Provenance, Sphere, device_hash, load_device
+from wtml.devices import (
+    BeamDevice,
+    Identify,
+    Posterior,
+    Provenance,
+    Sphere,
+    device_hash,
+    load_device,
+)
 from wtml.physics.beam_presets import apply_factors, beam_device, build, fit_parameters
 from wtml.physics.identify import DeviceFit, fit_device, format_resonance_table, nominal_values
 from wtml.physics.measured import Measurements
@@ -83,8 +92,24 @@ def fitted_device(device: BeamDevice, result: DeviceFit, name: str) -> BeamDevic
                       for f in result.measurements.files())
     source = (f"wtml device fit of {device.name} ({device_hash(device)[:12]}) to "
               f"{files or 'measurements'}: {parts}; reduced chi2 {result.reduced_chi2:.3g}")
-    return dataclasses.replace(out, name=name, provenance=Provenance(source=source),
-                               identify=Identify())
+    return dataclasses.replace(out, name=name, provenance=Provenance(
+        source=source, posterior=posterior(result)), identify=Identify())
+
+
+def posterior(result: DeviceFit) -> Posterior:
+    """The fit's Gaussian posterior about the fitted values (the device file's
+    ``provenance.posterior``, what a scene's ``spread.posterior`` draws from): each free
+    parameter's standard error relative to its fitted factor and their correlations; the tip
+    mass, which the sphere's density holds and no spread draws, marginalised out."""
+    names = list(result.free)
+    keep = [i for i, k in enumerate(names) if k != "tip_mass"]
+    corr = result.correlation()[np.ix_(keep, keep)]
+    corr = np.where(np.isfinite(corr), corr, 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return Posterior(parameters=tuple(names[i] for i in keep),
+                     standard_errors=tuple(float(result.standard_errors[names[i]]
+                                                 / result.factors[names[i]]) for i in keep),
+                     correlation=tuple(float(x) for x in corr.ravel()))
 
 
 def write_device(device: BeamDevice, path: str | Path) -> Path:
@@ -147,5 +172,5 @@ def write_outputs(device: BeamDevice, result: DeviceFit, out: Path, *, name: str
     return fitted
 
 
-__all__ = ["fit", "fitted_device", "format_report", "free_factors", "on_bound", "write_device",
-           "write_outputs"]
+__all__ = ["fit", "fitted_device", "format_report", "free_factors", "on_bound", "posterior",
+           "write_device", "write_outputs"]

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of, read_yaml, to_dict
 
 DEVICES_DIR = Path(__file__).resolve().parent.parent / "configs" / "devices"
@@ -157,13 +159,60 @@ class Target:
 
 
 @dataclass(frozen=True)
+class Posterior:
+    """What a fit (``wtml device fit``) left unknown: the Gaussian posterior of its free
+    parameters about the file's values, as each one's relative standard error (its factor's
+    standard error over the fitted factor) and their correlations (``n × n``, row by row). A
+    scene's ``spread.posterior`` draws devices from it: correlated, so the devices differ by
+    what the measurements could not tell apart, not by a box of independent tolerances."""
+
+    parameters: tuple[str, ...] = ()
+    standard_errors: tuple[float, ...] = bounded(0.0, 10.0, default=())
+    correlation: tuple[float, ...] = bounded(-1.0, 1.0, default=())
+
+    def check(self, path: str) -> None:
+        n = len(self.parameters)
+        if len(set(self.parameters)) != n:
+            raise SchemaError(f"{path}.parameters: each parameter once, got "
+                              f"{list(self.parameters)}")
+        if len(self.standard_errors) != n or len(self.correlation) != n * n:
+            raise SchemaError(f"{path}: {n} parameters need {n} standard_errors and {n * n} "
+                              f"correlations (row by row), got {len(self.standard_errors)} "
+                              f"and {len(self.correlation)}")
+        corr = self.correlation_matrix()
+        if n and (not np.allclose(corr, corr.T, atol=1e-9)
+                  or not np.allclose(np.diag(corr), 1.0, atol=1e-9)
+                  or np.linalg.eigvalsh(corr).min() < -1e-9):
+            raise SchemaError(f"{path}.correlation: must be a correlation matrix (symmetric, "
+                              "ones on the diagonal, positive semidefinite)")
+
+    def correlation_matrix(self) -> np.ndarray:
+        """The correlations, ``(n, n)``."""
+        n = len(self.parameters)
+        return np.asarray(self.correlation, float).reshape(n, n)
+
+    def draw(self, scale: float, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+        """``n`` devices' factors of the file's values, each parameter ``(n,)``: Gaussian
+        about 1 with the posterior's covariance times ``scale²``."""
+        sd = np.asarray(self.standard_errors, float)
+        cov = self.correlation_matrix() * np.outer(sd, sd) * scale**2
+        # eigh, not Cholesky: a fit's correlations can be singular to rounding
+        vals, vecs = np.linalg.eigh(cov)
+        x = vecs @ (np.sqrt(np.clip(vals, 0.0, None))[:, None]
+                    * rng.standard_normal((len(sd), n)))
+        return {p: 1.0 + x[i] for i, p in enumerate(self.parameters)}
+
+
+@dataclass(frozen=True)
 class Provenance:
     """Where the values come from: ``source`` in words and, for a fitted device, the lengths
-    that were free and the resonances they were fitted to."""
+    that were free and the resonances they were fitted to (a thesis preset's), or the fit's
+    posterior (``wtml device fit``'s)."""
 
     source: str = ""
     free: tuple[FreeLength, ...] = ()
     targets: tuple[Target, ...] = ()
+    posterior: Posterior | None = None
 
 
 @dataclass(frozen=True)
@@ -388,7 +437,6 @@ def identity(device: Device) -> dict[str, str]:
 
 
 __all__ = ["DEVICES_DIR", "BeamDevice", "Block", "Bimorph", "Clamp", "Device", "DeviceIdentity",
-           "LumpedDevice",
-           "Losses", "Material", "Piezo", "Provenance", "Sphere", "Whisker", "device_from_dict",
-           "device_hash", "device_path", "identity", "load_device", "resolve",
-           "shipped_devices"]
+           "LumpedDevice", "Losses", "Material", "Piezo", "Posterior", "Provenance", "Sphere",
+           "Whisker", "device_from_dict", "device_hash", "device_path", "identity", "load_device",
+           "resolve", "shipped_devices"]

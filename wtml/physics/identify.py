@@ -111,12 +111,13 @@ def contact_ze(tr: BeamTransducer, omega: np.ndarray, distance: float,
 
 def predict(tr: BeamTransducer, m: Measurements) -> dict:
     """The model's value of every measurement in ``m``: ``free``, ``clamped``, ``contacts``
-    (a list), ``hue0`` (m/V), ``tip_velocity`` (m/s/V)."""
+    and ``loads`` (lists), ``hue0`` (m/V), ``tip_velocity`` (m/s/V)."""
     out: dict = {"free": free_ze(tr, m.free.omega)}
     if m.clamped is not None:
         out["clamped"] = clamped_ze(tr, m.clamped.omega)
     out["contacts"] = [contact_ze(tr, c.sweep.omega, c.distance, c.stiffness)
                        for c in m.contacts]
+    out["loads"] = [ze_from_zm(tr.transduction_matrix(x.sweep.omega), x.zm) for x in m.loads]
     if m.hue0 is not None:
         out["hue0"] = tr.static_tip_displacement_per_volt()
     if m.tip_velocity is not None:
@@ -161,16 +162,21 @@ def _smoother(frequency_hz: np.ndarray, width: float) -> _Smoother:
 
 def _sweeps(m: Measurements) -> list[tuple[str, Sweep]]:
     out = [("free", m.free)] + ([("clamped", m.clamped)] if m.clamped is not None else [])
-    return out + [(f"contact {i}", c.sweep) for i, c in enumerate(m.contacts)]
+    out += [(f"contact {i}", c.sweep) for i, c in enumerate(m.contacts)]
+    return out + [(f"load {x.label}", x.sweep) for x in m.loads]
+
+
+def _models(pred: dict, m: Measurements) -> list[np.ndarray]:
+    """The model's Ze for each sweep of :func:`_sweeps`, in its order."""
+    out = [pred["free"]] + ([pred["clamped"]] if m.clamped is not None else [])
+    return out + pred["contacts"] + pred.get("loads", [])
 
 
 def residuals(pred: dict, m: Measurements, smoothers: list | None = None) -> np.ndarray:
     """All residuals in units of their stated uncertainty (module docstring); ``smoothers``:
     one matrix per sweep (in :func:`_sweeps` order) applied to that sweep's residuals."""
-    models = [pred["free"]] + ([pred["clamped"]] if m.clamped is not None else [])
-    models += pred["contacts"]
     parts = []
-    for k, ((_, sweep), model) in enumerate(zip(_sweeps(m), models, strict=True)):
+    for k, ((_, sweep), model) in enumerate(zip(_sweeps(m), _models(pred, m), strict=True)):
         r = np.log(model / sweep.ze) / (sweep.sigma / np.sqrt(2))
         if smoothers is not None:
             r = smoothers[k] @ r
@@ -395,9 +401,8 @@ class DeviceFit:
     def residual_rms(self) -> dict[str, float]:
         """Per sweep: rms of |log(Ze_model/Ze_measured)| (relative), besides the tip terms."""
         m, p = self.measurements, self.predicted
-        models = [p["free"]] + ([p["clamped"]] if m.clamped is not None else []) + p["contacts"]
         out = {name: float(np.sqrt(np.mean(np.abs(np.log(z / s.ze)) ** 2)))
-               for (name, s), z in zip(_sweeps(m), models, strict=True)}
+               for (name, s), z in zip(_sweeps(m), _models(p, m), strict=True)}
         if m.hue0 is not None:
             out["hue0"] = float(abs(np.log(abs(p["hue0"]) / abs(m.hue0))))
         if m.tip_velocity is not None:
@@ -442,9 +447,8 @@ class DeviceFit:
         import matplotlib.pyplot as plt
 
         m, p = self.measurements, self.predicted
-        models = [p["free"]] + ([p["clamped"]] if m.clamped is not None else []) + p["contacts"]
         fig, (ax_m, ax_p) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
-        for k, ((name, s), z) in enumerate(zip(_sweeps(m), models, strict=True)):
+        for k, ((name, s), z) in enumerate(zip(_sweeps(m), _models(p, m), strict=True)):
             c = f"C{k % 10}"
             ax_m.loglog(s.frequency_hz, np.abs(s.ze), ".", color=c, ms=3,
                         label=f"{name} measured")
@@ -482,6 +486,8 @@ def _describe(m: Measurements) -> str:
     parts += ["HUE(0)"] * (m.hue0 is not None) + ["tip velocity"] * (m.tip_velocity is not None)
     if m.contacts:
         parts.append(f"{len(m.contacts)} contact(s)")
+    if m.loads:
+        parts.append(f"{len(m.loads)} tip load(s)")
     return ", ".join(parts)
 
 

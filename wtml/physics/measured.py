@@ -103,6 +103,28 @@ class ContactSweep:
 
 
 @dataclass(frozen=True, eq=False)
+class LoadSweep:
+    """Ze with a tip load of known impedance (a calibration load of physics.md §4).
+
+    Attributes:
+        zm: the load's Zm at the sweep's frequencies, N·s/m, complex ``(n,)``.
+        sweep: Ze(f) with the load on the tip.
+        label: the load's label in its file.
+    """
+
+    zm: np.ndarray
+    sweep: Sweep
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        zm = np.atleast_1d(np.asarray(self.zm, dtype=complex))
+        if zm.shape != self.sweep.frequency_hz.shape or not np.isfinite(zm).all():
+            raise ValueError(f"load {self.label}: zm must be finite, one per frequency of its "
+                             "sweep")
+        object.__setattr__(self, "zm", zm)
+
+
+@dataclass(frozen=True, eq=False)
 class TipVelocity:
     """|tip velocity / drive voltage| at some frequencies (a vibrometer), free tip.
 
@@ -141,6 +163,7 @@ class Measurements:
         hue0: |static tip displacement per volt|, m/V, or None; ``hue0_sigma`` relative.
         tip_velocity: tip velocity per volt, or None.
         contacts: sweeps with a pin at a known distance from the tip.
+        loads: sweeps with a known load on the tip (``wtml calibrate``'s loads file).
     """
 
     free: Sweep
@@ -149,6 +172,7 @@ class Measurements:
     hue0_sigma: float = 0.01
     tip_velocity: TipVelocity | None = None
     contacts: tuple[ContactSweep, ...] = field(default_factory=tuple)
+    loads: tuple[LoadSweep, ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
         if self.hue0 is not None and not (math.isfinite(self.hue0) and self.hue0 != 0):
@@ -156,11 +180,13 @@ class Measurements:
         if not (0 < self.hue0_sigma < 1):
             raise ValueError(f"hue0_sigma: must be in (0, 1), got {self.hue0_sigma}")
         object.__setattr__(self, "contacts", tuple(self.contacts))
+        object.__setattr__(self, "loads", tuple(self.loads))
 
     def files(self) -> list[dict]:
         """The files behind these measurements: role, path and sha256."""
         roles = [("free", self.free), ("clamped", self.clamped)]
         roles += [(f"contact at {1e3 * c.distance:g} mm", c.sweep) for c in self.contacts]
+        roles += [("tip loads", self.loads[0].sweep)] if self.loads else []  # one file
         roles.append(("tip velocity", self.tip_velocity))
         return [{"role": role, "path": s.source, "sha256": s.sha256}
                 for role, s in roles if s is not None and s.source]

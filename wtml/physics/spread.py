@@ -24,7 +24,8 @@ import numpy as np
 
 from wtml.devices import BeamDevice
 from wtml.physics.beam import BeamTransducer, contact_transduction_matrices, device_forms
-from wtml.physics.beam_presets import build, device_parameters
+from wtml.physics.beam_presets import beam_device, build, device_parameters, fit_parameters
+from wtml.schema import SceneError
 
 
 def _width(high: float, default=0.0):
@@ -52,6 +53,11 @@ class DeviceSpread:
         loss_factor: the structural loss factor η of every segment; ~0.25.
         tan_delta: the dielectric loss tangent; ~0.25.
         coupling: the piezo coupling d31; ~0.03.
+        posterior: for a fitted device (``wtml device fit``'s file, whose provenance holds
+            the fit's :class:`~wtml.devices.Posterior`): each device's fitted parameters also
+            drawn from the fit's Gaussian posterior, its standard errors times this (1: the
+            posterior itself, what the measurements leave unknown), correlated as the fit
+            found them. 0 (default): not drawn.
         devices: distinct devices drawn per simulated batch (records are assigned to them
             uniformly at random).
     """
@@ -62,12 +68,39 @@ class DeviceSpread:
     loss_factor: float = _width(0.9)
     tan_delta: float = _width(0.9)
     coupling: float = _width(0.3)
+    posterior: float = _width(10.0)
     devices: int = field(default=256, metadata={"range": (1, 100_000)})
 
     @property
     def none(self) -> bool:
-        """Whether every width is zero (every device is the preset)."""
-        return all(getattr(self, c) == 0 for c in CLASSES)
+        """Whether every width and the posterior are zero (every device is the preset)."""
+        return self.posterior == 0 and all(getattr(self, c) == 0 for c in CLASSES)
+
+    @property
+    def tolerances(self) -> bool:
+        """Whether any class has a tolerance band (devices that differ by more than a fit's
+        posterior)."""
+        return any(getattr(self, c) != 0 for c in CLASSES)
+
+    def check_device(self, pre: str, device: BeamDevice) -> None:
+        """A posterior spread needs a device with a fit's posterior of parameters it can
+        build (``pre``: the scene's key prefix).
+
+        Raises:
+            SceneError: one line naming ``spread.posterior`` and what is needed.
+        """
+        if self.posterior == 0:
+            return
+        post = device.provenance.posterior
+        if post is None or not post.parameters:
+            raise SceneError(f"{pre}spread.posterior: device {device.name!r} holds no fit "
+                              "posterior (provenance.posterior): fit it with wtml device fit, "
+                              "or give the spread as widths")
+        unknown = sorted(set(post.parameters) - set(fit_parameters(device)))
+        if unknown:
+            raise SceneError(f"{pre}spread.posterior: device {device.name!r}'s posterior "
+                              f"names {unknown[0]!r}, not one of its parameters "
+                              f"{sorted(fit_parameters(device))}")
 
     def only(self, parameter: str, preset: BeamDevice | str) -> dict[str, float]:
         """Half-width of each of ``preset``'s parameters with all but ``parameter`` at zero
@@ -83,13 +116,20 @@ class DeviceSpread:
 
 
 def draw_factors(preset: BeamDevice | str, widths: dict[str, float], n: int,
-                 rng: np.random.Generator) -> dict[str, np.ndarray]:
+                 rng: np.random.Generator, posterior: float = 0.0) -> dict[str, np.ndarray]:
     """``n`` devices' factors (actual / nominal), each parameter ``(n,)`` uniform on
-    ``1 ± width``; exactly 1 where the width is 0. Draws in the preset's parameter order."""
+    ``1 ± width``; exactly 1 where the width is 0. Draws in the preset's parameter order;
+    then, with ``posterior`` > 0, each fitted parameter times a draw from the device's fit
+    posterior (:class:`DeviceSpread`)."""
     if n < 1:
         raise ValueError(f"n must be >= 1, got {n}")
-    return {p: 1.0 + widths.get(p, 0.0) * rng.uniform(-1.0, 1.0, n)
-            for p in device_parameters(preset)}
+    factors = {p: 1.0 + widths.get(p, 0.0) * rng.uniform(-1.0, 1.0, n)
+               for p in device_parameters(preset)}
+    if posterior > 0:
+        post = beam_device(preset).provenance.posterior
+        for p, x in post.draw(posterior, n, rng).items():
+            factors[p] = factors.get(p, 1.0) * x
+    return factors
 
 
 def devices(preset: BeamDevice | str, factors: dict[str, np.ndarray]) -> list[BeamTransducer]:

@@ -89,7 +89,7 @@ def calibration_file(path: str | Path, scene, records: dict | None = None) -> Pa
     """Write the calibration ``wtml predict --calibration`` reads (:func:`read_onset_calibration`)
     to ``path``: each record's (``t_probe``, ``hue0`` of ``records``), or the preset's."""
     if records is None:
-        t, hue0 = scene.calibration(scene.transducer())
+        t, hue0 = scene.calibrated(scene.transducer())
         t, hue0 = t[None], np.float64(hue0)
     else:
         t, hue0 = np.asarray(records["t_probe"])[:, None], np.asarray(records["hue0"])

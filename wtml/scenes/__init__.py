@@ -46,7 +46,8 @@ def load_scene(path: str | Path) -> FluidScene | RadialScene | OnsetScene | Text
 
 def beside(folder: Path, data: Any) -> Any:
     """A scene file's mapping with a relative device file path (``device: my.yaml``, the fluid
-    scene's ``transducer.device`` and ``transducer.calibration``) made relative to the scene
+    scene's ``transducer.device`` and ``transducer.calibration``, the onset and texture scenes'
+    ``calibration``) made relative to the scene
     file's ``folder``, where the file is there; shipped names and everything else unchanged."""
     from wtml.devices import DEVICES_DIR
 
@@ -63,6 +64,8 @@ def beside(folder: Path, data: Any) -> Any:
     for key in ("device", "preset"):
         if key in out:
             out[key] = near(out[key])
+    if "calibration" in out:  # the onset and texture scenes'
+        out["calibration"] = near(out["calibration"], (".npz",))
     spec = out.get("transducer")
     if isinstance(spec, Mapping):
         out["transducer"] = dict(spec) | {k: near(spec[k], (".yaml", ".yml", ".npz"))

@@ -198,17 +198,10 @@ class FluidScene:
             raise SceneError(f"{p}shards: {self.shards} shards for "
                              f"{self.samples} samples; must be <= samples")
         if self.transducer.calibration is not None:
-            if self.nuisance.calibration_error != 0:
-                raise SceneError(f"{p}nuisance.calibration_error: must be 0 with "
-                                 "transducer.calibration (the calibration's own error is the "
-                                 f"one the records carry), got {self.nuisance.calibration_error:g}")
-            if self.spread.any():
-                raise SceneError(f"{p}spread: must be none with transducer.calibration (one "
-                                 "device's calibration is not every record's)")
-            try:
-                self.transducer.calibration.t_at(self.excitation.frequency_hz)
-            except ValueError as err:
-                raise SceneError(f"{p}transducer.calibration: {err}") from None
+            self.transducer.calibration.check_scene(
+                p, "transducer.calibration", "nuisance.calibration_error",
+                self.nuisance.calibration_error, self.spread.any(),
+                self.excitation.frequency_hz)
 
     def output_ranges(self) -> dict[str, OutputRange]:
         """η and ρ over the scene's volume fractions and temperatures (a 41×41 grid of the

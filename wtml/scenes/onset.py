@@ -45,6 +45,7 @@ from typing import ClassVar
 import numpy as np
 
 import wtml.signals.acquisition as acq  # as a module: it imports wtml.schema
+from wtml.device_calibration import StoredCalibration
 from wtml.devices import BeamDevice, shipped
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import build
@@ -201,9 +202,18 @@ class OnsetScene:
     max_contacts: int = bounded(1, 1000, default=8)
     merge_periods: float = bounded(0.0, 100.0, default=2.0)
     spread: DeviceSpread = field(default_factory=DeviceSpread)
+    calibration: StoredCalibration | None = None
+    """The device's own calibration (``wtml calibrate --hue0``'s ``.npz``, over the probe
+    frequency): the T at the probe and the HUE(0) every record carries, instead of the model's
+    with ``calibration_error``; the records still come from the device's model."""
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
+        if self.calibration is not None:
+            self.calibration.check_scene(pre, "calibration", "calibration_error",
+                                         self.calibration_error, not self.spread.none,
+                                         np.array([self.drive.probe_hz]), hue0=True)
+        self.spread.check_device(pre, self.device)
         if self.shards > self.samples:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
@@ -222,9 +232,13 @@ class OnsetScene:
         named parameter's actual / nominal, ``wtml.physics.spread.draw_factors``)."""
         return ModalTransducer.from_beam(build(self.device, factors=factors), self.n_modes)
 
-    def calibration(self, model: ModalTransducer) -> tuple[np.ndarray, float]:
+    def calibrated(self, model: ModalTransducer) -> tuple[np.ndarray, float]:
         """What a user measures on the device ``model`` when calibrating it: its T at the
-        probe frequency (complex ``(2, 2)``) and HUE(0) (m/V)."""
+        probe frequency (complex ``(2, 2)``) and HUE(0) (m/V); with the scene's
+        ``calibration``, the stored ones."""
+        if self.calibration is not None:
+            return (self.calibration.t_at(np.array([self.drive.probe_hz]))[0],
+                    float(self.calibration.hue0))
         wh = 2 * np.pi * self.drive.probe_hz
         return (model.transduction_matrix(np.array([wh]))[0],
                 model.static_tip_displacement_per_volt())
@@ -235,13 +249,15 @@ class OnsetScene:
         """The devices of ``n`` records and which one each record's is, ``(n,)`` int: the
         preset alone without a spread (nothing drawn from ``rng``), else
         ``spread.devices`` devices drawn from the spread (``widths``: each named parameter's
-        half-width instead of the device block's, e.g. ``DeviceSpread.only``), the records
+        half-width instead of the device block's, e.g. ``DeviceSpread.only``, and then no
+        posterior), the records
         assigned at random; only the devices some record uses are built."""
+        posterior = self.spread.posterior if widths is None else 0.0
         widths = self.spread.widths(self.device) if widths is None else widths
-        if not any(widths.values()):
+        if not any(widths.values()) and not posterior:
             return [self.transducer()], np.zeros(n, int)
         count = self.spread.devices
-        factors = draw_factors(self.device, widths, count, rng)
+        factors = draw_factors(self.device, widths, count, rng, posterior)
         which = rng.integers(0, count, n)
         used, which = np.unique(which, return_inverse=True)
         return [self.transducer({p: float(v[d]) for p, v in factors.items()})
@@ -346,7 +362,7 @@ class OnsetScene:
         base = a.effects.base_motion(n, len(e), a.sample_rate_hz, rng)
         moving = a.effects.base.enabled
         models, which = self.device_models(n, rng, widths)
-        cal = [self.calibration(m) for m in models]
+        cal = [self.calibrated(m) for m in models]
         draw = {"law": law, "k": k, "c": c, "base": base, "dac": dac, "scale": scale, "mu": mu}
         cur = np.empty((n, self.n_samples), np.float32)
         touching = np.empty((n, self.n_samples), bool)

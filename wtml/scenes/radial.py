@@ -104,6 +104,7 @@ class RadialScene:
         if self.shards > self.samples:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
+        self.spread.check_device(pre, self.device)
         whisker = 1e6 * self.whisker_length_m() * (1 - self.spread.length)
         for key, values in (("distance_um", self.contact.distance_um),
                             ("distances_um", self.contact.distances_um)):
@@ -159,21 +160,22 @@ class RadialScene:
         complex Ω (the free whisker's Ze of the record's device), target ``distance`` (n,)
         in m, nuisance ``stiffness`` (n,) in N/m (module docstring). ``widths``: the spread's
         half-width per named parameter instead of the device block's (e.g. one parameter
-        alone: ``DeviceSpread.only``)."""
+        alone: ``DeviceSpread.only``; then no posterior)."""
         c = self.contact
         if c.distances_um:
             d = 1e-6 * rng.choice(np.asarray(c.distances_um), n)
         else:
             d = 1e-6 * rng.uniform(*c.distance_um, n)
         k = np.exp(rng.uniform(*np.log(c.stiffness), n))
+        posterior = self.spread.posterior if widths is None else 0.0
         widths = self.spread.widths(self.device) if widths is None else widths
-        if not any(widths.values()):
+        if not any(widths.values()) and not posterior:
             tr = self.transducer()
             ze = self.ze_of(d, k, tr)
             ref = np.broadcast_to(self.free_ze(tr), ze.shape)
         else:
             count = self.spread.devices
-            factors = draw_factors(self.device, widths, count, rng)
+            factors = draw_factors(self.device, widths, count, rng, posterior)
             which = rng.integers(0, count, n)
             free, ze = device_ze(devices(self.device, factors), self.excitation.omega, which, d,
                                  k)

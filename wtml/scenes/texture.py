@@ -44,6 +44,7 @@ from typing import ClassVar
 import numpy as np
 from scipy.signal import resample_poly
 
+from wtml.device_calibration import StoredCalibration
 from wtml.devices import BeamDevice, shipped
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import build
@@ -227,6 +228,10 @@ class TextureScene:
         i_noise_a=2e-8))
     calibration_error: float = bounded(0.0, 0.2, default=0.01)
     spread: DeviceSpread = field(default_factory=DeviceSpread)
+    calibration: StoredCalibration | None = None
+    """The device's own calibration (``wtml calibrate``'s ``.npz``, over
+    :attr:`calibration_hz`): the T every record carries, instead of the model's with
+    ``calibration_error``; the records still come from the device's model."""
     oversample: int = bounded(1, 16, default=2)
     """The simulation steps at ``oversample`` × the sampling rate (the asperities' impulses
     land on the step grid: at 102.4 kS/s halving the step moves the current's phasor by less
@@ -235,6 +240,11 @@ class TextureScene:
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
+        if self.calibration is not None:
+            self.calibration.check_scene(pre, "calibration", "calibration_error",
+                                         self.calibration_error, not self.spread.none,
+                                         self.calibration_hz)
+        self.spread.check_device(pre, self.device)
         if self.shards > self.samples:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
@@ -300,7 +310,10 @@ class TextureScene:
         return np.linspace(lo - pad, hi + pad, self.CALIBRATION_POINTS)
 
     def calibrated_t(self, model: ModalTransducer) -> np.ndarray:
-        """``model``'s T at :attr:`calibration_hz`, complex ``(K, 2, 2)``."""
+        """``model``'s T at :attr:`calibration_hz`, complex ``(K, 2, 2)``: what its user's
+        calibration gives (the scene's ``calibration`` where it has one)."""
+        if self.calibration is not None:
+            return self.calibration.t_at(self.calibration_hz)
         return model.transduction_matrix(2 * np.pi * self.calibration_hz)
 
     def devices(self, n: int, rng: np.random.Generator
@@ -311,7 +324,8 @@ class TextureScene:
         if self.spread.none:
             return [self.transducer()], np.zeros(n, int)
         k = min(self.spread.devices, n)
-        factors = draw_factors(self.device, self.spread.widths(self.device), k, rng)
+        factors = draw_factors(self.device, self.spread.widths(self.device), k, rng,
+                               self.spread.posterior)
         models = [self.transducer({p: float(v[j]) for p, v in factors.items()})
                   for j in range(k)]
         return models, rng.permutation(np.arange(n) % k)

@@ -76,7 +76,8 @@ def test_the_onset_rows_train_and_score_decoders_on_the_true_devices_records(tmp
     rows = json.loads((tmp_path / "summary.json").read_text())["onset"]
     assert [r["method"] for r in rows] == [
         "decoder trained on the true device", "thesis pipeline on the true device's own "
-        "calibration", "decoder trained on the fitted device"]
+        "calibration", "decoder trained over the manufacturing spread (onset.yaml), given the "
+        "true device's calibration", "decoder trained on the fitted device"]
     assert "## Onset" in report
     # the classical path, calibrated on the true device, locates its walls
     assert rows[1]["rmse"] < 1.0

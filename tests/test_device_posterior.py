@@ -103,3 +103,41 @@ def test_records_over_the_posterior_differ_by_what_the_fit_left_unknown(fitted):
     _, n_feat = module.domain_features(scene)
     _, n_one = module.domain_features(one)
     assert n_feat > n_one
+
+
+def test_a_posterior_too_wide_or_on_the_wrong_device_is_refused(fitted, tmp_path):
+    """Factors drawn Gaussian must stay far from 0: `spread.posterior` times the widest
+    relative standard error is at most 0.2. A posterior naming a parameter the device cannot
+    build is refused by the scene, and a lumped device holds none."""
+    import dataclasses
+
+    import yaml
+
+    from wtml.devices import Posterior
+
+    _, path = fitted
+    device = load_device(path)
+    base = to_dict(load_scene("configs/scenes/radial.yaml"))
+    post = device.provenance.posterior
+    wide = dataclasses.replace(post, standard_errors=tuple(
+        se if name == "whisker.length" else 0.05
+        for name, se in zip(post.parameters, post.standard_errors, strict=True)))
+    loose = dataclasses.replace(device, provenance=dataclasses.replace(device.provenance,
+                                                                      posterior=wide))
+    scene_from_dict(base | {"device": to_dict(loose), "spread": {"posterior": 4.0}})
+    with pytest.raises(SchemaError, match=r"spread.posterior: 5 times bimorph.length's relative "
+                                          r"standard error is 0.25; a Gaussian draw"):
+        scene_from_dict(base | {"device": to_dict(loose), "spread": {"posterior": 5.0}})
+    odd = dataclasses.replace(device, provenance=dataclasses.replace(
+        device.provenance, posterior=Posterior(("tip_mass",), (1e-3,), (1.0,))))
+    with pytest.raises(SchemaError, match=r"posterior names 'tip_mass', not one of its"):
+        scene_from_dict(base | {"device": to_dict(odd), "spread": {"posterior": 1.0}})
+    lumped = to_dict(load_device("fluid-lumped"))
+    lumped["provenance"]["posterior"] = {"parameters": ["k"], "standard_errors": [0.01],
+                                         "correlation": [1.0]}
+    (tmp_path / "lumped.yaml").write_text(yaml.safe_dump(lumped))
+    with pytest.raises(SchemaError, match=r"provenance.posterior: a lumped device has no fit "
+                                          r"posterior"):
+        load_device(tmp_path / "lumped.yaml")
+    with pytest.raises(ValueError, match="holds no fit posterior"):
+        draw_factors(load_device("micro"), {}, 3, np.random.default_rng(0), posterior=1.0)

@@ -172,6 +172,31 @@ def test_the_dataset_manifest_carries_the_device(tmp_path):
         read_manifest(tmp_path / "data")
 
 
+def test_a_dataset_of_an_older_wtml_is_told_apart_from_an_edited_one(tmp_path):
+    """A manifest whose scene lacks a key this version's scenes hold (spread.posterior), hashed
+    as written: made by an older wtml, to generate again; hashed otherwise: edited."""
+    from wtml.schema import mapping_hash
+
+    generate(scene_from_dict({"task": "radial", "samples": 8, "shards": 1}), tmp_path / "data",
+             progress=False)
+    path = tmp_path / "data/manifest.json"
+    raw = json.loads(path.read_text())
+    del raw["scene"]["spread"]["posterior"]
+    raw["scene_hash"] = mapping_hash(raw["scene"])
+    for shard in raw["shards"]:  # an older wtml's shards carry its hash
+        shard["scene_hash"] = raw["scene_hash"]
+    path.write_text(json.dumps(raw))
+    with pytest.raises(ValueError, match=r"scene: written by an older wtml .* generate it again"):
+        read_manifest(tmp_path / "data")
+    raw["scene_hash"] = "1" * 64
+    for shard in raw["shards"]:
+        shard["scene_hash"] = raw["scene_hash"]
+    path.write_text(json.dumps(raw))
+    with pytest.raises(ValueError, match=r"scene_hash: 111111111111… is not the hash of its "
+                                         r"scene .*: the manifest was edited"):
+        read_manifest(tmp_path / "data")
+
+
 @pytest.mark.parametrize("name", ["micro", "macro", "fluid"])
 def test_a_device_off_another_written_as_a_file_builds_the_same_beam(name, tmp_path):
     """apply_factors writes factors into a device's values (what an identified device is saved

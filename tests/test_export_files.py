@@ -499,3 +499,26 @@ def test_an_interrupted_export_leaves_no_manifest(fluid_copy, flow, monkeypatch,
         export.export_model(flow[1], folder)
     assert not (folder / "manifest.json").exists()
     one_line(capsys, _predict(folder, data, cal), "manifest.json: missing", "export it again")
+
+
+def test_a_checkpoint_from_an_older_wtml_exports_with_a_consistent_scene_hash(flow, tmp_path):
+    """A checkpoint whose stored scene lacks a key this version's scene holds (written before
+    the key existed: here the fluid transducer's `calibration`) exports, and the export's
+    metadata holds the scene as rebuilt, whose hash is its scene_hash: predict accepts it."""
+    import torch
+
+    state = torch.load(flow[1], map_location="cpu", weights_only=True)
+    scene = state["wtml"]["scene"]
+    assert "calibration" in scene["transducer"]
+    del scene["transducer"]["calibration"]
+    old = tmp_path / "old.ckpt"
+    torch.save(state, old)
+    from wtml.runtime import export
+
+    export.export_model(old, tmp_path / "ex")
+    from wtml.runtime.predict import load_export
+
+    decoder, _ = load_export(tmp_path / "ex")
+    import json
+
+    assert "calibration" in json.loads(decoder.metadata["scene"])["transducer"]

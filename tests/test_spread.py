@@ -87,7 +87,10 @@ def test_unknown_factor_and_parameter_are_named():
 def test_perturbed_devices_are_reciprocal_and_the_batched_path_agrees(seed, preset):
     """At the spread's widest bands: det T = 1 for every drawn device, free and with a
     contact anywhere on its shaft (stiff, soft or rigid), and the batched evaluation of
-    every record's device agrees with each device's own (1e-10), Rayleigh damping included."""
+    every record's device agrees with each device's own (1e-9), Rayleigh damping included.
+    The two paths differ in algorithm (a batched inverse for the rank-one contact updates,
+    against an LU solve per frequency since 12eb545), so they agree to the dynamic stiffness's
+    condition number times the rounding: hypothesis found 1.5e-10 (seed 12771, micro-fluid)."""
     rng = np.random.default_rng(seed)
     wide = DeviceSpread(length=0.1, thickness=0.1, modulus=0.3, loss_factor=0.9,
                         tan_delta=0.9, coupling=0.3)
@@ -106,7 +109,7 @@ def test_perturbed_devices_are_reciprocal_and_the_batched_path_agrees(seed, pres
         if sel.any():
             tc = tr.contact_transduction_matrix(OMEGA, tr.length - d[sel], k[sel])
             np.testing.assert_allclose(np.linalg.det(tc), 1.0, atol=1e-9)
-            np.testing.assert_allclose(ze[sel], tc[..., 0, 1] / tc[..., 1, 1], rtol=1e-10)
+            np.testing.assert_allclose(ze[sel], tc[..., 0, 1] / tc[..., 1, 1], rtol=1e-9)
 
 
 def test_radial_scene_without_spread_is_the_preset_draw_for_draw():

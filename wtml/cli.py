@@ -573,10 +573,11 @@ def build_parser() -> argparse.ArgumentParser:
     bd.add_argument("--onset-test-records", type=COUNT, default=64,
                     help="onset records of the true device to test on")
     bd.add_argument("--noise", type=_number(1e-7, 0.1, float), action="append",
-                    default=None, help="relative noise of the sweeps (repeat; default 1e-3, "
-                                       "1e-4 and 1e-5)")
+                    default=None, help="relative noise of the radial rows' sweeps (repeat; "
+                                       "default 1e-3, 1e-4 and 1e-5; the onset rows fit a "
+                                       "sweep alone and with HUE(0) and pins, at 1e-4)")
     bd.add_argument("--repeats", type=_number(1, 100, int), default=3,
-                    help="draws of the radial measurements per set and noise")
+                    help="draws of the radial measurements per set and noise (onset: one)")
     bd.add_argument("--threads", type=_number(1, 1024, int), default=2,
                     help="torch threads")
     bd.set_defaults(func=_bench_device)

@@ -99,16 +99,27 @@ def fitted_device(device: BeamDevice, result: DeviceFit, name: str) -> BeamDevic
 def posterior(result: DeviceFit) -> Posterior:
     """The fit's Gaussian posterior about the fitted values (the device file's
     ``provenance.posterior``, what a scene's ``spread.posterior`` draws from): each free
-    parameter's standard error relative to its fitted factor and their correlations; the tip
-    mass, which the sphere's density holds and no spread draws, marginalised out."""
+    parameter's standard error relative to its fitted factor and their correlations. The
+    tip mass, which the sphere's density holds and no spread draws, is held at its fit: the
+    others' covariance is the one conditional on it. A parameter the fit could not determine
+    (a non-finite standard error, which ``wtml device fit`` refuses) is left out."""
     names = list(result.free)
-    keep = [i for i, k in enumerate(names) if k != "tip_mass"]
-    corr = result.correlation()[np.ix_(keep, keep)]
+    f = np.array([result.factors[k] for k in names])
+    cov = np.asarray(result.covariance, float) / np.outer(f, f)
+    finite = np.isfinite(np.diag(cov)) & np.all(np.isfinite(cov), axis=1)
+    keep = [i for i, k in enumerate(names) if k != "tip_mass" and finite[i]]
+    held = [i for i, k in enumerate(names) if k == "tip_mass" and finite[i]]
+    c = cov[np.ix_(keep, keep)]
+    if held:
+        cab = cov[np.ix_(keep, held)]
+        c = c - cab @ np.linalg.solve(cov[np.ix_(held, held)], cab.T)
+    sd = np.sqrt(np.clip(np.diag(c), 0.0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = np.clip(c / np.outer(sd, sd), -1.0, 1.0)
     corr = np.where(np.isfinite(corr), corr, 0.0)
     np.fill_diagonal(corr, 1.0)
     return Posterior(parameters=tuple(names[i] for i in keep),
-                     standard_errors=tuple(float(result.standard_errors[names[i]]
-                                                 / result.factors[names[i]]) for i in keep),
+                     standard_errors=tuple(float(x) for x in sd),
                      correlation=tuple(float(x) for x in corr.ravel()))
 
 

@@ -195,11 +195,12 @@ class Posterior:
         """``n`` devices' factors of the file's values, each parameter ``(n,)``: Gaussian
         about 1 with the posterior's covariance times ``scale²``."""
         sd = np.asarray(self.standard_errors, float)
-        cov = self.correlation_matrix() * np.outer(sd, sd) * scale**2
-        # eigh, not Cholesky: a fit's correlations can be singular to rounding
-        vals, vecs = np.linalg.eigh(cov)
-        x = vecs @ (np.sqrt(np.clip(vals, 0.0, None))[:, None]
-                    * rng.standard_normal((len(sd), n)))
+        try:  # the Cholesky factor: the same draws on every machine
+            root = np.linalg.cholesky(self.correlation_matrix()) * sd[:, None] * scale
+        except np.linalg.LinAlgError:  # correlations singular to rounding
+            vals, vecs = np.linalg.eigh(self.correlation_matrix())
+            root = vecs * np.sqrt(np.clip(vals, 0.0, None)) * sd[:, None] * scale
+        x = root @ rng.standard_normal((len(sd), n))
         return {p: 1.0 + x[i] for i, p in enumerate(self.parameters)}
 
 
@@ -309,6 +310,9 @@ class LumpedDevice:
 
     def check(self, path: str) -> None:
         _check_name(self.name, path)
+        if self.provenance.posterior is not None:
+            raise SchemaError(f"{path + '.' if path else ''}provenance.posterior: a lumped "
+                              "device has no fit posterior (wtml device fit fits beams)")
 
     @classmethod
     def resolve(cls, value: Any, path: str) -> LumpedDevice:

@@ -52,7 +52,7 @@ from wtml.files import (
     sha256,
 )
 from wtml.scenes import FluidScene, config_hash, device_of, scene_from_dict, to_dict
-from wtml.schema import SchemaError, bounded, build, one_of
+from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
 
 FORMAT = "wtml.dataset/3"
 """The manifest's format. Older ones are refused (:data:`OLD_FORMATS`): generate such a
@@ -319,6 +319,10 @@ def checked_manifest(folder: str | Path, *, complete: bool = True) -> tuple[Mani
         raise DatasetError(f"{path}: {err}") from None
     actual = config_hash(scene)
     if actual != m.scene_hash:
+        if mapping_hash(m.scene) == m.scene_hash:  # as written, by a wtml with fewer keys
+            raise DatasetError(f"{path}: scene: written by an older wtml (its scene lacks "
+                               "keys this version's scenes hold, so the dataset's identity "
+                               "has changed); generate it again into a new folder")
         raise DatasetError(f"{path}: scene_hash: {m.scene_hash[:12]}… is not the hash of its "
                            f"scene ({actual[:12]}…): the manifest was edited")
     device = identity(device_of(scene))

@@ -8,7 +8,9 @@ segment's length (the bimorph's free length, the block's, the whisker's) and ben
 thickness (the bimorph's layers together, the whisker's side or radius), each material's
 Young's modulus (the PZT's 1/s11E, the substrate's, the whisker's), the structural loss factor
 (one for all segments), tanδ, and the piezo coupling (d31). Each parameter is drawn
-independently. Densities, widths and the clamp are kept nominal.
+independently within its band; a fitted device's parameters can instead (or also) be drawn
+from the fit's Gaussian posterior, correlated (``DeviceSpread.posterior``). Densities, widths
+and the clamp are kept nominal.
 
 Assembling a beam model takes ~1 ms, so a scene draws a finite set of devices per call
 (:attr:`DeviceSpread.devices`, a few hundred) and assigns its records to them at random;
@@ -35,6 +37,9 @@ def _width(high: float, default=0.0):
 
 
 CLASSES = ("length", "thickness", "modulus", "loss_factor", "tan_delta", "coupling")
+POSTERIOR_MAX = 0.2
+"""The widest relative standard deviation (posterior × standard error) a posterior spread
+draws Gaussian factors with: at 0.2, a factor at or below 0 is 5 standard deviations away."""
 """The spread's classes of parameter (the fields of :class:`DeviceSpread` that are widths)."""
 
 
@@ -94,13 +99,30 @@ class DeviceSpread:
         post = device.provenance.posterior
         if post is None or not post.parameters:
             raise SceneError(f"{pre}spread.posterior: device {device.name!r} holds no fit "
-                              "posterior (provenance.posterior): fit it with wtml device fit, "
-                              "or give the spread as widths")
+                             "posterior (provenance.posterior): fit it with wtml device fit, "
+                             "or give the spread as widths")
         unknown = sorted(set(post.parameters) - set(fit_parameters(device)))
         if unknown:
             raise SceneError(f"{pre}spread.posterior: device {device.name!r}'s posterior "
-                              f"names {unknown[0]!r}, not one of its parameters "
-                              f"{sorted(fit_parameters(device))}")
+                             f"names {unknown[0]!r}, not one of its parameters "
+                             f"{sorted(fit_parameters(device))}")
+        widest = self.posterior * max(post.standard_errors)
+        if widest > POSTERIOR_MAX:
+            name = post.parameters[int(np.argmax(post.standard_errors))]
+            raise SceneError(f"{pre}spread.posterior: {self.posterior:g} times {name}'s "
+                             f"relative standard error is {widest:.3g}; a Gaussian draw of "
+                             f"factors holds up to {POSTERIOR_MAX:g} (beyond, factors near 0 "
+                             "or below): measure more, or give that class as a tolerance "
+                             "width")
+
+    def whisker_margin(self, device: BeamDevice) -> float:
+        """How much shorter than nominal (relative) a drawn whisker may be: the length
+        band, plus 5 posterior standard deviations of ``whisker.length``."""
+        post = device.provenance.posterior
+        se = 0.0
+        if self.posterior and post is not None and "whisker.length" in post.parameters:
+            se = post.standard_errors[post.parameters.index("whisker.length")]
+        return self.length + 5 * self.posterior * se
 
     def only(self, parameter: str, preset: BeamDevice | str) -> dict[str, float]:
         """Half-width of each of ``preset``'s parameters with all but ``parameter`` at zero
@@ -126,7 +148,10 @@ def draw_factors(preset: BeamDevice | str, widths: dict[str, float], n: int,
     factors = {p: 1.0 + widths.get(p, 0.0) * rng.uniform(-1.0, 1.0, n)
                for p in device_parameters(preset)}
     if posterior > 0:
-        post = beam_device(preset).provenance.posterior
+        device = beam_device(preset)
+        post = device.provenance.posterior
+        if post is None:
+            raise ValueError(f"posterior: device {device.name!r} holds no fit posterior")
         for p, x in post.draw(posterior, n, rng).items():
             factors[p] = factors.get(p, 1.0) * x
     return factors

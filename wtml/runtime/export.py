@@ -47,7 +47,7 @@ from wtml.runtime.metadata import (  # noqa: F401  (the names this module has al
     RADIAL_INPUTS,
     write_manifest,
 )
-from wtml.scenes import config_hash, device_of, scene_from_dict
+from wtml.scenes import config_hash, device_of, scene_from_dict, to_dict
 
 REFERENCES = {
     "fluid": {"calibration": "the device's calibrated T (whisker with its sphere) at the "
@@ -243,7 +243,7 @@ def _export_matrix_task(module, scene, out: Path) -> dict[str, Path]:
         "outputs": json.dumps(list(scene.OUTPUTS)),
         "units": json.dumps(scene.UNITS | {name: "ohm" for name in inputs}),
         "frequency_hz": json.dumps(freq.tolist()),
-        "scene": json.dumps(module.scene, sort_keys=True),
+        "scene": json.dumps(to_dict(scene), sort_keys=True),
         "scene_hash": config_hash(scene),
         "domain": json.dumps(domain),
     }

@@ -56,7 +56,7 @@ from wtml.runtime.predict import (
     float32_range,
     read_calibration_arrays,
 )
-from wtml.scenes import config_hash
+from wtml.scenes import config_hash, to_dict
 from wtml.scenes.onset import intervals
 
 ONSET_REFERENCES = {"calibration": "the device's calibrated T at the probe frequency and its "
@@ -154,7 +154,7 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
             "frequency_hz": json.dumps([scene.drive.probe_hz]),
             "sample_rate_hz": json.dumps(rate), "n_samples": json.dumps(scene.n_samples),
             "merge_s": json.dumps(merge),
-            "scene": json.dumps(module.scene, sort_keys=True), "scene_hash": config_hash(scene),
+            "scene": json.dumps(to_dict(scene), sort_keys=True), "scene_hash": config_hash(scene),
             "domain": json.dumps(domain)}
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
     frames = {"frame_s": json.dumps(period / rate), "onset_offset_s": json.dumps(on_off[0]),

@@ -26,7 +26,7 @@ from wtml.physics.twoport import flat_parts
 from wtml.runtime.export import _export, domain_metadata
 from wtml.runtime.metadata import TEXTURE_INPUTS  # noqa: F401  (its name here as before)
 from wtml.runtime.onset import read_record
-from wtml.scenes import config_hash
+from wtml.scenes import config_hash, to_dict
 
 TEXTURE_REFERENCES = {"calibration": "the device's calibrated T (the macro WT with its whisker, "
                                      "tip free) at calibration_hz, measured with the "
@@ -57,7 +57,7 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
             "n_samples": json.dumps(window), "window_s": json.dumps(module.hparams.window_s),
             "calibration_hz": json.dumps(scene.calibration_hz.tolist()),
             "references": json.dumps(TEXTURE_REFERENCES),
-            "scene": json.dumps(module.scene, sort_keys=True), "scene_hash": config_hash(scene),
+            "scene": json.dumps(to_dict(scene), sort_keys=True), "scene_hash": config_hash(scene),
             "domain": json.dumps(domain)}
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
     widths = (window, window, (len(scene.calibration_hz), 4), (len(scene.calibration_hz), 4))

@@ -105,12 +105,12 @@ class RadialScene:
             raise SceneError(f"{pre}shards: {self.shards} shards for {self.samples} samples; "
                              "must be <= samples")
         self.spread.check_device(pre, self.device)
-        whisker = 1e6 * self.whisker_length_m() * (1 - self.spread.length)
+        whisker = 1e6 * self.whisker_length_m() * (1 - self.spread.whisker_margin(self.device))
         for key, values in (("distance_um", self.contact.distance_um),
                             ("distances_um", self.contact.distances_um)):
             if values and max(values) >= whisker:
                 raise SceneError(f"{pre}contact.{key}: must stay below the whisker length "
-                                 f"{whisker:g} µm (its shortest in spread.length), got "
+                                 f"{whisker:g} µm (its shortest in the spread), got "
                                  f"{max(values):g}")
 
     def whisker_length_m(self) -> float:

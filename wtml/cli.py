@@ -270,7 +270,7 @@ def _bench_device(args: argparse.Namespace) -> int:
     from wtml.bench.device import NOISES, run_device_bench
 
     print(run_device_bench(args.out, start=args.start, tasks=tuple(args.task or
-                                                                   ("radial", "onset")),
+                                                                   ("radial", "onset", "fluid")),
                            samples=args.samples, epochs=args.epochs,
                            test_records=args.test_records, onset_samples=args.onset_samples,
                            onset_epochs=args.onset_epochs,
@@ -548,8 +548,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "the trained spread, each class of issue 21's spread alone; 0: none)")
     bo.set_defaults(func=_bench_onset)
 
-    bd = be_sub.add_parser("device", help="what fitting one's own device costs the radial "
-                           "and onset decoders", formatter_class=_Help,
+    bd = be_sub.add_parser("device", help="what fitting one's own device costs the radial, "
+                           "onset and fluid decoders", formatter_class=_Help,
                            description="A hidden true device near --start is measured "
                                        "(simulated), fitted with wtml device fit's least "
                                        "squares, and each task's decoder trained on the fitted "
@@ -560,8 +560,8 @@ def build_parser() -> argparse.ArgumentParser:
     bd.add_argument("--start", default="micro", help="the device the fit starts from")
     bd.add_argument("--out", default="runs/device_bench",
                     help="report.md, summary.json, datasets and runs go here")
-    bd.add_argument("--task", choices=("radial", "onset"), action="append", default=None,
-                    help="the tasks (repeat; default both)")
+    bd.add_argument("--task", choices=("radial", "onset", "fluid"), action="append",
+                    default=None, help="the tasks (repeat; default all three)")
     bd.add_argument("--samples", type=COUNT, default=60000, help="radial samples per dataset")
     bd.add_argument("--epochs", type=_number(2, 1000, int), default=14,
                     help="epochs per radial decoder")

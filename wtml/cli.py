@@ -275,6 +275,8 @@ def _bench_device(args: argparse.Namespace) -> int:
                            test_records=args.test_records, onset_samples=args.onset_samples,
                            onset_epochs=args.onset_epochs,
                            onset_test_records=args.onset_test_records,
+                           fluid_samples=args.fluid_samples, fluid_epochs=args.fluid_epochs,
+                           fluid_test_records=args.fluid_test_records,
                            noises=tuple(args.noise or NOISES), repeats=args.repeats,
                            threads=args.threads))
     return 0
@@ -550,13 +552,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     bd = be_sub.add_parser("device", help="what fitting one's own device costs the radial, "
                            "onset and fluid decoders", formatter_class=_Help,
-                           description="A hidden true device near --start is measured "
-                                       "(simulated), fitted with wtml device fit's least "
-                                       "squares, and each task's decoder trained on the fitted "
-                                       "device (over the fit's posterior) is tested on the "
-                                       "true device's records, beside one trained on the true "
-                                       "device, the spread-trained decoder and the classical "
-                                       "path, per measurement noise and measurement set.")
+                           description="A hidden true device is measured (simulated) and "
+                                       "fitted (radial and onset: a beam near --start, with "
+                                       "wtml device fit's least squares; fluid: the lumped "
+                                       "fluid device and its sphere, wtml.physics."
+                                       "identify_lumped), and each task's decoder trained on "
+                                       "the fitted device is tested on the true device's "
+                                       "records, beside one trained on the true device, the "
+                                       "spread-trained decoder and the classical path, per "
+                                       "measurement noise and measurement set.")
     bd.add_argument("--start", default="micro", help="the device the fit starts from")
     bd.add_argument("--out", default="runs/device_bench",
                     help="report.md, summary.json, datasets and runs go here")
@@ -572,10 +576,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="epochs per onset decoder")
     bd.add_argument("--onset-test-records", type=COUNT, default=64,
                     help="onset records of the true device to test on")
+    bd.add_argument("--fluid-samples", type=COUNT, default=24000,
+                    help="fluid samples per dataset")
+    bd.add_argument("--fluid-epochs", type=_number(2, 1000, int), default=60,
+                    help="epochs per fluid decoder")
+    bd.add_argument("--fluid-test-records", type=COUNT, default=4000,
+                    help="fluid records of the true device to test on")
     bd.add_argument("--noise", type=_number(1e-7, 0.1, float), action="append",
                     default=None, help="relative noise of the radial rows' sweeps (repeat; "
                                        "default 1e-3, 1e-4 and 1e-5; the onset rows fit a "
-                                       "sweep alone and with HUE(0) and pins, at 1e-4)")
+                                       "sweep alone and with HUE(0) and pins at 1e-4, the "
+                                       "fluid rows at 1e-3 and 1e-4)")
     bd.add_argument("--repeats", type=_number(1, 100, int), default=3,
                     help="draws of the radial measurements per set and noise (onset: one)")
     bd.add_argument("--threads", type=_number(1, 1024, int), default=2,

@@ -10,8 +10,8 @@ rides on the tip). Standard errors come from the Jacobian at the solution, scale
 reduced χ² where that is above 1.
 
 What each measurement shows: a free sweep sees the mechanics only referred to the electrical
-side, ``(k, m, c, m_s) / phi²``, so ``phi`` needs a load of known Zm (or a tip velocity) and
-the sphere's mass then needs a sweep without it as well as one with it.
+side, ``(k, m, c, m_s) / phi²``, so ``phi`` needs a load of known Zm (or a tip velocity), and
+the sphere's mass needs a measurement without it (a sweep, or loads) as well as with it.
 """
 
 from __future__ import annotations
@@ -28,6 +28,8 @@ from wtml.physics.twoport import cascade, tip_mass, ze_from_zm
 
 LUMPED_PARAMETERS = ("c0", "phi", "k", "m", "c", "tan_delta")
 """The lumped transducer's parameters a fit may scale (``LumpedTransducer``'s fields)."""
+ANCHOR = 1e-3
+"""Weight of the pull of each factor to 1, in residual units (the data's are σ-scaled)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,8 +45,9 @@ class Measured:
 @dataclass(frozen=True)
 class LumpedFit:
     """A lumped fit: ``factors`` of every free parameter (of the start's values), their
-    ``standard_errors`` and ``covariance`` (factor units, in ``free``'s order), the reduced
-    χ², and the fitted transducer and sphere radius (m)."""
+    ``standard_errors`` and ``covariance`` (factor units, in ``free``'s order; infinite along
+    what the data do not see, NaN for a parameter stopped on its range's bound), the reduced
+    χ², the fitted transducer and sphere radius (m), and the parameters ``at_bound``."""
 
     factors: dict[str, float]
     standard_errors: dict[str, float]
@@ -52,6 +55,7 @@ class LumpedFit:
     reduced_chi2: float
     transducer: LumpedTransducer
     radius: float
+    at_bound: tuple[str, ...] = ()
 
 
 def sphere_ze(tr: LumpedTransducer, omega: np.ndarray, sphere_mass: float,
@@ -92,36 +96,67 @@ def fit_lumped(start: LumpedTransducer, radius: float, density: float,
         f = dict(zip(names, map(float, x), strict=True))
         return scaled(start, f), radius * f.get("sphere_radius", 1.0)
 
-    def residuals(x: np.ndarray) -> np.ndarray:
+    def parts(x: np.ndarray) -> list[tuple[Measured, np.ndarray, np.ndarray]]:
+        """Per sweep: q = log(Ze_model / Ze_measured) in units of σ/√2, and ∂q/∂x
+        ``(n_freq, n_par)``, analytic: with u = Zm + Zt (+ jω m_s) and C = C0 (1 - j tanδ),
+        Ze = u / (jωC u + φ²)."""
         tr, r = model(x)
         mass = density * 4 / 3 * np.pi * r**3
-        parts = []
+        out = []
         for m in sweeps:
-            s = m.sweep
-            q = np.log(sphere_ze(tr, s.omega, mass if m.sphere else 0.0,
-                                 0.0 if m.zm is None else m.zm) / s.ze)
-            q = q / (s.sigma / np.sqrt(2))
-            parts += [q.real, q.imag]
-        return np.concatenate(parts)
+            s, w = m.sweep, m.sweep.omega
+            ms = mass if m.sphere else 0.0
+            u = (0.0 if m.zm is None else m.zm) + tr.mechanical_impedance(w) + 1j * w * ms
+            cap = tr.capacitance()
+            d = 1j * w * cap * u + tr.phi**2
+            scale = s.sigma / np.sqrt(2)
+            du = 1 / u - 1j * w * cap / d  # ∂ log Ze / ∂u
+            by = {"c": du, "m": du * 1j * w, "k": du / (1j * w),
+                  "phi": -2 * tr.phi / d,
+                  "c0": -1j * w * u / d * (1 - 1j * tr.tan_delta),
+                  "tan_delta": -1j * w * u / d * (-1j * tr.c0),
+                  "sphere_radius": du * 1j * w * 3 * ms}
+            # ∂/∂(factor) = value at factor 1 × ∂/∂(value); the radius's: 3 m_s / factor
+            jac = np.stack([by[n] * (getattr(start, n) if n != "sphere_radius"
+                                     else 1 / x[names.index(n)]) for n in names], -1)
+            out.append((m, np.log(u / d / s.ze) / scale, jac / scale))
+        return out
 
+    def residuals(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([v for _, q, _ in parts(x) for v in (q.real, q.imag)])
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([v for _, _, j in parts(x) for v in (j.real, j.imag)])
+
+    # a faint pull of every factor to 1 (ANCHOR in units of the noise): along a direction
+    # the data do not see the solver would otherwise wander to a bound; along a seen one it
+    # moves the answer by less than 1e-9 of a standard error
+    eye = ANCHOR * np.eye(len(names))
     lo = np.array([free[n][0] for n in names])
     hi = np.array([free[n][1] for n in names])
-    sol = least_squares(residuals, np.ones(len(names)), bounds=(lo, hi), x_scale="jac",
-                        xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=2000)
-    dof = max(len(sol.fun) - len(names), 1)
-    chi2 = float(2 * sol.cost / dof)
-    # the covariance from the eigenvalues of JᵀJ: a direction the data do not see (an
-    # eigenvalue below 1e-13 of the largest) gives every parameter along it an infinite
-    # standard error, where a pseudo-inverse would give it none
-    vals, vecs = np.linalg.eigh(sol.jac.T @ sol.jac)
-    seen = vals > 1e-13 * vals.max()
+    sol = least_squares(lambda x: np.concatenate([residuals(x), ANCHOR * (x - 1)]),
+                        np.ones(len(names)), jac=lambda x: np.vstack([jacobian(x), eye]),
+                        bounds=(lo, hi), x_scale="jac", xtol=1e-14, ftol=1e-14, gtol=1e-14,
+                        max_nfev=2000)
+    data = residuals(sol.x)
+    dof = max(len(data) - len(names), 1)
+    chi2 = float(np.sum(data**2) / dof)
+    at_bound = tuple(n for n, a in zip(names, sol.active_mask, strict=True) if a != 0)
+    # the covariance from the eigenvalues of JᵀJ (the analytic Jacobian: a direction the data
+    # do not see has an eigenvalue at rounding, ~1e-16 of the largest, where a seen one on
+    # the shipped device is above 1e-8): every parameter with a share of such a direction
+    # gets an infinite standard error, where a pseudo-inverse would give it a finite one
+    vals, vecs = np.linalg.eigh(jacobian(sol.x).T @ jacobian(sol.x))
+    seen = vals > 1e-12 * vals.max()
     cov = (vecs[:, seen] / vals[seen]) @ vecs[:, seen].T * max(chi2, 1.0)
-    blind = np.any(np.abs(vecs[:, ~seen]) > 1e-2, axis=1)
+    blind = np.sqrt(np.sum(vecs[:, ~seen] ** 2, axis=1)) > 1e-6
     cov[blind, :] = cov[:, blind] = np.inf
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    se[[names.index(n) for n in at_bound]] = np.nan  # the range's answer, not the data's
     tr, r = model(sol.x)
     return LumpedFit(dict(zip(names, map(float, sol.x), strict=True)),
-                     dict(zip(names, map(float, se), strict=True)), cov, chi2, tr, r)
+                     dict(zip(names, map(float, se), strict=True)), cov, chi2, tr, r,
+                     at_bound)
 
 
 __all__ = ["LUMPED_PARAMETERS", "LumpedFit", "Measured", "fit_lumped", "scaled", "sphere_ze"]

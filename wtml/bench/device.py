@@ -47,6 +47,7 @@ from wtml.baselines.fluid_classical import ClassicalFluid
 from wtml.baselines.radial import InversionRadial, PolynomialRadial
 from wtml.bench.accuracy import relative_errors
 from wtml.bench.onset import event_metrics
+from wtml.bench.onset_transfer import location_scores
 from wtml.data import generate, load_shards
 from wtml.decoders.checkpoint import load_module
 from wtml.decoders.fluid import FluidDecoder, TorchFluid
@@ -67,6 +68,7 @@ from wtml.physics.identify_lumped import (
     Measured,
     fit_lumped,
     scaled,
+    sphere_mass,
     sphere_ze,
 )
 from wtml.physics.measured import ContactSweep, LoadSweep, Measurements, Sweep
@@ -272,16 +274,13 @@ def _onset_score(export: Path, test: dict) -> dict[str, dict]:
     with a wall (µm; NaN answers count as missed), F1 of the onsets, the share in domain."""
     decoder, classical = load_export(export)
     inputs = record_inputs(test)
-    wall = np.isfinite(test["gap"])
     out = {}
     for name, model in (("decoder", decoder), ("classical", classical)):
         pred = model.run(*inputs)
         on, off = contacts_from(pred, model.metadata)
-        err = (pred["gap"] - test["gap"])[wall]
-        found = np.isfinite(err)
-        out[name] = {"rmse": float(1e6 * np.sqrt(np.mean(err[found] ** 2)))
-                     if found.any() else float("nan"),
-                     "missed": int((~found).sum()), "f1": event_metrics(test, on, off)["f1"],
+        loc = location_scores(pred["gap"], test["gap"])
+        out[name] = {"rmse": 1e6 * loc["rmse"], "missed": loc["missed"],
+                     "f1": event_metrics(test, on, off)["f1"],
                      "in_domain": float(np.mean(pred["in_domain"])) if "in_domain" in pred
                      else None}
     return out
@@ -352,7 +351,7 @@ def fluid_measurements(true, radius: float, density: float, which: str, noise: f
     of :data:`FLUID_SETS`), and four calibration loads (|Zm| 0.3–10× ``scale``, phase −45°)
     at ``tones`` (Hz) with it, each at relative ``noise``."""
     f = np.geomspace(40.0, 400.0, 300)
-    mass = density * 4 / 3 * np.pi * radius**3
+    mass = sphere_mass(radius, density)
     out = [Measured(Sweep(f, complex_noise(sphere_ze(true, 2 * np.pi * f, mass), noise, rng),
                           sigma=noise))]
     if which == "both":

@@ -58,6 +58,11 @@ class LumpedFit:
     at_bound: tuple[str, ...] = ()
 
 
+def sphere_mass(radius: float, density: float) -> float:
+    """kg of a sphere of ``radius`` m at ``density`` kg/m³."""
+    return density * 4 / 3 * np.pi * radius**3
+
+
 def sphere_ze(tr: LumpedTransducer, omega: np.ndarray, sphere_mass: float,
               zm: np.ndarray | float = 0.0) -> np.ndarray:
     """Ze (Ω) of ``tr`` carrying ``sphere_mass`` kg at the tip (0: none) under the load
@@ -96,12 +101,18 @@ def fit_lumped(start: LumpedTransducer, radius: float, density: float,
         f = dict(zip(names, map(float, x), strict=True))
         return scaled(start, f), radius * f.get("sphere_radius", 1.0)
 
+    last: dict[bytes, list] = {}
+
     def parts(x: np.ndarray) -> list[tuple[Measured, np.ndarray, np.ndarray]]:
         """Per sweep: q = log(Ze_model / Ze_measured) in units of σ/√2, and ∂q/∂x
         ``(n_freq, n_par)``, analytic: with u = Zm + Zt (+ jω m_s) and C = C0 (1 - j tanδ),
-        Ze = u / (jωC u + φ²)."""
+        Ze = u / (jωC u + φ²). The solver asks for the residuals and the Jacobian at the
+        same x in turn: the last x's answer is kept."""
+        key = np.asarray(x, float).tobytes()
+        if key in last:
+            return last[key]
         tr, r = model(x)
-        mass = density * 4 / 3 * np.pi * r**3
+        mass = sphere_mass(r, density)
         out = []
         for m in sweeps:
             s, w = m.sweep, m.sweep.omega
@@ -120,6 +131,8 @@ def fit_lumped(start: LumpedTransducer, radius: float, density: float,
             jac = np.stack([by[n] * (getattr(start, n) if n != "sphere_radius"
                                      else 1 / x[names.index(n)]) for n in names], -1)
             out.append((m, np.log(u / d / s.ze) / scale, jac / scale))
+        last.clear()
+        last[key] = out
         return out
 
     def residuals(x: np.ndarray) -> np.ndarray:
@@ -146,7 +159,8 @@ def fit_lumped(start: LumpedTransducer, radius: float, density: float,
     # do not see has an eigenvalue at rounding, ~1e-16 of the largest, where a seen one on
     # the shipped device is above 1e-8): every parameter with a share of such a direction
     # gets an infinite standard error, where a pseudo-inverse would give it a finite one
-    vals, vecs = np.linalg.eigh(jacobian(sol.x).T @ jacobian(sol.x))
+    at_fit = jacobian(sol.x)
+    vals, vecs = np.linalg.eigh(at_fit.T @ at_fit)
     seen = vals > 1e-12 * vals.max()
     cov = (vecs[:, seen] / vals[seen]) @ vecs[:, seen].T * max(chi2, 1.0)
     blind = np.sqrt(np.sum(vecs[:, ~seen] ** 2, axis=1)) > 1e-6
@@ -159,4 +173,5 @@ def fit_lumped(start: LumpedTransducer, radius: float, density: float,
                      at_bound)
 
 
-__all__ = ["LUMPED_PARAMETERS", "LumpedFit", "Measured", "fit_lumped", "scaled", "sphere_ze"]
+__all__ = ["LUMPED_PARAMETERS", "LumpedFit", "Measured", "fit_lumped", "scaled", "sphere_mass",
+           "sphere_ze"]

@@ -3,6 +3,8 @@
 import dataclasses
 import os
 import shutil
+import subprocess
+import sys
 import zlib
 from pathlib import Path
 
@@ -67,6 +69,13 @@ def generate_and_train(tmp_path, scene_yaml: str, config_yaml: str, *extra: str)
 ROOT = Path(__file__).resolve().parents[1]
 FLUID_SMALL = build(FluidScene, {"samples": 1200, "shards": 4})
 RADIAL_SMALL = build(RadialScene, {"samples": 1600, "shards": 4})
+ONSET_SMALL = {"samples": 24, "shards": 3}
+"""The small onset scene's size (tests/test_onset.py, the ``onset_export`` flow)."""
+TEXTURE_SMALL = {"samples": 30, "shards": 3, "specimens_per_grade": 2}
+"""The small texture scene's size (tests/test_texture.py, the ``texture_export`` flow)."""
+TEXTURE_SPREAD = {"length": 0.005, "thickness": 0.005, "modulus": 0.03, "loss_factor": 0.25,
+                  "tan_delta": 0.25, "coupling": 0.03}
+"""Issue 21's device spread of the texture flow."""
 
 
 def train_args(tmp, *extra, subcommand=True):
@@ -128,6 +137,51 @@ def radial_flow(tmp_path_factory):
     finally:
         os.chdir(cwd)
     return tmp
+
+
+@pytest.fixture(scope="session")
+def onset_export(tmp_path_factory):
+    """A tiny onset flow: generate, train 3 epochs, export. Its acquisition is the shipped
+    scene's (bench-top), which tests/test_onset.py's ``scene`` fixture's records also have."""
+    import yaml
+
+    root = tmp_path_factory.mktemp("onset")
+    cfg = root / "scene.yaml"
+    shipped = yaml.safe_load((ROOT / "configs/scenes/onset.yaml").read_text())
+    cfg.write_text(yaml.safe_dump({"name": "onset", "task": "onset", **ONSET_SMALL,
+                                   "acquisition": shipped["acquisition"],
+                                   "wall": {"free_fraction": 0.25}}))
+    data, run, model = root / "data", root / "run", root / "export"
+    subprocess.run([sys.executable, "-m", "wtml.cli", "generate", "--config", str(cfg),
+                    "--out", str(data)], check=True, capture_output=True, cwd=ROOT)
+    subprocess.run([sys.executable, "train.py", "fit", "--config", "configs/onset.yaml",
+                    "--data.init_args.data_dir", str(data), "--trainer.max_epochs", "3",
+                    "--trainer.default_root_dir", str(run)], check=True, capture_output=True,
+                   cwd=ROOT)
+    subprocess.run([sys.executable, "-m", "wtml.cli", "export", "--checkpoint",
+                    str(run / "checkpoints/last.ckpt"), "--out", str(model)], check=True,
+                   capture_output=True, cwd=ROOT)
+    return {"data": data, "run": run, "model": model}
+
+
+@pytest.fixture(scope="session")
+def texture_export(tmp_path_factory):
+    """A tiny texture flow: generate, train 2 epochs, export."""
+    import yaml
+
+    root = tmp_path_factory.mktemp("texture")
+    cfg = root / "scene.yaml"
+    cfg.write_text(yaml.safe_dump({"name": "texture", "task": "texture", **TEXTURE_SMALL,
+                                   "spread": TEXTURE_SPREAD}))
+    data, run, model = root / "data", root / "run", root / "export"
+    for args in (["-m", "wtml.cli", "generate", "--config", str(cfg), "--out", str(data)],
+                 ["train.py", "fit", "--config", "configs/texture.yaml",
+                  "--data.init_args.data_dir", str(data), "--trainer.max_epochs", "2",
+                  "--trainer.default_root_dir", str(run)],
+                 ["-m", "wtml.cli", "export", "--checkpoint",
+                  str(run / "checkpoints/last.ckpt"), "--out", str(model)]):
+        subprocess.run([sys.executable, *args], check=True, capture_output=True, cwd=ROOT)
+    return {"run": run, "model": model}
 
 
 W_H = 2 * np.pi * 420.0

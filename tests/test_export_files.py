@@ -22,8 +22,8 @@ from wtml.cli import main
 from wtml.data import load_shards
 from wtml.files import MEMORY_CEILING, FileError, sha256
 from wtml.runtime import metadata as md
-from wtml.runtime.onset import read_record
 from wtml.runtime.predict import InputError, OnnxModel, load_export, read_input
+from wtml.runtime.recordings import read_record
 from wtml.runtime.texture import window_batches, windows
 from wtml.scenes import FluidScene, OnsetScene, RadialScene, TextureScene
 from wtml.schema import SchemaError
@@ -482,7 +482,7 @@ def test_an_interrupted_export_leaves_no_manifest(fluid_copy, flow, monkeypatch,
     """`wtml export` removes the folder's manifest first and writes the new one last: a
     re-export that dies half-way leaves a folder that is refused, never old and new graphs
     mixed under the old manifest."""
-    from wtml.runtime import export
+    from wtml.exporters import common as export
 
     folder, data, cal = fluid_copy
     calls = []
@@ -513,7 +513,7 @@ def test_a_checkpoint_from_an_older_wtml_exports_with_a_consistent_scene_hash(fl
     del scene["transducer"]["calibration"]
     old = tmp_path / "old.ckpt"
     torch.save(state, old)
-    from wtml.runtime import export
+    from wtml.exporters import common as export
 
     export.export_model(old, tmp_path / "ex")
     from wtml.runtime.predict import load_export

@@ -22,11 +22,11 @@ from wtml.decoders.checkpoint import load_decoder, read_checkpoint
 from wtml.decoders.domain import Gated
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
 from wtml.decoders.layers import ZmFromZe
+from wtml.exporters.common import ClassicalFluidNet
 from wtml.physics import ze_from_zm, zm_from_ze
 from wtml.physics.fluids import glycerol_water
 from wtml.physics.loads import stokes_sphere
 from wtml.physics.twoport import flat_parts
-from wtml.runtime.export import ClassicalFluidNet
 from wtml.runtime.predict import InputError, OnnxModel, predict_file
 from wtml.scenes import FluidScene, to_dict
 from wtml.schema import SceneError, build

@@ -13,22 +13,17 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests.conftest import ROOT
+from tests.conftest import ONSET_SMALL, ROOT
+from wtml.decoders.onset import TOUCH_LOOKBACK
+from wtml.exporters.onset import calibration_file, record_inputs, thesis_pipeline
 from wtml.physics.spread import DeviceSpread
-from wtml.runtime.onset import (
-    calibration_file,
-    contacts_from,
-    predict_records,
-    read_record,
-    record_inputs,
-    stream_record,
-    thesis_pipeline,
-)
+from wtml.runtime.contacts import Timing, contacts_from, intervals
+from wtml.runtime.onset import predict_records, stream_record
 from wtml.runtime.predict import InputError, OnnxModel
+from wtml.runtime.recordings import read_record
 from wtml.scenes import load_scene
-from wtml.scenes.onset import intervals
 
-SMALL = {"samples": 24, "shards": 3}
+SMALL = ONSET_SMALL
 
 
 @pytest.fixture(scope="module")
@@ -107,31 +102,6 @@ def test_thesis_pipeline_lands_just_beyond_the_wall_without_noise(scene):
     assert np.all((beyond > 0.1e-6) & (beyond < 1.0e-6)), beyond
 
 
-@pytest.fixture(scope="module")
-def onset_export(tmp_path_factory, scene):
-    """A tiny onset flow: generate, train 3 epochs, export. Its acquisition is the shipped
-    scene's (bench-top), which the ``scene`` fixture's records also have."""
-    import yaml
-
-    root = tmp_path_factory.mktemp("onset")
-    cfg = root / "scene.yaml"
-    shipped = yaml.safe_load((ROOT / "configs/scenes/onset.yaml").read_text())
-    cfg.write_text(yaml.safe_dump({"name": "onset", "task": "onset", **SMALL,
-                                   "acquisition": shipped["acquisition"],
-                                   "wall": {"free_fraction": 0.25}}))
-    data, run, model = root / "data", root / "run", root / "export"
-    subprocess.run([sys.executable, "-m", "wtml.cli", "generate", "--config", str(cfg),
-                    "--out", str(data)], check=True, capture_output=True, cwd=ROOT)
-    subprocess.run([sys.executable, "train.py", "fit", "--config", "configs/onset.yaml",
-                    "--data.init_args.data_dir", str(data), "--trainer.max_epochs", "3",
-                    "--trainer.default_root_dir", str(run)], check=True, capture_output=True,
-                   cwd=ROOT)
-    subprocess.run([sys.executable, "-m", "wtml.cli", "export", "--checkpoint",
-                    str(run / "checkpoints/last.ckpt"), "--out", str(model)], check=True,
-                   capture_output=True, cwd=ROOT)
-    return {"data": data, "run": run, "model": model}
-
-
 def test_exported_graphs_match_torch(onset_export, spread_scene):
     """ONNX against torch on records of devices drawn from the spread, each record through
     its own device's calibration (the graphs' inputs t_re, t_im, hue0)."""
@@ -184,7 +154,6 @@ def test_timing_rule_finds_every_contact_from_zm_steps_and_the_detachment_level(
     frames late (frame_labels shifted: a slow net) and each record's detachment level in the
     middle of its brackets (detach_brackets), the rule (contacts_from) finds every onset and
     detachment within 0.3 ms, and a free record gets none."""
-    import json
 
     from wtml.bench.onset import event_metrics, match_events
     from wtml.decoders.onset import (
@@ -215,9 +184,8 @@ def test_timing_rule_finds_every_contact_from_zm_steps_and_the_detachment_level(
     assert torch.all(lo[walled].nan_to_num(-1.0) < off[walled])
     assert torch.all(off[walled] <= hi[walled].nan_to_num(1.0))
     labels = frame_labels(torch.tensor(targets), reach.shape[1], frame_s, scene.max_contacts)
-    meta = {"frame_s": json.dumps(frame_s), "merge_s": json.dumps(2 / scene.drive.probe_hz),
-            "scene": json.dumps({"max_contacts": scene.max_contacts}),
-            "onset_offset_s": json.dumps(offsets[0]), "detach_offset_s": json.dumps(offsets[1])}
+    meta = Timing(frame_s, offsets[0], offsets[1], 2 / scene.drive.probe_hz, TOUCH_LOOKBACK,
+                  scene.max_contacts)
     margin = torch.where(torch.tensor(walled)[:, None], reach - off, -1.0)
     late = torch.nn.functional.pad(labels, (3, 0))[:, :-3]
     pred = {"contact": late.numpy(), "detach_margin": margin.numpy(), "touch": step / threshold}
@@ -336,7 +304,7 @@ def test_predict_needs_the_devices_calibration_and_refuses_without_it(onset_expo
     gets the decoder's answer through the device's own calibration."""
     import json
 
-    from wtml.runtime.onset import ONSET_INPUTS, STREAM_INPUTS
+    from wtml.runtime.metadata import ONSET_INPUTS, STREAM_INPUTS
 
     model = OnnxModel(onset_export["model"] / "model.onnx")
     assert "calibration" in model.references
@@ -409,7 +377,6 @@ def test_a_wall_is_reported_if_and_only_if_a_contact_interval_is(top, shift, off
     """One decision gives the wall and the contacts (``answer``): over any contact
     probabilities and detachment levels, a record reports g (and σ) exactly when the rule
     (``contacts_from``) gives it at least one contact interval; otherwise both are NaN."""
-    import json
 
     from wtml.decoders.onset import answer
 
@@ -419,8 +386,7 @@ def test_a_wall_is_reported_if_and_only_if_a_contact_interval_is(top, shift, off
     prob = torch.tensor(top)[:, None] * torch.exp(-torch.linspace(-3, 3, n) ** 2)[None]
     gap, sd, off_margin = answer(torch.full((4,), 3e-6), torch.full((4,), 1e-7),
                                  prob.amax(-1), {"reach": reach}, torch.tensor(off))
-    meta = {"frame_s": "0.001", "merge_s": "0.002", "scene": json.dumps({"max_contacts": 8}),
-            "onset_offset_s": "0.0", "detach_offset_s": "0.001"}
+    meta = Timing(0.001, 0.0, 0.001, 0.002, TOUCH_LOOKBACK, 8)
     onset, _ = contacts_from({"contact": prob.numpy(), "detach_margin": off_margin.numpy(),
                               "touch": np.zeros((4, n))}, meta)
     has_interval = np.isfinite(onset).any(1)
@@ -508,7 +474,6 @@ def test_an_onset_starts_the_last_run_of_touches_not_a_lone_noise_step_ahead():
     over it (on the bench-top acquisition, a few % of free whisking's frames) stands alone.
     Here a lone noise touch 2 frames ahead of a contact's run of touches, inside the rule's
     lookback, does not pull the onset early; without the run, a lone touch still calls it."""
-    import json
 
     n = 30
     prob = np.zeros((2, n))
@@ -517,8 +482,7 @@ def test_an_onset_starts_the_last_run_of_touches_not_a_lone_noise_step_ahead():
     touch[0, 10] = 1.5  # noise, alone
     touch[0, 12:20] = 20.0  # the contact's run of touches
     touch[1, 12] = 1.5  # a touch alone
-    meta = {"frame_s": "0.001", "merge_s": "0.002", "scene": json.dumps({"max_contacts": 8}),
-            "onset_offset_s": "0.0", "detach_offset_s": "0.001"}
+    meta = Timing(0.001, 0.0, 0.001, 0.002, TOUCH_LOOKBACK, 8)
     onset, _ = contacts_from({"contact": prob, "detach_margin": np.where(prob > 0.5, 1.0, -1.0),
                               "touch": touch}, meta)
     np.testing.assert_allclose(onset[:, 0], [0.012, 0.012])

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from tests.conftest import ROOT
+from wtml.exporters.onset import record_inputs
 from wtml.physics.spread import CLASSES, DeviceSpread
-from wtml.runtime.onset import record_inputs
 from wtml.scenes import load_scene
 from wtml.scenes.onset import OnsetDrive, OnsetScene, WallSpec
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests.conftest import TEXTURE_SMALL, TEXTURE_SPREAD
 from wtml.decoders.texture import CalibratedT, WhiskFeatures, cholesky_solve
 from wtml.fidelity import format_texture, texture_fidelity
 from wtml.physics.twoport import flat_parts
@@ -103,8 +104,7 @@ def test_scene_records_and_labels(scene):
     assert np.all(np.isfinite(d["i"])) and np.all(d["rms_speed"] > 0.05)
 
 
-ISSUE_SPREAD = {"length": 0.005, "thickness": 0.005, "modulus": 0.03, "loss_factor": 0.25,
-                "tan_delta": 0.25, "coupling": 0.03}
+ISSUE_SPREAD = TEXTURE_SPREAD
 
 
 def _short(scene, **device):
@@ -189,32 +189,7 @@ def test_each_record_carries_its_drawn_devices_calibrated_t(scene, monkeypatch):
     assert np.abs(wrong).max() > 3 * np.abs(own).max(), (own, wrong)
 
 
-SMALL = {"samples": 30, "shards": 3, "specimens_per_grade": 2}
-
-
-@pytest.fixture(scope="module")
-def texture_export(tmp_path_factory):
-    """A tiny texture flow: generate, train 2 epochs, export."""
-    import subprocess
-    import sys
-
-    import yaml
-
-    from tests.conftest import ROOT
-
-    root = tmp_path_factory.mktemp("texture")
-    cfg = root / "scene.yaml"
-    cfg.write_text(yaml.safe_dump({"name": "texture", "task": "texture", **SMALL,
-                                   "spread": ISSUE_SPREAD}))
-    data, run, model = root / "data", root / "run", root / "export"
-    for args in (["-m", "wtml.cli", "generate", "--config", str(cfg), "--out", str(data)],
-                 ["train.py", "fit", "--config", "configs/texture.yaml",
-                  "--data.init_args.data_dir", str(data), "--trainer.max_epochs", "2",
-                  "--trainer.default_root_dir", str(run)],
-                 ["-m", "wtml.cli", "export", "--checkpoint",
-                  str(run / "checkpoints/last.ckpt"), "--out", str(model)]):
-        subprocess.run([sys.executable, *args], check=True, capture_output=True, cwd=ROOT)
-    return {"run": run, "model": model}
+SMALL = TEXTURE_SMALL
 
 
 def test_exported_graphs_match_torch_and_compute_the_features_once(texture_export, scene):
@@ -260,7 +235,7 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     assert OnnxModel(texture_export["model"] / "classical.onnx").metadata["kind"] == "classical"
 
     # the thesis cues: fitted on one record per grade, exported, against torch
-    from wtml.runtime.export import _export
+    from wtml.exporters.common import _export
 
     fit = replace(scene, specimens_per_grade=1).simulate(5, np.random.default_rng(9))
     classical = ClassicalTexture.fit(module.net.features, fit["e"], fit["i"], fit["t"],

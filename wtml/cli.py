@@ -61,6 +61,13 @@ def _number(low: float, high: float, kind: type = float):
 COUNT = _number(0, 10**7, int)
 """A number of records or samples (0: none)."""
 THREADS = _number(1, 1024, int)
+SCALE = _number(1e-12, 1e12)
+"""A channel's scale (V per V, A per V) or an interface's full scale (V)."""
+RATE = _number(1e-3, 1e12)
+"""A sampling rate (Hz)."""
+TRAINING_STACK = ("torch", "lightning", "numba", "sklearn", "scipy", "onnx", "onnxscript",
+                  "matplotlib", "skrf", "tqdm", "jsonargparse", "aeon", "ruptures")
+"""Modules that ``pip install wtml`` (the device runtime) does not bring."""
 
 
 def _walkthrough(args: argparse.Namespace) -> int:
@@ -199,7 +206,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from wtml.runtime.export import export_model
+    from wtml.exporters.common import export_model
 
     for kind, path in export_model(args.checkpoint, args.out).items():
         print(f"{kind}: {path}")
@@ -221,15 +228,26 @@ def _predict(args: argparse.Namespace) -> int:
         check_device(args.model, args.device)
     if args.reference is not None and task in ("onset", "texture"):
         raise InputError(f"--reference {args.reference}: this {task} export takes no reference")
+    from wtml.runtime.instruments import load_profile
+
+    profile = load_profile(args.profile, group=args.group, e_channel=args.e_channel,
+                           i_channel=args.i_channel, e_scale=args.e_scale,
+                           i_scale=args.i_scale, full_scale_v=args.full_scale_v,
+                           sample_rate_hz=args.sample_rate)
     if task == "onset":
         from wtml.runtime.onset import predict_records
 
-        rows = predict_records(args.model, args.input, calibration=args.calibration)
+        rows = predict_records(args.model, args.input, calibration=args.calibration,
+                               profile=profile)
     elif task == "texture":
         from wtml.runtime.texture import predict_records as texture_records
 
-        rows = texture_records(args.model, args.input, calibration=args.calibration)
+        rows = texture_records(args.model, args.input, calibration=args.calibration,
+                               profile=profile)
     else:
+        if profile is not None:
+            raise InputError(f"--profile and the recording options read recordings (onset, "
+                             f"texture); a {task} export takes Ze measurements")
         rows = predict_file(args.model, args.input, calibration=args.calibration,
                             reference=args.reference)
     if args.out:
@@ -244,6 +262,31 @@ def _predict(args: argparse.Namespace) -> int:
     warning = domain_warning(rows)
     if warning:
         print(f"wtml predict: {warning}", file=sys.stderr)
+    return 0
+
+
+def _stream(args: argparse.Namespace) -> int:
+    from wtml.runtime.stream import run_stream
+
+    def emit(event) -> None:
+        print(event.line(), flush=True)
+
+    # a file or a named pipe (an acquisition program writing into it); stdin by default
+    source = sys.stdin.buffer if args.input == "-" else open(args.input, "rb")  # noqa: SIM115
+    with source:
+        summary = run_stream(args.model, source, args.calibration,
+                             chunk_samples=args.chunk_samples, e_scale=args.e_scale,
+                             i_scale=args.i_scale, sample_rate_hz=args.sample_rate,
+                             threads=args.threads, emit=emit)
+    print(f"wtml stream: {summary.text()}", file=sys.stderr)
+    return 0
+
+
+def _bench_runtime(args: argparse.Namespace) -> int:
+    from wtml.bench.runtime import run_runtime_bench
+
+    print(run_runtime_bench(args.out, model=args.model, records=args.records,
+                            repeats=args.repeats, venv=args.runtime_venv))
     return 0
 
 
@@ -309,6 +352,28 @@ def _pipeline(args: argparse.Namespace) -> int:
 
     run_all(args.task, max_epochs=args.max_epochs)
     return 0
+
+
+def _recording_options(group) -> None:
+    """``wtml predict``'s options for instruments' recordings (the profile's keys)."""
+    group.add_argument("--profile", default=None,
+                       help="a YAML recording profile (keys: group, e_channel, i_channel, "
+                            "e_scale, i_scale, full_scale_v, sample_rate_hz)")
+    group.add_argument("--group", default=None, help="TDMS: the group of the two channels")
+    group.add_argument("--e-channel", default=None,
+                       help="the voltage's channel: TDMS channel or CSV column name, WAV "
+                            "channel index (default: e, or WAV channel 0)")
+    group.add_argument("--i-channel", default=None,
+                       help="the current's channel (default: i, or WAV channel 1)")
+    group.add_argument("--e-scale", type=SCALE, default=None,
+                       help="V per recorded volt of e (default 1)")
+    group.add_argument("--i-scale", type=SCALE, default=None,
+                       help="A per recorded volt of i: the I-V converter's")
+    group.add_argument("--full-scale-v", type=SCALE, default=None,
+                       help="integer samples (WAV PCM, raw TDMS): the volts at full scale; "
+                            "required for them, never assumed")
+    group.add_argument("--sample-rate", type=RATE, default=None,
+                       help="Hz, for a file without its own rate (a CSV of sample indices)")
 
 
 class _Help(argparse.RawDescriptionHelpFormatter):
@@ -483,7 +548,36 @@ def build_parser() -> argparse.ArgumentParser:
                          "name): refused unless the export was trained for it")
     pr.add_argument("--out", default=None,
                     help="write the rows as CSV here (default: print a table)")
+    rec = pr.add_argument_group(
+        "recordings from instruments (onset, texture: .tdms, .wav, .csv)",
+        "how to read an instrument's file: a YAML recording profile (--profile) with the keys "
+        "below, each option overriding the profile's")
+    _recording_options(rec)
     pr.set_defaults(func=_predict)
+
+    st = verb("stream", "an onset export's streaming graph on a live acquisition (stdin)",
+              "Reads interleaved little-endian float32 (e, i) sample pairs at the model's rate "
+              "from standard input or a file, in fixed chunks, carries the graph's state across "
+              "chunks and prints each contact as soon as it is decided: its onset, then its "
+              "detachment with the wall's location (gap, sigma) and the domain flag; each line "
+              "gives the chunk that decided it (decided_s: its end in signal time) and the "
+              "latency from that chunk's arrival (latency_ms). A summary (real-time factor, "
+              "per-chunk latency) goes to stderr at the end.")
+    st.add_argument("--model", required=True, help="an onset export folder (stream.onnx)")
+    st.add_argument("--calibration", default=None,
+                    help="the device's calibration: .npz with frequency_hz [the probe's], t "
+                         "(1, 2, 2) and hue0 (m/V), as wtml predict takes")
+    st.add_argument("--input", default="-", help="a file of float32 pairs, or - for stdin")
+    st.add_argument("--chunk-samples", type=_number(1, 10**9, int), default=None,
+                    help="sample pairs per read, a whole multiple of the graph's chunk "
+                         "(default: the graph's chunk)")
+    st.add_argument("--e-scale", type=SCALE, default=1.0, help="V per recorded unit of e")
+    st.add_argument("--i-scale", type=SCALE, default=1.0,
+                    help="A per recorded unit of i (the I-V converter's A per V)")
+    st.add_argument("--sample-rate", type=RATE, default=None,
+                    help="the acquisition's rate (Hz), checked against the model's")
+    st.add_argument("--threads", type=THREADS, default=1, help="onnxruntime threads")
+    st.set_defaults(func=_stream)
 
     be = verb("bench", "speed and accuracy of every method of a task, side by side")
     be_sub = be.add_subparsers(dest="task", metavar="TASK", required=True)
@@ -549,6 +643,29 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fresh records per row of the device-spread table (the nominal device, "
                          "the trained spread, each class of issue 21's spread alone; 0: none)")
     bo.set_defaults(func=_bench_onset)
+
+    bu = be_sub.add_parser("runtime", help="the device runtime: cold start, memory, latency, "
+                           "installed size", formatter_class=_Help,
+                           description="wtml predict on one onset record as a device runs it: "
+                                       "cold start (wall time) and peak memory of the whole "
+                                       "command in a lean runtime install (numpy, onnxruntime, "
+                                       "pyyaml) and in the full install, beside the same "
+                                       "command with the training stack imported first (what "
+                                       "wtml predict cost before the runtime was split off); "
+                                       "per-record latency of each graph; the streaming "
+                                       "graph's per-chunk latency and real-time factor on one "
+                                       "core; the installed size of each install.")
+    bu.add_argument("--model", default="export/onset", help="an onset export folder")
+    bu.add_argument("--out", default="runs/runtime_bench",
+                    help="report.md, summary.json and the record go here")
+    bu.add_argument("--records", type=_number(1, 10**4, int), default=64,
+                    help="records for the per-record latency")
+    bu.add_argument("--repeats", type=_number(1, 100, int), default=5,
+                    help="cold starts of each command (the median is reported)")
+    bu.add_argument("--runtime-venv", default=None,
+                    help="the runtime install's venv: made (pip install of this checkout, no "
+                         "extras) or reused (default: <out>/runtime-venv)")
+    bu.set_defaults(func=_bench_runtime)
 
     bd = be_sub.add_parser("device", help="what fitting one's own device costs the radial, "
                            "onset and fluid decoders", formatter_class=_Help,
@@ -655,6 +772,13 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return args.func(args)
+    except ModuleNotFoundError as err:
+        if (err.name or "").split(".")[0] not in TRAINING_STACK:
+            raise
+        print(f"wtml {args.command}: error: needs {err.name}, which this install lacks (pip "
+              f"install wtml brings the device runtime only: predict, stream); pip install "
+              f"'wtml[train]' for the whole stack", file=sys.stderr)
+        return 2
     except (ValueError, OSError) as err:
         if not _is_a_check(err):
             raise

@@ -153,7 +153,7 @@ def figure_5_22(scene, repeats: int = 3, seed: int = 0) -> dict:
     """The thesis's pipeline on 15 wall positions across the onset scene's reach, ``repeats``
     records each: ``actual`` and ``measured`` gap (m), the line's ``r2`` and ``slope``, and
     the ``rmse`` (m)."""
-    from wtml.runtime.onset import record_inputs, thesis_pipeline
+    from wtml.exporters.onset import record_inputs, thesis_pipeline
 
     positions = np.repeat(np.linspace(*scene.gap_range_m(), 15), repeats)
     rec = scene.simulate(len(positions), np.random.default_rng([scene.seed, seed, 522]),

@@ -19,7 +19,7 @@ import numpy as np
 from wtml.data import dataset_scene, generate, load_shards, read_manifest
 from wtml.data.datamodule import split_shards
 from wtml.decoders.checkpoint import CheckpointError, read_checkpoint
-from wtml.runtime.export import export_model
+from wtml.exporters.common import export_model
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.scenes import config_hash, load_scene, scene_from_dict
 from wtml.schema import read_yaml
@@ -327,7 +327,7 @@ def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: 
              sample_rate_hz=scene.acquisition.sample_rate_hz)
     options, flag = {}, ""
     if slice_ == "onset":
-        from wtml.runtime.onset import calibration_file
+        from wtml.exporters.onset import calibration_file
 
         options["calibration"] = calibration_file(
             model / "cal.npz", scene, {k: test[k][:2] for k in ("t_probe", "hue0")})

@@ -106,8 +106,8 @@ def onset(folder: Path) -> Task:
 
     from tests.conftest import ROOT
     from tests.test_onset import SMALL
+    from wtml.exporters.onset import calibration_file
     from wtml.physics.spread import DeviceSpread
-    from wtml.runtime.onset import calibration_file
     from wtml.scenes import load_scene
 
     shipped = yaml.safe_load((ROOT / "configs/scenes/onset.yaml").read_text())

@@ -54,6 +54,8 @@ from wtml.decoders.fluid import FluidDecoder, TorchFluid
 from wtml.decoders.radial import RadialDecoder, TorchRadial
 from wtml.device_fit import fitted_device
 from wtml.devices import BeamDevice
+from wtml.exporters.common import export_model
+from wtml.exporters.onset import record_inputs
 from wtml.physics.beam_presets import apply_factors, beam_device, build
 from wtml.physics.identify import (
     DeviceFit,
@@ -73,8 +75,7 @@ from wtml.physics.identify_lumped import (
 )
 from wtml.physics.measured import ContactSweep, LoadSweep, Measurements, Sweep
 from wtml.physics.twoport import flat_parts, ze_from_zm
-from wtml.runtime.export import export_model
-from wtml.runtime.onset import contacts_from, record_inputs
+from wtml.runtime.contacts import Timing, contacts_from
 from wtml.runtime.predict import load_export
 from wtml.scenes import load_scene, scene_from_dict, to_dict
 from wtml.signals.noise import complex_noise
@@ -277,7 +278,7 @@ def _onset_score(export: Path, test: dict) -> dict[str, dict]:
     out = {}
     for name, model in (("decoder", decoder), ("classical", classical)):
         pred = model.run(*inputs)
-        on, off = contacts_from(pred, model.metadata)
+        on, off = contacts_from(pred, Timing.of(model.meta))
         loc = location_scores(pred["gap"], test["gap"])
         out[name] = {"rmse": 1e6 * loc["rmse"], "missed": loc["missed"],
                      "f1": event_metrics(test, on, off)["f1"],

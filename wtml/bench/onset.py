@@ -47,9 +47,11 @@ from wtml.bench.onset_transfer import scorer as transfer_scorer
 from wtml.bench.transfer import run_variants
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
+from wtml.exporters.onset import record_inputs, thesis_pipeline
 from wtml.physics.beam_presets import build
 from wtml.physics.modal import Wall, available_cores, convergence_table
-from wtml.runtime.onset import contacts_from, record_inputs, stream_record, thesis_pipeline
+from wtml.runtime.contacts import Timing, contacts_from
+from wtml.runtime.onset import stream_record
 from wtml.runtime.predict import OnnxModel, load_export
 
 TOLERANCE_S = 1e-3
@@ -139,7 +141,7 @@ class RupturesPeer:
     def run(self, e: np.ndarray, i: np.ndarray, *calibration: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """On records ``e, i`` and their devices' calibration (``t_re, t_im, hue0``)."""
-        from wtml.scenes.onset import intervals
+        from wtml.runtime.contacts import intervals
 
         u, zm = self.pipe.bands(*(torch.tensor(x) for x in (e, i, *calibration)))
         n_fr = zm.shape[1] // self.period
@@ -259,7 +261,7 @@ def _methods(model_dir: Path, scene):
     def onnx_run(model):
         def run(*inputs):
             out = model.run(*inputs)
-            on, off = contacts_from(out, model.metadata)
+            on, off = contacts_from(out, Timing.of(model.meta))
             return out["gap"], on, off, out
         return run
 

@@ -21,9 +21,9 @@ import numpy as np
 
 from wtml.bench.independent import simulate_onset
 from wtml.bench.transfer import Variant, acquisition_variants, member_variants
+from wtml.exporters.onset import record_inputs
 from wtml.physics.contact import LAWS
 from wtml.physics.spread import CLASSES, DeviceSpread
-from wtml.runtime.onset import record_inputs
 
 BASE_LEVELS = (("base", {"enabled": True, "rms_m": 1e-8}),
                ("base", {"enabled": True, "rms_m": 0.8e-6}))
@@ -152,7 +152,7 @@ def scorer(methods: dict[str, Callable], events: Callable[[dict, np.ndarray, np.
            ) -> Callable[[dict], list[dict]]:
     """``score(records)`` for :func:`~wtml.bench.transfer.run_variants`: each method
     (``run(e, i, t_re, t_im, hue0) -> (gap, onset, detachment, outputs or None)``, the
-    records' own calibration after ``e, i``: ``wtml.runtime.onset.record_inputs``) scored by
+    records' own calibration after ``e, i``: ``wtml.exporters.onset.record_inputs``) scored by
     :func:`location_scores` and ``events`` (F1 and timing of the contacts)."""
     def score(records: dict) -> list[dict]:
         rows = []

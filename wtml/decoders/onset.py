@@ -36,7 +36,7 @@ The graph takes the raw records and computes its own features per probe period (
    by a touch (:func:`confirm`). A contact is a run of frames whose contact probability passes 0.5
    (labels: the frames that hold a touching instant) and it starts on the first frame, from a few
    before the run up to its first such frame, whose ``touch`` is >= 1
-   (:func:`wtml.runtime.onset.contacts_from`). (Taking the onset from the trajectory instead, the
+   (:func:`wtml.runtime.contacts.contacts_from`). (Taking the onset from the trajectory instead, the
    first frame whose reach passes a learned level, needs that level to ~10 nm: the frames' reach
    brackets are 0.09-0.19 µm wide and the true level is often within 10 nm of an edge; the main
    job's small training got it to 34 nm, and every miss was one probe period early or late.) A first
@@ -54,7 +54,7 @@ Outputs (each ``(batch,)`` unless said): ``gap`` and ``sigma`` (m, NaN in a reco
 contact: :func:`answer` decides wall and contacts together), ``contact`` (``(batch,
 n_frames)``, probability per frame), ``detach_margin`` (m, ``(batch, n_frames)``; -1 m in a
 record without contact) and ``touch`` (``(batch, n_frames)``).
-Intervals come from these by :func:`wtml.runtime.onset.contacts_from` plus the
+Intervals come from these by :func:`wtml.runtime.contacts.contacts_from` plus the
 onset/detachment phases in the metadata (where in its frame a contact starts and ends,
 fitted on training labels).
 """
@@ -526,7 +526,7 @@ def answer(g, sd, top, p: dict, off) -> tuple[torch.Tensor, ...]:
 
     One decision gives the wall and the contacts: a record touches a wall where a frame's
     contact probability passes 0.5, and a contact starts on each such run of frames
-    (:func:`wtml.runtime.onset.contacts_from`); only then are g and σ reported. Otherwise gap
+    (:func:`wtml.runtime.contacts.contacts_from`); only then are g and σ reported. Otherwise gap
     and σ are NaN ("no wall": free whisking) and the margins -1 m (no interval)."""
     touched = top > 0.5
     nan, never = torch.full_like(g, float("nan")), torch.full_like(p["reach"], -1.0)
@@ -562,7 +562,7 @@ def onset_frames(targets: torch.Tensor, n_frames: int, frame_s: float, max_conta
 def touch_threshold(step: np.ndarray, targets: np.ndarray, frame_s: float, max_contacts: int,
                     lookback: int | None = None, grid: int = 400) -> float:
     """The size of Zm's frame-to-frame step (N·s/m) that marks a first touch, chosen on the
-    training data for the rule that uses it (:func:`wtml.runtime.onset.contacts_from`: the
+    training data for the rule that uses it (:func:`wtml.runtime.contacts.contacts_from`: the
     first frame over it, from ``lookback`` frames ahead of a contact up to the contact).
     Each training onset is called on its own frame iff its step reaches the threshold and
     none of the ``lookback`` frames of free whisking before it does; the threshold is the

@@ -3,58 +3,37 @@
 Imports nothing from torch. See ``shared/physics.md`` for the equations and conventions.
 """
 
-from wtml.physics.calibration import (
-    Calibration,
-    CalibrationError,
-    calibrate_free_clamped,
-    calibrate_least_squares,
-    calibrate_open_short,
-)
-from wtml.physics.lumped import LumpedTransducer
-from wtml.physics.structure import Structure
-from wtml.physics.twoport import (
-    cascade,
-    det_error,
-    displacement_per_charge,
-    displacement_per_voltage,
-    drive_velocity,
-    drive_voltage,
-    efficiency,
-    electrical_from_mechanical,
-    electrical_power,
-    force_per_charge,
-    force_per_voltage,
-    mechanical_from_electrical,
-    mechanical_power,
-    tip_mass,
-    ym_from_ze,
-    ze_from_zm,
-    zm_from_ze,
-)
+from wtml.lazy import lazy_exports
 
-__all__ = [
-    "Calibration",
-    "CalibrationError",
-    "LumpedTransducer",
-    "Structure",
-    "calibrate_free_clamped",
-    "calibrate_least_squares",
-    "calibrate_open_short",
-    "cascade",
-    "det_error",
-    "displacement_per_charge",
-    "displacement_per_voltage",
-    "drive_velocity",
-    "drive_voltage",
-    "efficiency",
-    "electrical_from_mechanical",
-    "electrical_power",
-    "force_per_charge",
-    "force_per_voltage",
-    "mechanical_from_electrical",
-    "mechanical_power",
-    "tip_mass",
-    "ym_from_ze",
-    "ze_from_zm",
-    "zm_from_ze",
-]
+_WHERE = {
+    "Calibration": "wtml.physics.calibration",
+    "CalibrationError": "wtml.physics.calibration",
+    "LumpedTransducer": "wtml.physics.lumped",
+    "Structure": "wtml.physics.structure",
+    "calibrate_free_clamped": "wtml.physics.calibration",
+    "calibrate_least_squares": "wtml.physics.calibration",
+    "calibrate_open_short": "wtml.physics.calibration",
+    "cascade": "wtml.physics.twoport",
+    "det_error": "wtml.physics.twoport",
+    "displacement_per_charge": "wtml.physics.twoport",
+    "displacement_per_voltage": "wtml.physics.twoport",
+    "drive_velocity": "wtml.physics.twoport",
+    "drive_voltage": "wtml.physics.twoport",
+    "efficiency": "wtml.physics.twoport",
+    "electrical_from_mechanical": "wtml.physics.twoport",
+    "electrical_power": "wtml.physics.twoport",
+    "force_per_charge": "wtml.physics.twoport",
+    "force_per_voltage": "wtml.physics.twoport",
+    "mechanical_from_electrical": "wtml.physics.twoport",
+    "mechanical_power": "wtml.physics.twoport",
+    "tip_mass": "wtml.physics.twoport",
+    "ym_from_ze": "wtml.physics.twoport",
+    "ze_from_zm": "wtml.physics.twoport",
+    "zm_from_ze": "wtml.physics.twoport",
+}
+"""Each name this package exports and the module that holds it, imported on first use
+(:mod:`wtml.lazy`)."""
+
+__all__ = sorted(_WHERE)
+
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE)

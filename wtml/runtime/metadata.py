@@ -127,7 +127,7 @@ class OutputDomain:
 
 @dataclass(frozen=True)
 class Domain:
-    """The trained domain as the metadata states it (``wtml.runtime.export.domain_metadata``);
+    """The trained domain as the metadata states it (``wtml.exporters.common.domain_metadata``);
     ``outputs`` maps output names to :class:`OutputDomain`."""
 
     score: str
@@ -218,7 +218,8 @@ class OnsetMetadata(GraphMetadata):
     """An onset graph's metadata: records of ``n_samples`` at ``sample_rate_hz``; frames of
     ``frame_s`` (one probe period for the decoder and the stream, one sample for the classical
     path), a contact's onset and detachment at ``onset_offset_s`` and ``detach_offset_s``
-    into its frame, runs closer than ``merge_s`` one contact; the stream's chunks of
+    into its frame, runs closer than ``merge_s`` one contact, a touch looked for
+``touch_lookback`` frames ahead of a run (:mod:`wtml.runtime.contacts`); the stream's chunks of
     ``chunk_samples`` and its state of ``state_size``."""
 
     sample_rate_hz: float = bounded(1.0, 1e9, default=0.0)
@@ -227,11 +228,13 @@ class OnsetMetadata(GraphMetadata):
     onset_offset_s: float = bounded(0.0, 10.0, default=0.0)
     detach_offset_s: float = bounded(0.0, 10.0, default=0.0)
     merge_s: float = bounded(0.0, 100.0, default=0.0)
+    touch_lookback: int = bounded(0, 1000, default=0)
     chunk_samples: int = bounded(1, 10**9, default=0)
     state_size: int = bounded(1, 10**9, default=0)
 
     REQUIRED = GraphMetadata.REQUIRED + ("sample_rate_hz", "n_samples", "frame_s",
-                                         "onset_offset_s", "detach_offset_s", "merge_s")
+                                         "onset_offset_s", "detach_offset_s", "merge_s",
+                                         "touch_lookback")
 
     def check(self, path: str) -> None:
         super().check(path)

@@ -71,6 +71,11 @@ ratio is one of whole numbers, else refused) and the device's calibration (--cal
 detachment (s), the wall's location gap (m) and sigma (m).
 Texture models take recordings of any length from one window up (the same .npz as onset);
 a long one is cut into whole windows, run in batches.
+Recordings (onset, texture) may also be as instruments write them: LabVIEW .tdms, a
+two-channel .wav, or a .csv of samples (time_s or sample, then e and i), read as a recording
+profile says (--profile YAML or the options: channels, V per V and A per V of each channel,
+the full scale of integer samples, a rate for a file without one); the file's own rate is
+checked against the model's.
 Files: an export folder is checked against its manifest.json (each file's sha256) and its
 metadata against its task's schema; inputs are read from their headers first. Memory: an
 input whose reading, resampling or windowing would take more than the ceiling of

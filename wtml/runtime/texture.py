@@ -1,5 +1,5 @@
-"""The texture task on a device: export (decoder and classical path, each with the decoder's
-domain gate) and ``wtml predict`` on records.
+"""The texture task on a device: ``wtml predict`` on records (the export:
+:mod:`wtml.exporters.texture`).
 
 Both graphs take ``e`` (V) and ``i`` (A), float32 ``(batch, window)`` at the scene's rate,
 and the user's calibrated T of their device at the scene's ``calibration_hz`` as ``t_re, t_im``
@@ -13,60 +13,14 @@ the windows' mean log-probabilities and mean ln grain.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from wtml import __version__
-from wtml.baselines.texture_classical import ClassicalTexture
-from wtml.decoders.domain import Gated
 from wtml.physics.twoport import flat_parts
-from wtml.runtime.export import _export, domain_metadata
-from wtml.runtime.metadata import TEXTURE_INPUTS  # noqa: F401  (its name here as before)
-from wtml.runtime.onset import read_record
-from wtml.scenes import config_hash, to_dict
-
-TEXTURE_REFERENCES = {"calibration": "the device's calibrated T (the macro WT with its whisker, "
-                                     "tip free) at calibration_hz, measured with the "
-                                     "calibration loads of physics.md §4: inputs t_re, t_im"}
-FRESH_RECORDS = 100
-"""Fresh records of the scene (its own seed, not the training data) on which the classical
-path is fitted and the exported decoder's false-alarm rate is measured."""
-
-
-@torch.no_grad()
-def export_texture(module, scene, out: Path) -> dict[str, Path]:
-    """Write ``out/model.onnx`` (decoder) and ``out/classical.onnx`` (the thesis's cues)."""
-    window = module._n
-    decoder = Gated(module.net, module.gate, (1,)).eval()
-    fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
-    inside = decoder(torch.tensor(fresh["e"][:, :window]), torch.tensor(fresh["i"][:, :window]),
-                     *(torch.tensor(x) for x in flat_parts(fresh["t"])))[-2]
-    domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
-    classical = ClassicalTexture.fit(module.net.features, fresh["e"], fresh["i"], fresh["t"],
-                                     fresh["grade"], fresh["grain_m"], window)
-    meta = {"wtml_version": __version__, "task": "texture",
-            "inputs": json.dumps(list(TEXTURE_INPUTS)),
-            "outputs": json.dumps(list(scene.OUTPUTS)),
-            "units": json.dumps(scene.UNITS | {"e": "V", "i": "A"}),
-            "classes": json.dumps(list(scene.class_names())),
-            "frequency_hz": json.dumps(list(scene.drive.whisk_hz)),
-            "sample_rate_hz": json.dumps(scene.acquisition.sample_rate_hz),
-            "n_samples": json.dumps(window), "window_s": json.dumps(module.hparams.window_s),
-            "calibration_hz": json.dumps(scene.calibration_hz.tolist()),
-            "references": json.dumps(TEXTURE_REFERENCES),
-            "scene": json.dumps(to_dict(scene), sort_keys=True), "scene_hash": config_hash(scene),
-            "domain": json.dumps(domain)}
-    paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
-    widths = (window, window, (len(scene.calibration_hz), 4), (len(scene.calibration_hz), 4))
-    _export(decoder, window, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"},
-            TEXTURE_INPUTS, widths, optimize=False)
-    _export(Gated(classical, module.gate.inputs_only()).eval(), window, paths["classical"],
-            meta | {"kind": "classical", "label": "thesis cues (|F|, |V|, Zm)"}, TEXTURE_INPUTS,
-            widths, optimize=False)
-    return paths
+from wtml.runtime.instruments import RecordingProfile
+from wtml.runtime.predict import RUN_BYTES, impossible, load_export, read_calibration
+from wtml.runtime.recordings import read_record
 
 
 def windows(x: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
@@ -124,21 +78,22 @@ def window_batches(x: np.ndarray, window: int, batch: int):
 
 
 def predict_records(model_dir: str | Path, input_path: str | Path, *,
-                    calibration: str | Path | None = None) -> list[dict]:
+                    calibration: str | Path | None = None,
+                    profile: RecordingProfile | None = None) -> list[dict]:
     """One row per record and method: grade probabilities, the likeliest grade, grain size
     (µm), ``in_domain``, ``domain_score`` and flags. ``calibration``: the device's calibrated
     T at the export's ``calibration_hz`` (npz with ``frequency_hz`` and ``t``, complex ``(K,
     2, 2)`` or one per record ``(n, K, 2, 2)``), which the graph needs (:class:`InputError`
     without it, never a default device). A long recording's windows run in batches of
     :data:`wtml.runtime.predict.RUN_BYTES`: memory grows with the recording, not with its
-    number of windows."""
-    from wtml.runtime.predict import RUN_BYTES, impossible, load_export, read_calibration
-
+    number of windows. ``profile``: how to read an instrument's recording
+    (:mod:`wtml.runtime.instruments`)."""
     decoder, classical = load_export(model_dir)
     meta = decoder.meta
     window = meta.n_samples
     freq = np.array(meta.calibration_hz)
-    x = read_record(input_path, meta.sample_rate_hz, window, at_least=True)
+    x = read_record(input_path, meta.sample_rate_hz, window, at_least=True,
+                    profile=profile)
     t = read_calibration(calibration, freq, x.shape[1], "texture")
     batch = max(1, RUN_BYTES // (8 * window))
     names = list(meta.classes)

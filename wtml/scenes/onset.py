@@ -60,6 +60,7 @@ from wtml.physics.contact import (
 )
 from wtml.physics.modal import ModalTransducer, Wall
 from wtml.physics.spread import DeviceSpread, draw_factors
+from wtml.runtime.contacts import intervals
 from wtml.schema import SceneError, bounded, mixture, one_of
 from wtml.signals.excitation import lead_in
 from wtml.signals.noise import quantize
@@ -433,25 +434,3 @@ class OnsetScene:
             mount[law == MOUNT_HERTZ] = rng.uniform(*w.mount_fraction, n)[law == MOUNT_HERTZ]
         return {"law": law, "law_n": n_exp, "law_alpha": alpha, "law_delta_ref": delta_ref,
                 "law_mount_fraction": mount}
-
-
-def intervals(active: np.ndarray, rate: float, merge_s: float, max_count: int
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end times (s) of the runs of ``True`` in each row of ``active``
-    ``(n, n_samples)``, runs closer than ``merge_s`` merged; each ``(n, max_count)``,
-    NaN-padded (extra runs dropped). A run still open at the end has end NaN."""
-    n = len(active)
-    starts = np.full((n, max_count), np.nan)
-    ends = np.full((n, max_count), np.nan)
-    pad = np.zeros((n, 1), bool)
-    edges = np.diff(np.concatenate([pad, active.astype(bool), pad], 1).astype(np.int8), axis=1)
-    for r in range(n):
-        on = np.flatnonzero(edges[r] == 1)
-        off = np.flatnonzero(edges[r] == -1)
-        apart = on[1:] - off[:-1] > merge_s * rate
-        on = on[np.concatenate([[True], apart])] if len(on) else on
-        off = off[np.concatenate([apart, [True]])] if len(off) else off
-        m = min(len(on), max_count)
-        starts[r, :m] = on[:m] / rate
-        ends[r, :m] = np.where(off[:m] >= active.shape[1], np.nan, off[:m] / rate)
-    return starts, ends

@@ -1,28 +1,29 @@
 """Signal processing: excitations, phasors, analytic signals, bands, bridge, noise."""
 
-from wtml.signals.analytic import analytic_fft, analytic_fir, hilbert_fir
-from wtml.signals.bands import split_bands
-from wtml.signals.bridge import bridge_channels, impedance_from_bridge
-from wtml.signals.excitation import multitone, sample_times, sweep, tone
-from wtml.signals.noise import complex_noise, drift_ramp, gain_phase_drift, quantize, white_noise
-from wtml.signals.phasor import phasor_fft, phasor_lsq
+from wtml.lazy import lazy_exports
 
-__all__ = [
-    "analytic_fft",
-    "analytic_fir",
-    "bridge_channels",
-    "complex_noise",
-    "drift_ramp",
-    "gain_phase_drift",
-    "hilbert_fir",
-    "impedance_from_bridge",
-    "multitone",
-    "phasor_fft",
-    "phasor_lsq",
-    "quantize",
-    "sample_times",
-    "split_bands",
-    "sweep",
-    "tone",
-    "white_noise",
-]
+_WHERE = {
+    "analytic_fft": "wtml.signals.analytic",
+    "analytic_fir": "wtml.signals.analytic",
+    "bridge_channels": "wtml.signals.bridge",
+    "complex_noise": "wtml.signals.noise",
+    "drift_ramp": "wtml.signals.noise",
+    "gain_phase_drift": "wtml.signals.noise",
+    "hilbert_fir": "wtml.signals.analytic",
+    "impedance_from_bridge": "wtml.signals.bridge",
+    "multitone": "wtml.signals.excitation",
+    "phasor_fft": "wtml.signals.phasor",
+    "phasor_lsq": "wtml.signals.phasor",
+    "quantize": "wtml.signals.noise",
+    "sample_times": "wtml.signals.excitation",
+    "split_bands": "wtml.signals.bands",
+    "sweep": "wtml.signals.excitation",
+    "tone": "wtml.signals.excitation",
+    "white_noise": "wtml.signals.noise",
+}
+"""Each name this package exports and the module that holds it, imported on first use
+(:mod:`wtml.lazy`)."""
+
+__all__ = sorted(_WHERE)
+
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE)

@@ -191,11 +191,11 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST).unlink(missing_ok=True)  # until the new one is written: no export here
     if task == "onset":
-        from wtml.runtime.onset import export_onset
+        from wtml.exporters.onset import export_onset
 
         paths = export_onset(module, scene, out)
     elif task == "texture":
-        from wtml.runtime.texture import export_texture
+        from wtml.exporters.texture import export_texture
 
         paths = export_texture(module, scene, out)
     else:

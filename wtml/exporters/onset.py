@@ -1,0 +1,121 @@
+"""Onset models to ONNX: the decoder (``model.onnx``), the thesis's pipeline
+(``classical.onnx``) and the decoder's streaming form (``stream.onnx``), each with the
+decoder's domain gate; what the graphs take and return is :mod:`wtml.runtime.onset`'s.
+
+The metadata carries everything a device needs to turn the graphs' frames into contacts
+(:mod:`wtml.runtime.contacts`): ``frame_s``, ``onset_offset_s``, ``detach_offset_s``,
+``merge_s``, ``touch_lookback``, and the stream's ``chunk_samples`` and ``state_size``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wtml import __version__
+from wtml.baselines.onset_classical import ThesisOnset
+from wtml.data.datamodule import onset_calibration
+from wtml.decoders.domain import Gated
+from wtml.decoders.onset import TOUCH_LOOKBACK, frame_period
+from wtml.decoders.onset_stream import StreamingOnset
+from wtml.exporters.common import _export, domain_metadata
+from wtml.runtime.metadata import (
+    DECODER_OUTPUTS,
+    ONSET_INPUTS,
+    ONSET_OUTPUTS,
+    STREAM_INPUTS,
+    STREAM_OUTPUTS,
+)
+from wtml.scenes import config_hash, to_dict
+
+ONSET_REFERENCES = {"calibration": "the device's calibrated T at the probe frequency and its "
+                                   "HUE(0) (the calibration of physics.md §4 on the user's own "
+                                   "device): inputs t_re, t_im (T.reshape(4): t11, t12, t21, "
+                                   "t22) and hue0 (m/V)"}
+"""What the onset graphs need besides the record (the metadata's ``references``)."""
+STREAM_CHUNK_FRAMES = 1
+"""Probe periods per chunk of the exported streaming graph (2.4 ms at the defaults)."""
+FRESH_RECORDS = 64
+"""Fresh records of the scene on which the exported decoder's false-alarm rate is measured."""
+
+
+def thesis_pipeline(scene) -> ThesisOnset:
+    """The classical path for ``scene`` (each record's calibrated T at the probe and HUE(0)
+    its inputs), threshold at half of ``k_ref/ωH``."""
+    wh = 2 * np.pi * scene.drive.probe_hz
+    return ThesisOnset(scene.acquisition.sample_rate_hz, scene.drive.probe_hz,
+                       0.5 * scene.reference_stiffness() / wh)
+
+
+def record_inputs(records: dict) -> tuple[np.ndarray, ...]:
+    """A graph's inputs from records of an onset scene (``e``, ``i``, ``t_probe``, ``hue0``):
+    ``(e, i, t_re, t_im, hue0)`` float32, in the order of :data:`ONSET_INPUTS`."""
+    return tuple(np.asarray(x, np.float32)
+                 for x in (records["e"], records["i"], *onset_calibration(records)))
+
+
+def calibration_file(path: str | Path, scene, records: dict | None = None) -> Path:
+    """Write the calibration ``wtml predict --calibration`` reads
+    (:func:`wtml.runtime.onset.read_onset_calibration`) to ``path``: each record's
+    (``t_probe``, ``hue0`` of ``records``), or the preset's."""
+    if records is None:
+        t, hue0 = scene.calibrated(scene.transducer())
+        t, hue0 = t[None], np.float64(hue0)
+    else:
+        t, hue0 = np.asarray(records["t_probe"])[:, None], np.asarray(records["hue0"])
+    np.savez(path, frequency_hz=np.array([scene.drive.probe_hz]), t=t, hue0=hue0)
+    return Path(path)
+
+
+@torch.no_grad()
+def export_onset(module, scene, out: Path) -> dict[str, Path]:
+    """Write the onset decoder and the thesis pipeline, each with the decoder's domain gate,
+    to ``out/model.onnx`` and ``out/classical.onnx``, and the decoder's streaming form to
+    ``out/stream.onnx`` (inputs ``e``, ``i`` of one chunk and ``state``, zeros at a record's
+    start; outputs :data:`STREAM_OUTPUTS` then ``in_domain``, ``domain_score``)."""
+    decoder = Gated(module.net, module.gate, (1,)).eval()
+    fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
+    inside = decoder(*(torch.tensor(x) for x in record_inputs(fresh)))[-2]
+    domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
+    rate = scene.acquisition.sample_rate_hz
+    period = frame_period(scene)
+    merge = scene.merge_periods / scene.drive.probe_hz
+    on_off = [float(x) for x in module.offsets]
+    meta = {"wtml_version": __version__, "task": "onset",
+            "inputs": json.dumps(list(ONSET_INPUTS)), "outputs": json.dumps(list(ONSET_OUTPUTS)),
+            "units": json.dumps({"gap": "m", "sigma": "m", "contact": "1", "e": "V", "i": "A",
+                                 "t_re": "SI (T)", "t_im": "SI (T)", "hue0": "m/V",
+                                 "detach_margin": "m", "touch": "1", "state": "1",
+                                 "next_state": "1"}),
+            "references": json.dumps(ONSET_REFERENCES),
+            "frequency_hz": json.dumps([scene.drive.probe_hz]),
+            "sample_rate_hz": json.dumps(rate), "n_samples": json.dumps(scene.n_samples),
+            "merge_s": json.dumps(merge), "touch_lookback": json.dumps(TOUCH_LOOKBACK),
+            "scene": json.dumps(to_dict(scene), sort_keys=True), "scene_hash": config_hash(scene),
+            "domain": json.dumps(domain)}
+    paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
+    frames = {"frame_s": json.dumps(period / rate), "onset_offset_s": json.dumps(on_off[0]),
+              "detach_offset_s": json.dumps(on_off[1])}
+    samples = {"frame_s": json.dumps(1 / rate), "onset_offset_s": "0.0",
+               "detach_offset_s": "0.0"}
+    widths = (scene.n_samples,) * 2 + (4, 4, ())
+    _export(decoder, scene.n_samples, paths["decoder"],
+            meta | frames | {"kind": "decoder", "label": "decoder",
+                             "outputs": json.dumps(list(DECODER_OUTPUTS))}, ONSET_INPUTS, widths)
+    classical = Gated(thesis_pipeline(scene), module.gate.inputs_only()).eval()
+    _export(classical, scene.n_samples, paths["classical"],
+            meta | samples | {"kind": "classical", "label": "thesis pipeline"}, ONSET_INPUTS,
+            widths)
+    stream = StreamingOnset(module.net, module.gate, STREAM_CHUNK_FRAMES).eval()
+    paths["stream"] = out / "stream.onnx"
+    _export(stream, stream.chunk_samples, paths["stream"],
+            meta | frames | {"kind": "stream", "label": "decoder (streaming)",
+                             "outputs": json.dumps(list(STREAM_OUTPUTS)),
+                             "inputs": json.dumps(list(STREAM_INPUTS)),
+                             "chunk_samples": json.dumps(stream.chunk_samples),
+                             "state_size": json.dumps(stream.state_size)},
+            STREAM_INPUTS, (stream.chunk_samples,) * 2 + (4, 4, (), stream.state_size))
+    return paths

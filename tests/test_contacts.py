@@ -64,3 +64,66 @@ def test_a_detachment_waits_for_the_merge_gap_and_an_onset_for_its_first_rise():
                           timing, None)
     assert [(e.kind, e.decided_frame) for e in events] == [("onset", 13), ("detachment", 23)]
     np.testing.assert_allclose([e.time for e in events], [0.013, 0.019])
+
+
+class FakeStream:
+    """A streaming graph's stand-in: frames of ``chunk`` samples, a frame's contact
+    probability 0.9 where its mean e passes 0, its margin the mean i, a touch where e's mean
+    jumps by more than 0.5 from the frame before (the state carries the last mean), and the
+    running gap the number of frames seen."""
+
+    def __init__(self, chunk: int) -> None:
+        from types import SimpleNamespace
+
+        self.meta = SimpleNamespace(task="onset", sample_rate_hz=1000.0, chunk_samples=chunk,
+                                    state_size=2, frame_s=chunk / 1000.0, onset_offset_s=0.0,
+                                    detach_offset_s=0.0, merge_s=2 * chunk / 1000.0,
+                                    touch_lookback=3, scene={"max_contacts": 8})
+        self.frequency_hz = np.array([1000.0 / chunk])
+
+    def frames(self, e: np.ndarray, i: np.ndarray, last: float) -> dict:
+        me, mi = e.reshape(-1, self.meta.chunk_samples).mean(1), i.reshape(
+            -1, self.meta.chunk_samples).mean(1)
+        step = np.abs(np.diff(np.concatenate([[last], me])))
+        return {"contact": np.where(me > 0, 0.9, 0.1)[None], "detach_margin": mi[None],
+                "touch": (step > 0.5)[None] * 2.0}
+
+    def run(self, e, i, t_re, t_im, hue0, state):
+        out = self.frames(e[0], i[0], state[0, 0])
+        n = state[0, 1] + out["contact"].shape[1]
+        return {**out, "gap": np.array([n]), "sigma": np.array([0.0]),
+                "in_domain": np.array([True]), "domain_score": np.array([0.0]),
+                "next_state": np.array([[e[0, -self.meta.chunk_samples:].mean(), n]])}
+
+
+def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeypatch):
+    """``wtml stream``'s loop (run_stream) on a stand-in graph, read in chunks of one, three
+    and seven graph chunks (a trailing piece shorter than a chunk left out): the offline
+    rule's contacts on the whole record's frames, every time."""
+    import io
+
+    from wtml.runtime import stream as stream_module
+
+    chunk, n_frames = 8, 120
+    rng = np.random.default_rng(4)
+    level = np.repeat(np.where(rng.random(n_frames // 6) < 0.4, 1.0, -1.0), 6)
+    e = np.repeat(level, chunk) + 0.1 * rng.standard_normal(n_frames * chunk)
+    i = np.roll(np.repeat(level, chunk), chunk)  # the margin lasts a frame longer
+    fake = FakeStream(chunk)
+    monkeypatch.setattr(stream_module, "task_of", lambda model_dir: "onset")
+    monkeypatch.setattr(stream_module, "load_export", lambda *a, **k: (None, None, fake))
+    np.savez(tmp_path / "cal.npz", frequency_hz=fake.frequency_hz, t=np.eye(2)[None] + 0j,
+             hue0=1.0)
+    frames = fake.frames(e, i, 0.0)
+    on, off = contacts_from(frames, Timing.of(fake.meta))
+    want = on[0][np.isfinite(on[0])], off[0][np.isfinite(on[0])]
+    assert len(want[0]) >= 3
+    data = np.stack([e, i], -1).astype("<f4").tobytes() + b"\0" * 20  # a trailing piece
+    for reads in (1, 3, 7):
+        got = stream_module.run_stream("fake", io.BytesIO(data), tmp_path / "cal.npz",
+                                       chunk_samples=reads * chunk)
+        onsets = [x.event.time for x in got.events if x.event.kind == "onset"]
+        ends = [x.event.time for x in got.events if x.event.kind == "detachment"]
+        np.testing.assert_allclose(onsets, want[0], atol=1e-12)
+        np.testing.assert_allclose(ends, want[1], atol=1e-12)
+        assert got.chunks == n_frames and abs(got.signal_s - n_frames * chunk / 1e3) < 1e-12

@@ -493,8 +493,8 @@ def test_an_interrupted_export_leaves_no_manifest(fluid_copy, flow, monkeypatch,
             raise KeyboardInterrupt  # as a kill would
         return real(*args, **kwargs)
 
-    real = export._export
-    monkeypatch.setattr(export, "_export", dies_on_the_second_graph)
+    real = export.export_graph
+    monkeypatch.setattr(export, "export_graph", dies_on_the_second_graph)
     with pytest.raises(KeyboardInterrupt):
         export.export_model(flow[1], folder)
     assert not (folder / "manifest.json").exists()

@@ -235,7 +235,7 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     assert OnnxModel(texture_export["model"] / "classical.onnx").metadata["kind"] == "classical"
 
     # the thesis cues: fitted on one record per grade, exported, against torch
-    from wtml.exporters.common import _export
+    from wtml.exporters.graphs import export_graph
 
     fit = replace(scene, specimens_per_grade=1).simulate(5, np.random.default_rng(9))
     classical = ClassicalTexture.fit(module.net.features, fit["e"], fit["i"], fit["t"],
@@ -244,7 +244,7 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     assert cl_graph.shared
     path = texture_export["model"].parent / "classical_test.onnx"
     k = len(spread.calibration_hz)
-    _export(cl_graph, n, path, {"outputs": json.dumps(list(scene.OUTPUTS))},
+    export_graph(cl_graph, n, path, {"outputs": json.dumps(list(scene.OUTPUTS))},
             ("e", "i", "t_re", "t_im"), (n, n, (k, 4), (k, 4)), optimize=False)
     import onnxruntime as ort
 

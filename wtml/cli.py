@@ -1,8 +1,10 @@
 """The ``wtml`` console script.
 
 Subcommands: ``walkthrough`` (the thesis's calibration), ``presets``, ``fidelity``, ``generate``,
-``evaluate``, ``export``, ``predict``, ``bench fluid|radial|onset|texture`` and ``pipeline``
-(all of them in a row). Bad input ends a command with one line on stderr and exit code 2.
+``evaluate``, ``export``, ``predict``, ``stream`` (an onset export on a live acquisition),
+``bench fluid|radial|onset|texture|device|runtime``, ``device``, ``calibrate`` and
+``pipeline`` (all of them in a row). Bad input ends a command with one line on stderr and
+exit code 2.
 Training runs through LightningCLI: ``python train.py fit --config configs/fluid.yaml``.
 """
 
@@ -12,6 +14,7 @@ import argparse
 import csv
 import dataclasses
 import math
+import os
 import re
 import sys
 import textwrap
@@ -266,20 +269,29 @@ def _predict(args: argparse.Namespace) -> int:
 
 
 def _stream(args: argparse.Namespace) -> int:
-    from wtml.runtime.stream import run_stream
+    from wtml.runtime.predict import InputError
+    from wtml.runtime.stream import Streamer
 
     def emit(event) -> None:
         print(event.line(), flush=True)
 
-    # a file or a named pipe (an acquisition program writing into it); stdin by default
+    streamer = Streamer(args.model, args.calibration, chunk_samples=args.chunk_samples,
+                        e_scale=args.e_scale, i_scale=args.i_scale,
+                        sample_rate_hz=args.sample_rate, threads=args.threads)
+    if args.input != "-" and Path(args.input).is_dir():
+        raise InputError(f"--input {args.input}: is a folder; give a file or named pipe of "
+                         "float32 (e, i) pairs, or - for stdin")
+    # a file or a named pipe (an acquisition program writing into it), opened once the model
+    # is ready; stdin by default
     source = sys.stdin.buffer if args.input == "-" else open(args.input, "rb")  # noqa: SIM115
-    with source:
-        summary = run_stream(args.model, source, args.calibration,
-                             chunk_samples=args.chunk_samples, e_scale=args.e_scale,
-                             i_scale=args.i_scale, sample_rate_hz=args.sample_rate,
-                             threads=args.threads, emit=emit)
+    try:
+        with source:
+            summary = streamer.run(source, emit)
+    except BrokenPipeError:  # the reader of our output has gone (| head): stop quietly
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115  (Python flushes stdout at exit)
+        return 0
     print(f"wtml stream: {summary.text()}", file=sys.stderr)
-    return 0
+    return 130 if summary.interrupted else 0
 
 
 def _bench_runtime(args: argparse.Namespace) -> int:
@@ -579,7 +591,8 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--threads", type=THREADS, default=1, help="onnxruntime threads")
     st.set_defaults(func=_stream)
 
-    be = verb("bench", "speed and accuracy of every method of a task, side by side")
+    be = verb("bench", "speed and accuracy of every method of a task, side by side; the "
+                       "device runtime's costs (bench runtime)")
     be_sub = be.add_subparsers(dest="task", metavar="TASK", required=True)
     bf = be_sub.add_parser("fluid", help="the fluid slice", formatter_class=_Help,
                            description="Every fluid method on the test shard: accuracy by "

@@ -2,7 +2,7 @@
 ``wtml stream`` on those formats (README, "On a device"):
 
 - ``rec.tdms``: LabVIEW TDMS as the thesis's NI PXI-4461 acquisition writes it: group ``WT``,
-  channels ``drive voltage`` (V) and ``I-V converter`` (V: the current through a 10 kΩ
+  channels ``drive voltage`` (V) and ``I-V converter`` (V: the current through a 100 kΩ
   transimpedance), ``wf_increment`` the sample period (read with
   ``configs/recordings/pxi4461.yaml``);
 - ``rec.wav``: a sound card's two channels, 24-bit PCM at ±10 V full scale (e, then the I-V

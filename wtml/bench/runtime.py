@@ -21,11 +21,14 @@ Side by side in one run, on one onset record of the export's own scene:
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from importlib import metadata
 from pathlib import Path
@@ -37,7 +40,7 @@ from wtml.bench.timing import latency_p50
 from wtml.exporters.onset import calibration_file
 from wtml.runtime.contacts import Timing, contacts_from
 from wtml.runtime.onset import read_onset_calibration, stream_record
-from wtml.runtime.predict import load_export
+from wtml.runtime.predict import InputError, load_export, task_of
 from wtml.runtime.stream import run_stream
 from wtml.scenes import scene_from_dict
 
@@ -49,29 +52,39 @@ SOURCE = Path(__file__).resolve().parents[2]
 """This checkout (the folder with ``pyproject.toml``)."""
 
 
-def runtime_venv(path: str | Path, *, quiet: bool = True) -> Path:
+def runtime_venv(path: str | Path) -> Path:
     """A venv at ``path`` with ``pip install`` of this checkout and nothing else (the device
     runtime), its runtime packages pinned to the versions of this environment, so that both
-    installs run the same numpy and onnxruntime; reused when it already holds wtml. Returns
-    its python.
+    installs run the same numpy and onnxruntime; reused while it holds this checkout's code
+    (the sources' hash and the pins in its marker). Built from a copy of the sources, so that
+    no build folder in the checkout ships modules since deleted. Returns its python.
 
     Raises:
-        RuntimeError: venv or pip failed (with pip's last lines).
+        RuntimeError: pip failed (with pip's last lines).
     """
     path = Path(path)
     python = path / "bin" / "python"
     marker = path / ".wtml-runtime"
-    if marker.exists() and marker.read_text() == _pins():
+    want = _pins() + f"wtml sources {_sources_hash()}\n"
+    if marker.exists() and marker.read_text() == want:
         return python
     subprocess.run([sys.executable, "-m", "venv", "--clear", str(path)], check=True)
     pins = path / "constraints.txt"
     pins.write_text(_pins())
-    done = subprocess.run([str(python), "-m", "pip", "install", "-q", "--disable-pip-version-check",
-                           "-c", str(pins), str(SOURCE)], capture_output=True, text=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = Path(tmp) / "wtml"
+        copy.mkdir()
+        for name in ("pyproject.toml", "README.md"):
+            shutil.copy(SOURCE / name, copy / name)
+        shutil.copytree(SOURCE / "wtml", copy / "wtml",
+                        ignore=shutil.ignore_patterns("__pycache__"))
+        done = subprocess.run([str(python), "-m", "pip", "install", "-q",
+                               "--disable-pip-version-check", "-c", str(pins), str(copy)],
+                              capture_output=True, text=True)
     if done.returncode:
         raise RuntimeError(f"pip install of the runtime into {path} failed:\n"
                            + "\n".join((done.stdout + done.stderr).splitlines()[-8:]))
-    marker.write_text(_pins())
+    marker.write_text(want)
     return python
 
 
@@ -79,22 +92,46 @@ def _pins() -> str:
     return "".join(f"{name}=={metadata.version(name)}\n" for name in RUNTIME_PACKAGES)
 
 
+def _sources_hash() -> str:
+    """sha256 over this checkout's ``pyproject.toml`` and ``wtml/**/*.py`` (names and bytes)."""
+    digest = hashlib.sha256()
+    for f in [SOURCE / "pyproject.toml", *sorted((SOURCE / "wtml").rglob("*.py"))]:
+        digest.update(str(f.relative_to(SOURCE)).encode() + b"\0" + f.read_bytes())
+    return digest.hexdigest()
+
+
+LAUNCHER = """\
+import os, subprocess, sys, tempfile, time
+with tempfile.TemporaryFile() as log:
+    start = time.perf_counter()
+    proc = subprocess.Popen(sys.argv[1:], stdout=log, stderr=subprocess.STDOUT)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - start
+    code = os.waitstatus_to_exitcode(status)
+    log.seek(0)
+    print(wall, usage.ru_maxrss / 1024, code)
+    sys.stdout.flush()
+    if code:
+        sys.stdout.buffer.write(log.read()[-2000:])
+"""
+"""Runs a command and prints its wall seconds, peak RSS (MB) and exit code: a small process,
+so that the command's peak is its own (a child forked from the bench itself would count the
+bench's memory, resident before the exec, in its peak)."""
+
+
 def cold_start(command: list[str], repeats: int) -> dict:
     """Median wall seconds and peak RSS (MB) of ``command`` run ``repeats`` times, each a
-    fresh process (its output must end with exit code 0)."""
+    fresh process started by :data:`LAUNCHER` (it must exit 0)."""
     walls, peaks = [], []
     for _ in range(repeats):
-        start = time.perf_counter()
-        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-        _, status, usage = os.wait4(proc.pid, 0)
-        walls.append(time.perf_counter() - start)
-        peaks.append(usage.ru_maxrss / 1024)  # KiB on Linux
-        out, err = proc.stdout.read(), proc.stderr.read()
-        proc.returncode = os.waitstatus_to_exitcode(status)
-        proc.stdout.close(), proc.stderr.close()
-        if proc.returncode:
-            raise RuntimeError(f"{' '.join(command[:3])} ... exited {proc.returncode}:\n"
-                               f"{(out + err).decode(errors='replace')[-2000:]}")
+        done = subprocess.run([sys.executable, "-c", LAUNCHER, *command], capture_output=True)
+        first, _, rest = done.stdout.partition(b"\n")
+        wall, peak, code = first.split()
+        if int(code):
+            raise RuntimeError(f"{' '.join(command[:3])} ... exited {int(code)}:\n"
+                               f"{rest.decode(errors='replace')}")
+        walls.append(float(wall))
+        peaks.append(float(peak))
     return {"wall_s": float(np.median(walls)), "peak_rss_mb": float(np.median(peaks)),
             "walls_s": walls}
 
@@ -143,11 +180,11 @@ def run_runtime_bench(out: str | Path, *, model: str | Path = "export/onset", re
     install's venv (made or reused by :func:`runtime_venv`; default ``out/runtime-venv``)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    if task_of(model) != "onset":
+        raise InputError(f"--model {model}: a {task_of(model)} export; the runtime bench runs "
+                         "an onset export")
     decoder, classical, stream = load_export(model, stream=True, threads=1)
     meta = decoder.meta
-    if meta.task != "onset":
-        raise ValueError(f"--model {model}: a {meta.task} export; the runtime bench runs an "
-                         "onset export")
     scene = scene_from_dict(dict(meta.scene))
     print(f"bench runtime: simulating {records} records of {model}'s scene", file=sys.stderr)
     rec = scene.simulate(records, np.random.default_rng([scene.seed, 24]))

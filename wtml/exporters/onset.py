@@ -21,7 +21,7 @@ from wtml.data.datamodule import onset_calibration
 from wtml.decoders.domain import Gated
 from wtml.decoders.onset import TOUCH_LOOKBACK, frame_period
 from wtml.decoders.onset_stream import StreamingOnset
-from wtml.exporters.common import _export, domain_metadata
+from wtml.exporters.graphs import domain_metadata, export_graph
 from wtml.runtime.metadata import (
     DECODER_OUTPUTS,
     ONSET_INPUTS,
@@ -102,16 +102,16 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
     samples = {"frame_s": json.dumps(1 / rate), "onset_offset_s": "0.0",
                "detach_offset_s": "0.0"}
     widths = (scene.n_samples,) * 2 + (4, 4, ())
-    _export(decoder, scene.n_samples, paths["decoder"],
+    export_graph(decoder, scene.n_samples, paths["decoder"],
             meta | frames | {"kind": "decoder", "label": "decoder",
                              "outputs": json.dumps(list(DECODER_OUTPUTS))}, ONSET_INPUTS, widths)
     classical = Gated(thesis_pipeline(scene), module.gate.inputs_only()).eval()
-    _export(classical, scene.n_samples, paths["classical"],
+    export_graph(classical, scene.n_samples, paths["classical"],
             meta | samples | {"kind": "classical", "label": "thesis pipeline"}, ONSET_INPUTS,
             widths)
     stream = StreamingOnset(module.net, module.gate, STREAM_CHUNK_FRAMES).eval()
     paths["stream"] = out / "stream.onnx"
-    _export(stream, stream.chunk_samples, paths["stream"],
+    export_graph(stream, stream.chunk_samples, paths["stream"],
             meta | frames | {"kind": "stream", "label": "decoder (streaming)",
                              "outputs": json.dumps(list(STREAM_OUTPUTS)),
                              "inputs": json.dumps(list(STREAM_INPUTS)),

@@ -14,7 +14,7 @@ import torch
 from wtml import __version__
 from wtml.baselines.texture_classical import ClassicalTexture
 from wtml.decoders.domain import Gated
-from wtml.exporters.common import _export, domain_metadata
+from wtml.exporters.graphs import domain_metadata, export_graph
 from wtml.physics.twoport import flat_parts
 from wtml.runtime.metadata import TEXTURE_INPUTS
 from wtml.scenes import config_hash, to_dict
@@ -52,9 +52,9 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
             "domain": json.dumps(domain)}
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
     widths = (window, window, (len(scene.calibration_hz), 4), (len(scene.calibration_hz), 4))
-    _export(decoder, window, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"},
+    export_graph(decoder, window, paths["decoder"], meta | {"kind": "decoder", "label": "decoder"},
             TEXTURE_INPUTS, widths, optimize=False)
-    _export(Gated(classical, module.gate.inputs_only()).eval(), window, paths["classical"],
+    export_graph(Gated(classical, module.gate.inputs_only()).eval(), window, paths["classical"],
             meta | {"kind": "classical", "label": "thesis cues (|F|, |V|, Zm)"}, TEXTURE_INPUTS,
             widths, optimize=False)
     return paths

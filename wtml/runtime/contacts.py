@@ -128,7 +128,7 @@ class ContactTracker:
     def __init__(self, timing: Timing, max_contacts: int | None = None) -> None:
         self.timing = timing
         self.max_contacts = max_contacts
-        self.merge_frames = timing.merge_s / timing.frame_s
+        self.merge_frames = timing.merge_s * (1 / timing.frame_s)  # as intervals() rounds it
         self.frame = 0          # frames seen
         self.count = 0          # contacts started
         self.history: list[bool] = []  # touch flags from `history_start` on
@@ -199,6 +199,8 @@ class ContactTracker:
                 events += self._close(k, open_end=False)
         if self.run_start is None:
             self._keep(max(self.frame - self.timing.touch_lookback, self.before))
+        elif self.onset_sent:  # the next contact looks back no further than this one's end
+            self._keep(self.run_end if self.run_end is not None else self.frame)
         return events
 
     def finish(self) -> list[Event]:

@@ -219,8 +219,8 @@ class OnsetMetadata(GraphMetadata):
     ``frame_s`` (one probe period for the decoder and the stream, one sample for the classical
     path), a contact's onset and detachment at ``onset_offset_s`` and ``detach_offset_s``
     into its frame, runs closer than ``merge_s`` one contact, a touch looked for
-``touch_lookback`` frames ahead of a run (:mod:`wtml.runtime.contacts`); the stream's chunks of
-    ``chunk_samples`` and its state of ``state_size``."""
+    ``touch_lookback`` frames ahead of a run (:mod:`wtml.runtime.contacts`); the stream's chunks
+    of ``chunk_samples`` and its state of ``state_size``."""
 
     sample_rate_hz: float = bounded(1.0, 1e9, default=0.0)
     n_samples: int = bounded(1, 10**9, default=0)

@@ -224,6 +224,8 @@ def test_wav_refusals_name_the_key(signal, tmp_path):
         read_wav(mono, RecordingProfile(i_scale=1 / R))
     with pytest.raises(RecordingError, match="i_channel '2': a WAV channel is an index"):
         read_wav(f32, RecordingProfile(i_scale=1 / R, i_channel="2"))
+    with pytest.raises(RecordingError, match="group 'WT': a WAV has no groups"):
+        read_wav(f32, RecordingProfile(i_scale=1 / R, group="WT"))
     whole = f32.read_bytes()
     for cut, needle in ((len(whole) - 7, "truncated: its 'data' chunk states"),
                         (30, "truncated: its 'fmt ' chunk"), (6, "not a WAV file"),
@@ -273,6 +275,8 @@ def test_csv_refusals_name_the_line_and_column(signal, tmp_path):
         read_csv_record(timed, RecordingProfile(sample_rate_hz=48010.0))
     with pytest.raises(RecordingError, match="full_scale_v scales integer samples only"):
         read_csv_record(timed, RecordingProfile(full_scale_v=1.0))
+    with pytest.raises(RecordingError, match="group 'WT': a CSV has no groups"):
+        read_csv_record(timed, RecordingProfile(group="WT"))
     counted = write_csv(tmp_path / "s.csv", "sample", np.arange(N), e, i)
     with pytest.raises(RecordingError, match="a sample column states no rate; give "
                                              "sample_rate_hz"):

@@ -572,9 +572,10 @@ def build_parser() -> argparse.ArgumentParser:
               "from standard input or a file, in fixed chunks, carries the graph's state across "
               "chunks and prints each contact as soon as it is decided: its onset, then its "
               "detachment with the wall's location (gap, sigma) and the domain flag; each line "
-              "gives the chunk that decided it (decided_s: its end in signal time) and the "
-              "latency from that chunk's arrival (latency_ms). A summary (real-time factor, "
-              "per-chunk latency) goes to stderr at the end.")
+              "gives when the frame that decided it ended (decided_s, signal time) and the wall "
+              "time from the arrival of the read that held it (latency_ms). The end of the "
+              "input or Ctrl-C closes the open contact; a summary (real-time factor, per-chunk "
+              "latency) goes to stderr. Contacts are not capped (a stream is not a record).")
     st.add_argument("--model", required=True, help="an onset export folder (stream.onnx)")
     st.add_argument("--calibration", default=None,
                     help="the device's calibration: .npz with frequency_hz [the probe's], t "

@@ -148,6 +148,13 @@ def load_profile(path: str | Path | None = None, **overrides: Any) -> RecordingP
         raise SchemaError(f"recording profile options: {err}") from None
 
 
+def _no_group(where: str, profile: RecordingProfile, what: str) -> None:
+    """Refuse a profile's TDMS ``group`` for a file without groups (``what``: its kind)."""
+    if profile.group is not None:
+        raise RecordingError(f"{where}: group {profile.group!r}: {what} has no groups (the "
+                             "key is for TDMS files); remove it")
+
+
 def _channels(where: str, profile: RecordingProfile, e: str, i: str) -> tuple[str, str]:
     """The names of ``e``'s and ``i``'s channels: the profile's, else the format's defaults
     ``e`` and ``i``; never one channel for both."""
@@ -452,6 +459,7 @@ def read_wav(path: Path, profile: RecordingProfile) -> Recording:
             rate the profile contradicts, a scale missing or out of place.
     """
     where = str(path)
+    _no_group(where, profile, "a WAV")
     head = _wav_header(path)
     n_ch = head.n_channels
     if n_ch != 2 and (profile.e_channel is None or profile.i_channel is None):
@@ -551,6 +559,7 @@ def read_csv_record(path: Path, profile: RecordingProfile) -> Recording:
     """
     path = regular_file(path, what="CSV recording", max_bytes=CSV_MAX_BYTES)
     where = str(path)
+    _no_group(where, profile, "a CSV")
     names = _channels(where, profile, "e", "i")
     offset, unit = _scales(where, profile, "decimal numbers", "f", 64)
     values = (array("d"), array("d"), array("d"))

@@ -21,6 +21,7 @@ import textwrap
 from pathlib import Path
 
 from wtml import __version__
+from wtml.tasks import TASKS
 
 PACKAGE = Path(__file__).resolve().parent
 """wtml's own source folder: an error raised by code there is one of its checks."""
@@ -222,37 +223,32 @@ def _predict(args: argparse.Namespace) -> int:
         check_device,
         domain_warning,
         format_predictions,
-        predict_file,
         task_of,
     )
 
     task = task_of(args.model)
     if args.device is not None:
         check_device(args.model, args.device)
-    if args.reference is not None and task in ("onset", "texture"):
-        raise InputError(f"--reference {args.reference}: this {task} export takes no reference")
     from wtml.runtime.instruments import load_profile
 
+    spec = TASKS[task]
     profile = load_profile(args.profile, group=args.group, e_channel=args.e_channel,
                            i_channel=args.i_channel, e_scale=args.e_scale,
                            i_scale=args.i_scale, full_scale_v=args.full_scale_v,
                            sample_rate_hz=args.sample_rate)
-    if task == "onset":
-        from wtml.runtime.onset import predict_records
-
-        rows = predict_records(args.model, args.input, calibration=args.calibration,
-                               profile=profile)
-    elif task == "texture":
-        from wtml.runtime.texture import predict_records as texture_records
-
-        rows = texture_records(args.model, args.input, calibration=args.calibration,
-                               profile=profile)
+    if spec.reads == "recordings":
+        if args.reference is not None:
+            raise InputError(f"--reference {args.reference}: this {task} export takes no "
+                             "reference")
+        rows = spec.load("rows")(args.model, args.input, calibration=args.calibration,
+                                 profile=profile)
     else:
         if profile is not None:
-            raise InputError(f"--profile and the recording options read recordings (onset, "
-                             f"texture); a {task} export takes Ze measurements")
-        rows = predict_file(args.model, args.input, calibration=args.calibration,
-                            reference=args.reference)
+            recordings = ", ".join(t.name for t in TASKS.values() if t.reads == "recordings")
+            raise InputError(f"--profile and the recording options read recordings "
+                             f"({recordings}); a {task} export takes Ze measurements")
+        rows = spec.load("rows")(args.model, args.input, calibration=args.calibration,
+                                 reference=args.reference)
     if args.out:
         with open(args.out, "w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
@@ -753,7 +749,7 @@ def build_parser() -> argparse.ArgumentParser:
     bt.set_defaults(func=_bench_texture)
 
     pl = verb("pipeline", "the main job: generate, train, export, predict, bench, summary")
-    pl.add_argument("task", nargs="?", choices=["all", "fluid", "radial", "onset", "texture"],
+    pl.add_argument("task", nargs="?", choices=["all", *TASKS],
                     default="all",
                     help="which slice")
     pl.add_argument("--max-epochs", type=_number(1, 10**6, int), default=None,

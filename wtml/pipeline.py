@@ -23,6 +23,7 @@ from wtml.exporters.common import export_model
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.scenes import config_hash, load_scene, scene_from_dict
 from wtml.schema import read_yaml
+from wtml.tasks import TASKS
 from wtml.training import cli_main, duration
 
 TRANSFER_RECORDS = 4
@@ -537,17 +538,12 @@ def _texture_transfer_lines(rows: list[dict]) -> list[str]:
 
 
 def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:
-    """The main job for ``task`` (``"all"``, or one of ``"fluid"``, ``"radial"``,
-    ``"onset"``, ``"texture"``); prints and returns the closing summary."""
+    """The main job for ``task`` (``"all"``, or one of :data:`wtml.tasks.TASKS`, in their
+    order); prints and returns the closing summary."""
     stages, results = Stages(), {}
-    if task in ("fluid", "all"):
-        results["fluid"] = run_fluid(stages, max_epochs=max_epochs)
-    if task in ("radial", "all"):
-        results["radial"] = run_radial(stages, max_epochs=max_epochs)
-    if task in ("onset", "all"):
-        results["onset"] = run_onset(stages, max_epochs=max_epochs)
-    if task in ("texture", "all"):
-        results["texture"] = run_texture(stages, max_epochs=max_epochs)
+    for spec in TASKS.values():
+        if task in (spec.name, "all"):
+            results[spec.name] = spec.load("pipeline")(stages, max_epochs=max_epochs)
     text = summary(results, stages)
     print(text)
     sys.stdout.flush()

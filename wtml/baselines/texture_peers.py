@@ -21,7 +21,7 @@ import torch
 from scipy.signal import welch
 
 from wtml.decoders.texture import WhiskFeatures
-from wtml.physics.modal import available_cores
+from wtml.physics.stepping import available_cores
 from wtml.physics.twoport import flat_parts
 
 

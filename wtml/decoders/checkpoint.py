@@ -19,6 +19,7 @@ import torch
 
 from wtml.files import MEMORY_CEILING, regular_file
 from wtml.schema import SchemaError, bounded, build
+from wtml.tasks import TASKS, UNNAMED
 
 RESUME_KEYS = ("epoch", "global_step", "state_dict", "loops", "optimizer_states",
                "lr_schedulers")
@@ -100,7 +101,7 @@ def _checked(path: Path, task: str | None) -> tuple[dict, bytes]:
     if not isinstance(info, dict) or not isinstance(info.get("scene"), dict):
         raise CheckpointError(f"{path}: not a wtml checkpoint (no scene inside); use one "
                               "written by `python train.py fit`")
-    found = info["scene"].get("task", "fluid")
+    found = info["scene"].get("task", UNNAMED)
     if found not in SCENES:
         raise CheckpointError(f"{path}: wtml.scene.task: a checkpoint of the {found!r:.40} "
                               f"task, which this version of wtml does not know (tasks: "
@@ -155,7 +156,7 @@ def resume_checkpoint(path: str | Path, task: str) -> dict:
 
 def checkpoint_task(path: str | Path) -> str:
     """The task a checkpoint was trained for (``scene.task``)."""
-    return read_checkpoint(path)["wtml"]["scene"].get("task", "fluid")
+    return read_checkpoint(path)["wtml"]["scene"].get("task", UNNAMED)
 
 
 def load_module(cls, path: str | Path, task: str):
@@ -179,16 +180,9 @@ def _module(cls, data: bytes, path: str | Path):
 def load_decoder(path: str | Path):
     """The trained LightningModule of any task's checkpoint (its ``net``, ``gate`` and
     ``scene``), CPU, eval mode."""
-    from wtml.decoders.fluid import FluidDecoder
-    from wtml.decoders.onset import OnsetDecoder
-    from wtml.decoders.radial import RadialDecoder
-    from wtml.decoders.texture import TextureDecoder
-
-    classes = {"fluid": FluidDecoder, "radial": RadialDecoder, "onset": OnsetDecoder,
-               "texture": TextureDecoder}
     state, data = _checked(Path(path), None)
-    task = state["wtml"]["scene"].get("task", "fluid")
-    if task not in classes:
+    task = state["wtml"]["scene"].get("task", UNNAMED)
+    if task not in TASKS:
         raise CheckpointError(f"{path}: a checkpoint of the {task!r} task, which this version "
-                              f"of wtml cannot load (tasks: {sorted(classes)})")
-    return _module(classes[task], data, path)
+                              f"of wtml cannot load (tasks: {sorted(TASKS)})")
+    return _module(TASKS[task].load("decoder"), data, path)

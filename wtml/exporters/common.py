@@ -46,6 +46,7 @@ from wtml.runtime.metadata import (
     write_manifest,
 )
 from wtml.scenes import config_hash, device_of, scene_from_dict, to_dict
+from wtml.tasks import TASKS
 
 REFERENCES = {
     "fluid": {"calibration": "the device's calibrated T (whisker with its sphere) at the "
@@ -120,16 +121,7 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     task = scene.task
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST).unlink(missing_ok=True)  # until the new one is written: no export here
-    if task == "onset":
-        from wtml.exporters.onset import export_onset
-
-        paths = export_onset(module, scene, out)
-    elif task == "texture":
-        from wtml.exporters.texture import export_texture
-
-        paths = export_texture(module, scene, out)
-    else:
-        paths = _export_matrix_task(module, scene, out)
+    paths = TASKS[task].load("export")(module, scene, out)
     metadata = {p.name: {m.key: m.value for m in onnx.load(str(p)).metadata_props}
                 for p in paths.values() if p.suffix == ".onnx"}
     paths["manifest"] = write_manifest(out, paths, metadata, task=task,
@@ -138,7 +130,7 @@ def export_model(checkpoint: str | Path, out: str | Path) -> dict[str, Path]:
     return paths
 
 
-def _export_matrix_task(module, scene, out: Path) -> dict[str, Path]:
+def export_matrix_task(module, scene, out: Path) -> dict[str, Path]:
     """The fluid and radial graphs (and radial's sample reference) into ``out``."""
     task = scene.task
     freq = (scene.excitation.frequency_hz if task == "fluid"

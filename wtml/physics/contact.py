@@ -75,6 +75,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from numba import njit
 
+from wtml.physics.stepping import available_cores, eigenbasis, record_blocks
 from wtml.physics.validation import check_range
 
 LAWS = ("linear", "power", "hunt_crossley", "mount_hertz")
@@ -228,7 +229,6 @@ def simulate_contact(model, e, de_step, de_out, dt: float, load: ContactWall, co
     contact wall ``load``; the arguments as prepared by its ``simulate`` (``cols`` index into
     :data:`~wtml.physics.modal.OUTPUTS` + :data:`CONTACT_OUTPUTS`). Returns the recorded
     outputs ``(len(cols), B, n_steps)`` and ``contact`` (``F > 0``, bool ``(B, n_steps)``)."""
-    from wtml.physics.modal import ModalTransducer, _blocks, _eigenbasis, available_cores
 
     bsz, n_steps = load.batch, e.shape[1]
     if load.gap.shape[1] not in (1, n_steps):
@@ -239,18 +239,18 @@ def simulate_contact(model, e, de_step, de_out, dt: float, load: ContactWall, co
         raise ValueError("friction: the wall's friction acts through the modes' tip slope; "
                          "make the model with ModalTransducer.from_beam (tip_slope is None)")
     zero = np.zeros(bsz)
-    lam, gain, out, feed, to_modal, to_state = _eigenbasis(
+    lam, gain, out, feed, to_modal, to_state = eigenbasis(
         model.step_matrices(dt, zero, zero, coupling_scale))
     # the force enters q'' as -φb F, as E enters as φθ E: a model whose coupling is -φb gives,
     # in its E and Ė columns, the step's exact response to F held and to F's slope; the
     # friction T enters as ψ T with ψ = -ρ φs (one model with coupling φs, scaled per record)
     ns = 2 * model.n_modes + 1
-    pushed = ModalTransducer(model.omega_n, model.zeta, model.tip, -model.tip)
+    pushed = type(model)(model.omega_n, model.zeta, model.tip, -model.tip)
     held, ramp = np.moveaxis(to_modal @ pushed.step_matrices(dt, zero, zero)[:, :ns, ns:ns + 2],
                              2, 0)
     rho = load.offset
     if sliding:
-        turned = ModalTransducer(model.omega_n, model.zeta, model.tip, model.tip_slope)
+        turned = type(model)(model.omega_n, model.zeta, model.tip, model.tip_slope)
         t_held, t_ramp = np.moveaxis(
             -rho[:, None, None] * (to_modal @ turned.step_matrices(dt, zero, zero)[:, :ns,
                                                                                  ns:ns + 2]),
@@ -277,7 +277,7 @@ def simulate_contact(model, e, de_step, de_out, dt: float, load: ContactWall, co
               load.friction, load.slip_speed)
     values = np.empty((len(cols), bsz, n_steps), dtype)
     contact = np.empty((bsz, n_steps), bool)
-    blocks = _blocks(bsz, threads)
+    blocks = record_blocks(bsz, threads)
 
     def step(b: slice) -> None:
         own = b if len(e) > 1 else slice(0, 1)

@@ -54,6 +54,7 @@ import numpy as np
 from numba import njit
 from scipy.special import dawsn
 
+from wtml.physics.stepping import available_cores, eigenbasis, record_blocks
 from wtml.physics.validation import check_range
 
 REFERENCE_SPEED = 1.0
@@ -218,10 +219,9 @@ def simulate_friction(model, e, de_step, de_out, dt: float, load: Friction, coup
     """Step ``model`` (a :class:`~wtml.physics.modal.ModalTransducer`) from rest with
     ``load`` at the tip; the arguments as prepared by its ``simulate``. Returns the recorded
     outputs ``(len(cols), B, n_steps)`` and ``contact`` (always True: the tip slides)."""
-    from wtml.physics.modal import _blocks, _eigenbasis, available_cores
 
     bsz, n_steps = load.batch, e.shape[1]
-    lam, gain, out, feed, _, _ = _eigenbasis(model.step_matrices(
+    lam, gain, out, feed, _, _ = eigenbasis(model.step_matrices(
         dt, np.zeros(bsz), np.zeros(bsz), coupling_scale, force_input=True))
 
     def parts(a: np.ndarray) -> np.ndarray:  # (B, ...) complex -> (2, ..., B)
@@ -231,7 +231,7 @@ def simulate_friction(model, e, de_step, de_out, dt: float, load: Friction, coup
     feed = np.ascontiguousarray(np.moveaxis(feed[..., [0, 3, 2]], 0, -1))  # on [E, Ė_out, F]
     values = np.empty((len(cols), bsz, n_steps), dtype)
     start = np.array([np.searchsorted(p, 0.0) for p in load.positions], np.int64)
-    blocks = _blocks(bsz, threads)
+    blocks = record_blocks(bsz, threads)
 
     def step(b: slice) -> None:
         own = b if len(e) > 1 else slice(0, 1)

@@ -32,7 +32,6 @@ a damped load, ``F`` is a state: ``c a_r F' + (1 + k a_r) F = k (u_m - g) + c u_
 
 from __future__ import annotations
 
-import os
 from abc import ABC, abstractmethod
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -42,6 +41,9 @@ from numba import njit
 from scipy.linalg import eigh, expm
 
 from wtml.physics.beam import BeamTransducer
+from wtml.physics.contact import CONTACT_OUTPUTS, simulate_contact
+from wtml.physics.friction import simulate_friction
+from wtml.physics.stepping import available_cores, eigenbasis, record_blocks
 from wtml.physics.structure import Structure
 from wtml.physics.validation import check_omega, check_range
 
@@ -284,8 +286,6 @@ class ModalTransducer(Structure):
         if threads is not None:
             check_range("threads", threads, 1, 1024)
         implicit = getattr(load, "implicit", False)
-        if implicit:
-            from wtml.physics.contact import CONTACT_OUTPUTS
         allowed = OUTPUTS + (CONTACT_OUTPUTS if implicit else ())
         unknown = set(record) - set(allowed)
         if unknown:
@@ -314,27 +314,23 @@ class ModalTransducer(Structure):
                                  "when recording i of a lossy model")
             loss = self.loss_current(e, tones)
         if implicit:  # a contact law (and its friction): solved at every step
-            from wtml.physics.contact import simulate_contact
-
             values, contact = simulate_contact(self, e, de_step, de_out, dt, load,
                                                coupling_scale, cols, dtype, threads)
             return _with_loss({**dict(zip(record, values, strict=True)), "contact": contact},
                               loss)
         if getattr(load, "smooth", False):  # friction: evaluated once per step
-            from wtml.physics.friction import simulate_friction
-
             values = simulate_friction(self, e, de_step, de_out, dt, load, coupling_scale, cols,
                                        dtype, threads)
             out = {**dict(zip(record, values, strict=True)),
                    "contact": np.ones((bsz, n_steps), bool)}
             return _with_loss(out, loss)
-        free = _eigenbasis(self.step_matrices(dt, np.zeros(bsz), np.zeros(bsz), coupling_scale))
-        engaged = _eigenbasis(self.step_matrices(dt, load.stiffness, load.damping,
+        free = eigenbasis(self.step_matrices(dt, np.zeros(bsz), np.zeros(bsz), coupling_scale))
+        engaged = eigenbasis(self.step_matrices(dt, load.stiffness, load.damping,
                                                  coupling_scale))
         maps = _regimes(free, engaged, load.offset)
         values = np.empty((len(record), bsz, n_steps), dtype)
         contact = np.empty((bsz, n_steps), bool)
-        blocks = _blocks(bsz, threads)
+        blocks = record_blocks(bsz, threads)
         engaged0 = load.initial_state()
 
         def step(b: slice) -> None:
@@ -433,59 +429,8 @@ class Wall(TipLoad):
         return self.offset < 0
 
 
-BLOCK = (32, 64)
-"""The fewest and most records stepped side by side in one call of the stepper: their maps
-stay in cache and each step's arithmetic runs across records in vector registers (measured:
-below 24 records per call the time per record-step doubles)."""
-
-
-def available_cores() -> int:
-    """The cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-
-
-def _blocks(bsz: int, threads: int | None) -> list[slice]:
-    """The records split into blocks of :data:`BLOCK` size, one per thread where there are
-    enough (``threads``: default every core this process may use)."""
-    size = min(BLOCK[1], max(BLOCK[0], -(-bsz // (threads or available_cores()))))
-    return [slice(lo, min(bsz, lo + size)) for lo in range(0, bsz, size)]
-
-
 TEST_ROW = (0, 2)
 """The output each regime's switching rule reads first: u when free, F when engaged."""
-
-
-def _eigenbasis(maps: np.ndarray) -> tuple[np.ndarray, ...]:
-    """One regime's exact step (:meth:`ModalTransducer.step_matrices`, ``(B, ns+4, ns+4)``)
-    in the eigenbasis of its state map, which is diagonal: ``w_{k+1} = λ w_k + G [E, Ė, g]``.
-
-    The state map is real, so its eigenvalues are real or come in conjugate pairs; one of each
-    pair is kept (the other is its conjugate) and counted twice in every real quantity formed
-    from it. Returns, for m kept modes: ``lam`` (B, m), ``gain`` (B, m, 4) on ``[E, Ė, g,
-    Ė_out]`` (the last is 0), ``out`` (B, 4, m) and ``feed`` (B, 4, 4) so that the outputs are
-    ``Re(out @ w) + feed @ [E, Ė, g, Ė_out]``, and the changes of basis ``to_modal`` (B, m, ns)
-    and ``to_state`` (B, ns, m) with ``x = Re(to_state @ w)``. Modes a record does not need
-    (fewer kept than m) have ``λ = 0`` and zero columns. Raises ValueError where the map is
-    too close to defective to be diagonalised (a mode's frequency at a multiple of half the
-    step rate).
-    """
-    ns = maps.shape[2] - 4
-    lam, vec = np.linalg.eig(maps[:, :ns, :ns])
-    inv = np.linalg.inv(vec)
-    keep = lam.imag >= 0
-    order = np.argsort(~keep, axis=1, kind="stable")[:, :int(keep.sum(1).max())]
-    weight = np.take_along_axis(np.where(lam.imag > 0, 2.0, 1.0) * keep, order, 1)
-    lam = np.take_along_axis(lam, order, 1)
-    used = weight > 0
-    to_modal = np.take_along_axis(inv, order[:, :, None], 1) * used[:, :, None]
-    to_state = np.take_along_axis(vec, order[:, None, :], 2) * weight[:, None, :]
-    rebuilt = np.einsum("brj,bj,bjc->brc", to_state, lam * used, to_modal).real
-    row = np.abs(maps[:, :ns, :ns]).max(2, keepdims=True)
-    if np.any(np.abs(rebuilt - maps[:, :ns, :ns]) > 1e-9 * row):
-        raise ValueError("dt: the step map cannot be diagonalised accurately at this step (a "
-                         "mode at a multiple of half the step rate?); choose another dt")
-    return (lam * used, to_modal @ maps[:, :ns, ns:], maps[:, ns:, :ns] @ to_state,
-            maps[:, ns:, ns:], to_modal, to_state)
 
 
 def _regimes(free: tuple, engaged: tuple, offset: np.ndarray) -> tuple[np.ndarray, ...]:

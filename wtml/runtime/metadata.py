@@ -28,6 +28,7 @@ from typing import Any
 from wtml.devices import DeviceIdentity, physical_hash
 from wtml.files import FileError, inside, parse_json, read_json, regular_file, sha256
 from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
+from wtml.tasks import UNNAMED
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = 2
@@ -185,7 +186,7 @@ class GraphMetadata:
             raise _fail("frequency_hz", "must list at least one frequency (Hz)")
         if len(set(self.frequency_hz)) != len(self.frequency_hz):
             raise _fail("frequency_hz", "must not list a frequency twice")
-        if self.scene.get("task", "fluid") != self.task:
+        if self.scene.get("task", UNNAMED) != self.task:
             raise _fail("scene.task", f"must be the graph's task {self.task!r}, got "
                         f"{self.scene.get('task', 'fluid')!r}")
         if not _HEX64.match(self.scene_hash):

@@ -9,6 +9,7 @@ from wtml.scenes.onset import OnsetScene
 from wtml.scenes.radial import RadialScene
 from wtml.scenes.texture import TextureScene
 from wtml.schema import SceneError, build, config_hash, to_dict, yaml_load
+from wtml.tasks import UNNAMED
 
 SCENES = {"fluid": FluidScene, "radial": RadialScene, "onset": OnsetScene,
           "texture": TextureScene}
@@ -81,7 +82,7 @@ def scene_from_dict(data: Any, path: str = ""
     if not isinstance(data, Mapping):
         raise SceneError(f"{path or 'scene'}: must be a mapping of a scene's keys, got "
                          f"{type(data).__name__}")
-    task = data.get("task", "fluid")
+    task = data.get("task", UNNAMED)
     if not isinstance(task, str) or task not in SCENES:
         raise SceneError(f"{path + '.' if path else ''}task: must be one of {sorted(SCENES)}, "
                          f"got {task!r:.80}")

@@ -1,0 +1,85 @@
+"""The tasks wtml decodes, each declared once (issue 25 §1): its scene, its decoder, how it is
+exported, what ``wtml predict`` makes of its measurements, and its stage of the main job. The
+entry points iterate over :data:`TASKS` or look a task up by name (:func:`task`); nothing
+outside a task's own modules switches on its name. A new task adds its own modules and one
+entry here.
+
+Each part is named by ``"module:attribute"`` and imported only when used (:meth:`Task.load`),
+so this module imports nothing: the device runtime reads it without the training stack, and
+the modules it names may import it without a cycle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import import_module
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Task:
+    """One task.
+
+    Attributes:
+        name: the scenes' ``task`` key.
+        what: one line on what it decodes.
+        reads: what ``wtml predict`` takes: ``"measurements"`` (Ze on a frequency grid) or
+            ``"recordings"`` (e and i in time, from any of the runtime's formats).
+        scene: its scene class.
+        decoder: its LightningModule (what a checkpoint of the task holds).
+        export: ``(module, scene, out) -> {kind: path}``, writing its graphs into ``out``.
+        rows: ``wtml predict``'s rows: ``(model_dir, input, *, calibration, reference)`` for
+            measurements, ``(model_dir, input, *, calibration, profile)`` for recordings.
+        pipeline: its stage of ``wtml pipeline``: ``(stages, *, max_epochs) -> results``.
+    """
+
+    name: str
+    what: str
+    reads: str
+    scene: str
+    decoder: str
+    export: str
+    rows: str
+    pipeline: str
+
+    def load(self, part: str) -> Any:
+        """The object a part names (``"scene"``, ``"decoder"``, ``"export"``, ``"rows"``,
+        ``"pipeline"``), imported now."""
+        module, _, attribute = getattr(self, part).partition(":")
+        return getattr(import_module(module), attribute)
+
+
+TASKS = {t.name: t for t in (
+    Task("fluid", "viscosity and density of a fluid from a sphere tip's Ze sweep",
+         "measurements", "wtml.scenes.fluid:FluidScene", "wtml.decoders.fluid:FluidDecoder",
+         "wtml.exporters.common:export_matrix_task", "wtml.runtime.predict:predict_file",
+         "wtml.pipeline:run_fluid"),
+    Task("radial", "a contact's distance from the tip along the whisker from Ze",
+         "measurements", "wtml.scenes.radial:RadialScene", "wtml.decoders.radial:RadialDecoder",
+         "wtml.exporters.common:export_matrix_task", "wtml.runtime.predict:predict_file",
+         "wtml.pipeline:run_radial"),
+    Task("onset", "contact onsets, detachments and the wall's horizontal location from e, i",
+         "recordings", "wtml.scenes.onset:OnsetScene", "wtml.decoders.onset:OnsetDecoder",
+         "wtml.exporters.onset:export_onset", "wtml.runtime.onset:predict_records",
+         "wtml.pipeline:run_onset"),
+    Task("texture", "a swept sandpaper's grade and grain size from e, i",
+         "recordings", "wtml.scenes.texture:TextureScene",
+         "wtml.decoders.texture:TextureDecoder", "wtml.exporters.texture:export_texture",
+         "wtml.runtime.texture:predict_records", "wtml.pipeline:run_texture"),
+)}
+"""Every task, in the main job's order."""
+UNNAMED = "fluid"
+"""The task of a scene mapping without a ``task`` key (the first wtml's scenes were fluid
+scenes and named none)."""
+
+
+def task(name: str, where: str = "task") -> Task:
+    """The task called ``name``.
+
+    Raises:
+        ValueError: no such task (``where`` names what gave it; the message lists the tasks).
+    """
+    if name not in TASKS:
+        raise ValueError(f"{where}: {name!r} is not a task of this wtml (tasks: "
+                         f"{', '.join(TASKS)})")
+    return TASKS[name]

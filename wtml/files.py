@@ -26,6 +26,9 @@ MEMORY_CEILING = 2 * 1024**3
 input that would need more is refused before the work, naming it."""
 JSON_MAX_BYTES = 64 * 1024**2
 """Bytes: the largest manifest, sidecar or metadata file read."""
+CSV_MAX_BYTES = 64 * 1024**2
+"""Bytes: the largest CSV input (measurements, or an oscilloscope's recording; larger ones:
+.npz, TDMS or WAV)."""
 
 
 class FileError(ValueError):

@@ -236,14 +236,8 @@ def run_runtime_bench(out: str | Path, *, model: str | Path = "export/onset", re
         summary = run_stream(model, io.BytesIO(pairs.tobytes()), cal, threads=1)
     finally:
         os.sched_setaffinity(0, restore)
-    busy = np.array(summary.per_chunk_s)
     streaming = {"chunk_samples": stream.meta.chunk_samples,
-                 "chunk_s": stream.meta.chunk_samples / meta.sample_rate_hz,
-                 "chunks": summary.chunks, "signal_s": summary.signal_s,
-                 "median_chunk_ms": 1e3 * float(np.median(busy)),
-                 "p99_chunk_ms": 1e3 * float(np.quantile(busy, 0.99)),
-                 "real_time_factor": float(busy.sum() / summary.signal_s),
-                 "contacts": sum(e.event.kind == "onset" for e in summary.events)}
+                 "chunk_s": stream.meta.chunk_samples / meta.sample_rate_hz, **summary.stats()}
     result = {"model": str(model), "records": records, "repeats": repeats,
               "cold_start": starts, "installed_mb": sizes,
               "latency_s": latency, "streaming": streaming, "contacts": accuracy,

@@ -32,11 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from wtml.files import FileError, regular_file
+from wtml.files import CSV_MAX_BYTES, FileError, regular_file
 from wtml.schema import SchemaError, bounded, build, read_yaml
 
-CSV_MAX_BYTES = 64 * 1024**2
-"""Bytes: the largest CSV recording (an oscilloscope's export; larger ones: TDMS or WAV)."""
 RATE_RANGE = (1e-3, 1e12)
 """Hz: the sampling rates a recording may have."""
 RATE_AGREEMENT = 1e-9
@@ -545,7 +543,7 @@ def _uniform_rate(where: str, t: np.ndarray, lines: np.ndarray, column: str,
 
 
 def read_csv_record(path: Path, profile: RecordingProfile) -> Recording:
-    """A CSV of samples (an oscilloscope's export, up to :data:`CSV_MAX_BYTES`): a header
+    """A CSV of samples (an oscilloscope's export, up to :data:`wtml.files.CSV_MAX_BYTES`): a header
     row naming the columns, then one row per sample: ``time_s`` (or ``time``, seconds; uniform)
     or ``sample`` (0, 1, 2, ...: the profile's ``sample_rate_hz`` is then required), and the
     ``e`` and ``i`` columns (``e_channel``/``i_channel``; default ``"e"``, ``"i"``), decimal

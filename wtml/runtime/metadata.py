@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from wtml import tasks
 from wtml.devices import DeviceIdentity, physical_hash
 from wtml.files import FileError, inside, parse_json, read_json, regular_file, sha256
 from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
@@ -36,7 +37,7 @@ MODEL_MAX_BYTES = 512 * 1024**2
 """Bytes: the largest graph or sample file an export folder may hold."""
 REDO = "export it again with `wtml export --checkpoint <last.ckpt> --out <folder>`"
 
-TASKS = ("fluid", "radial", "onset", "texture")
+TASKS = tuple(tasks.TASKS)
 KINDS = ("decoder", "classical", "stream")
 GATE_OUTPUTS = ("in_domain", "domain_score")
 """The domain gate's outputs, after the task's in every graph."""

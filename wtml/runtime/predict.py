@@ -19,6 +19,7 @@ import numpy as np
 import onnxruntime as ort
 
 from wtml.files import (
+    CSV_MAX_BYTES,
     MEMORY_CEILING,
     FileError,
     check_array,
@@ -93,8 +94,6 @@ graphs' intermediate arrays stay small whatever the number of measurements or wi
 ROW_BYTES = 4096
 """Bytes a row of ``wtml predict``'s answer may take (its Python objects and its line):
 counted in each input's cost against :data:`wtml.files.MEMORY_CEILING`."""
-CSV_MAX_BYTES = 64 * 1024**2
-"""Bytes: the largest CSV input."""
 CALIBRATION_MAX_BYTES = 256 * 1024**2
 """Bytes: the largest calibration or reference file's arrays."""
 INPUT_FORMATS = INPUT_FORMATS.format(ceiling=nbytes_text(MEMORY_CEILING),

@@ -71,17 +71,26 @@ class StreamSummary:
     events: list[StreamEvent] = field(default_factory=list)
     interrupted: bool = False
 
+    def stats(self) -> dict:
+        """``chunks``, ``signal_s``, ``work_s`` (s), ``real_time_factor`` (work over signal),
+        ``median_chunk_ms``, ``p99_chunk_ms`` and ``contacts``; at least one chunk run."""
+        busy = np.array(self.per_chunk_s)
+        return {"chunks": self.chunks, "signal_s": self.signal_s, "work_s": float(busy.sum()),
+                "real_time_factor": float(busy.sum() / self.signal_s),
+                "median_chunk_ms": 1e3 * float(np.median(busy)),
+                "p99_chunk_ms": 1e3 * float(np.quantile(busy, 0.99)),
+                "contacts": sum(e.event.kind == "onset" for e in self.events)}
+
     def text(self) -> str:
         """One line: chunks, signal, real-time factor, per-chunk latency."""
         if not self.chunks:
             return "no whole chunk arrived"
         end = " (stopped by Ctrl-C)" if self.interrupted else ""
-        busy = np.array(self.per_chunk_s)
-        return (f"{self.chunks} chunks, {self.signal_s:.3f} s of signal in {busy.sum():.3f} s "
-                f"of work: real-time factor {busy.sum() / self.signal_s:.4f}; per chunk "
-                f"median {1e3 * np.median(busy):.3f} ms, 99th percentile "
-                f"{1e3 * np.quantile(busy, 0.99):.3f} ms; "
-                f"{sum(e.event.kind == 'onset' for e in self.events)} contacts{end}")
+        s = self.stats()
+        return (f"{s['chunks']} chunks, {s['signal_s']:.3f} s of signal in {s['work_s']:.3f} s "
+                f"of work: real-time factor {s['real_time_factor']:.4f}; per chunk median "
+                f"{s['median_chunk_ms']:.3f} ms, 99th percentile {s['p99_chunk_ms']:.3f} ms; "
+                f"{s['contacts']} contacts{end}")
 
 
 def read_chunk(source: BinaryIO, size: int) -> bytes:

@@ -4,6 +4,7 @@ the fitted device file; refusals in one line."""
 
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -28,15 +29,27 @@ def _example():
 
 
 def test_the_shipped_measurements_are_what_the_script_makes(tmp_path, monkeypatch):
-    """The files in examples/own_device come from make_measurements.py, bit for bit: the
-    example is reproducible and its truth is the script's."""
+    """The files in examples/own_device come from make_measurements.py: the same layout and
+    the same numbers to 1e-8 relative (the beam solve's rounding differs between numpy and
+    LAPACK builds by ~1e-9 of Ze; the files' own noise is 1e-4): the example is reproducible
+    and its truth is the script's."""
     example = _example()
     monkeypatch.setattr(example, "HERE", tmp_path)
     (tmp_path / "start.yaml").write_text((EXAMPLE / "start.yaml").read_text())
     example.main()
-    for name in ("free.csv", "free.s1p", "pin_1mm.csv", "pin_2mm.csv", "pin_3mm.csv",
-                 "contacts.npz", "reference.npz"):
-        assert (tmp_path / name).read_bytes() == (EXAMPLE / name).read_bytes(), name
+    number = re.compile(r"-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
+    for name in ("free.csv", "free.s1p", "pin_1mm.csv", "pin_2mm.csv", "pin_3mm.csv"):
+        made, shipped = ((folder / name).read_text() for folder in (tmp_path, EXAMPLE))
+        assert number.sub("#", made) == number.sub("#", shipped), name
+        np.testing.assert_allclose(np.array(number.findall(made), float),
+                                   np.array(number.findall(shipped), float), rtol=1e-8,
+                                   atol=0, err_msg=name)
+    for name in ("contacts.npz", "reference.npz"):
+        made, shipped = (np.load(folder / name) for folder in (tmp_path, EXAMPLE))
+        assert sorted(made.files) == sorted(shipped.files), name
+        for key in shipped.files:
+            np.testing.assert_allclose(made[key], shipped[key], rtol=1e-8, atol=0,
+                                       err_msg=f"{name} {key}")
 
 
 def test_the_example_is_fitted_back_and_written_as_a_device_file(tmp_path, capsys):

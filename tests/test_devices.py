@@ -53,15 +53,18 @@ FIDELITY_BEFORE = """\
 
 
 def test_the_shipped_thesis_devices_build_todays_beams():
-    """Each shipped beam file builds the beam the preset dictionary built: natural
-    frequencies to the last bit (the files hold the fitted lengths' reprs), T to 1e-14 (bit
-    for bit too until 12eb545 solved the free and contact forms by LU instead of an inverse:
-    4e-16 relative since)."""
+    """Each shipped beam file builds the beam the preset dictionary built (the files hold the
+    fitted lengths' reprs): natural frequencies to 5e-8 relative, T to 1e-11. On the machine
+    that printed BEFORE they agreed to the last bit and to 4e-16 (since 12eb545 solved the
+    free and contact forms by LU instead of an inverse); another CPU's OpenBLAS kernels move
+    the generalised eigensolver's lowest frequency by up to 8.6e-9 and T by 6e-13 (measured
+    27 Nov), while a changed digit in a file moves them by far more."""
     for name, (freqs, t11) in BEFORE.items():
         tr = build(name)
-        assert [float(f) for f in tr.natural_frequencies(3)] == freqs, name
+        np.testing.assert_allclose([float(f) for f in tr.natural_frequencies(3)], freqs,
+                                   rtol=5e-8, atol=0, err_msg=name)
         got = complex(tr.transduction_matrix(np.array([2 * np.pi * 123.0]))[0, 0, 0])
-        assert abs(got / t11 - 1) < 1e-14, (name, got, t11)
+        assert abs(got / t11 - 1) < 1e-11, (name, got, t11)
 
 
 def test_the_fidelity_table_is_unchanged():

@@ -103,7 +103,10 @@ def test_export_lists_every_file_with_its_sha256_and_the_graphs_metadata(flow):
     assert md.ONSET_CALIBRATION == CALIBRATION
     for task, cls in (("fluid", FluidScene), ("radial", RadialScene),
                       ("texture", TextureScene)):
-        assert md.GRAPH_OUTPUTS[(task, "decoder")] == cls.OUTPUTS
+        assert md.GRAPH_OUTPUTS[(task, "classical")] == cls.OUTPUTS
+        # the fluid decoder's graph adds its intervals (issue 25 §4)
+        assert md.GRAPH_OUTPUTS[(task, "decoder")] == cls.OUTPUTS + (
+            md.FLUID_SIGMAS if task == "fluid" else ())
     assert md.GRAPH_OUTPUTS[("onset", "decoder")][:2] == OnsetScene.OUTPUTS
 
 
@@ -270,7 +273,10 @@ def test_metadata_that_does_not_describe_its_graph_is_refused(fluid_copy):
         load_export(folder)
     edit_metadata(folder, "classical.onnx", frequency_hz=json.dumps(
         FLUID_SMALL.excitation.frequency_hz.tolist()), kind="decoder")
-    with pytest.raises(SchemaError, match="classical.onnx: metadata kind: must be 'classical'"):
+    # a fluid decoder graph also returns its intervals (issue 25 §4): its outputs say so first
+    with pytest.raises(SchemaError, match=r"classical.onnx: metadata outputs: must be \['eta', "
+                                          r"'rho', 'eta_log_sigma', 'rho_sigma'\] for a fluid "
+                                          r"decoder graph"):
         load_export(folder)
 
 
@@ -483,6 +489,7 @@ def test_an_interrupted_export_leaves_no_manifest(fluid_copy, flow, monkeypatch,
     re-export that dies half-way leaves a folder that is refused, never old and new graphs
     mixed under the old manifest."""
     from wtml.exporters import common as export
+    from wtml.exporters import matrix  # where the fluid graphs are written
 
     folder, data, cal = fluid_copy
     calls = []
@@ -493,8 +500,8 @@ def test_an_interrupted_export_leaves_no_manifest(fluid_copy, flow, monkeypatch,
             raise KeyboardInterrupt  # as a kill would
         return real(*args, **kwargs)
 
-    real = export.export_graph
-    monkeypatch.setattr(export, "export_graph", dies_on_the_second_graph)
+    real = matrix.export_graph
+    monkeypatch.setattr(matrix, "export_graph", dies_on_the_second_graph)
     with pytest.raises(KeyboardInterrupt):
         export.export_model(flow[1], folder)
     assert not (folder / "manifest.json").exists()

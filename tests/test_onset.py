@@ -244,22 +244,51 @@ def test_ruptures_peer_is_pelt_with_the_l2_cost():
 
 
 def test_cramer_rao_bound_scales_with_the_noise_and_not_with_its_numerics(scene):
-    """The bound on g is proportional to the current's noise, NaN without a wall, and moves
-    by less than 2x with the finite-difference step and the simulation's upsampling."""
+    """On a white-noise acquisition the bound on g is proportional to the current's noise,
+    NaN without a wall, and moves by less than 2x with the finite-difference step and the
+    simulation's upsampling; the scene's acquisition (the converter's coloured noise, the ADC
+    floor, the hum's unknown phases) only raises it."""
     from wtml.bench.onset import cramer_rao_bound
 
     gaps = np.array([0.3, 0.6, 0.5]) * scene.whisk_amplitude_m()  # the scene has free records
     labels = scene.simulate(3, np.random.default_rng(4), gaps=gaps)
     labels["gap"][2] = np.nan
-    base = cramer_rao_bound(scene, labels, upsample=2, step_m=10e-9)
-    other = cramer_rao_bound(scene, labels, upsample=4, step_m=40e-9)
     acq = scene.acquisition
-    noisy = dataclasses.replace(scene, acquisition=dataclasses.replace(
-        acq, i_noise_a=10 * acq.i_noise_a))
-    louder = cramer_rao_bound(noisy, labels, upsample=2, step_m=10e-9)
+    white = dataclasses.replace(scene, acquisition=dataclasses.replace(
+        acq, effects=acq.effects.only()))
+    base = cramer_rao_bound(white, labels, upsample=2, step_m=10e-9)
+    other = cramer_rao_bound(white, labels, upsample=4, step_m=40e-9)
+    louder = cramer_rao_bound(dataclasses.replace(white, acquisition=dataclasses.replace(
+        white.acquisition, i_noise_a=10 * acq.i_noise_a)), labels, upsample=2, step_m=10e-9)
+    real = cramer_rao_bound(scene, labels, upsample=2, step_m=10e-9)
     assert np.isnan(base[2]) and np.all(np.isfinite(base[:2])) and np.all(base[:2] > 0)
     assert np.all(np.abs(np.log(other[:2] / base[:2])) < np.log(2)), (base, other)
     np.testing.assert_allclose(louder[:2] / base[:2], 10.0, rtol=1e-3)
+    assert np.all(real[:2] > base[:2]) and np.isnan(real[2]), (real, base)
+
+
+def test_whittle_fisher_is_the_time_domain_sum_for_white_noise_and_weighs_by_the_density():
+    """Parseval: under white noise of variance σ² the Whittle information equals
+    Σ_t g_j g_k / σ² (odd and even lengths); a density raised tenfold in a band removes a
+    sinusoid's information there by 10x and leaves one outside it alone."""
+    from wtml.bench.onset import whittle_fisher
+
+    rng = np.random.default_rng(0)
+    rate, sigma = 1000.0, 0.3
+    for n in (256, 257):
+        g = rng.standard_normal((2, 3, n))
+        f = np.fft.rfftfreq(n, 1 / rate)
+        got = whittle_fisher(g, np.full(len(f), 2 * sigma**2 / rate), rate)
+        np.testing.assert_allclose(got, np.einsum("njt,nkt->njk", g, g) / sigma**2,
+                                   rtol=1e-10)
+    n = 1000
+    t, f = np.arange(n) / rate, np.fft.rfftfreq(n, 1 / rate)
+    tones = np.stack([np.sin(2 * np.pi * 50 * t), np.sin(2 * np.pi * 300 * t)])[None]
+    flat = np.full(len(f), 2 * sigma**2 / rate)
+    loud = np.where((f > 20) & (f < 100), 10 * flat, flat)
+    ratio = np.diag(whittle_fisher(tones, loud, rate)[0]) / np.diag(
+        whittle_fisher(tones, flat, rate)[0])
+    np.testing.assert_allclose(ratio, [0.1, 1.0], rtol=1e-9)
 
 
 def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_path):

@@ -28,6 +28,19 @@ def test_every_task_is_declared_once_and_its_parts_load():
         assert issubclass(spec.load("decoder"), lightning.LightningModule)
         for part in ("export", "rows", "pipeline"):
             assert callable(spec.load(part)), (name, part)
+        scene = spec.load("scene")
+        assert len(scene.INPUT_KEYS) and callable(scene.decoder_inputs)
+        assert callable(scene.targets) and callable(scene.target_keys)
+        if spec.evaluate:
+            assert callable(spec.load("evaluate")), name
+        # a task that reads measurements declares its export and sample measurements
+        assert bool(spec.measurement) == (spec.reads == "measurements"), name
+        if spec.measurement:
+            from wtml.exporters.matrix import MatrixTask
+
+            assert isinstance(spec.load("measurement"), MatrixTask), name
+    with pytest.raises(ValueError, match="the onset task has no 'measurement' part"):
+        TASKS["onset"].load("measurement")
     with pytest.raises(ValueError, match="'stress' is not a task of this wtml "
                                          "\\(tasks: fluid, radial, onset, texture\\)"):
         task("stress")
@@ -91,6 +104,11 @@ def test_no_import_cycles_and_no_private_names():
     assert private == []
 
 
+def _task_names(node: ast.AST) -> set[str]:
+    """The task names written as string constants anywhere in ``node``."""
+    return {n.value for n in ast.walk(node) if isinstance(n, ast.Constant)} & set(TASKS)
+
+
 def test_the_entry_points_do_not_switch_on_a_task_name():
     """``wtml predict``, ``wtml export``, checkpoint loading and the main job's loop look a
     task up in the registry (a new task touches its own modules and one registry entry)."""
@@ -101,5 +119,24 @@ def test_the_entry_points_do_not_switch_on_a_task_name():
         tree = ast.parse(Path(path).read_text())
         body = next(n for n in ast.walk(tree)
                     if isinstance(n, ast.FunctionDef) and n.name == function)
-        names = {n.value for n in ast.walk(body) if isinstance(n, ast.Constant)}
-        assert not names & set(TASKS), (path, function, names & set(TASKS))
+        assert not _task_names(body), (path, function, _task_names(body))
+
+
+def test_the_shared_modules_do_not_switch_on_a_task_name():
+    """The data module, ``wtml evaluate``, the export and the main job's shared helpers get
+    each task's part from its scene or the registry: no task name in them at all (the data
+    module, ``wtml evaluate``, the export), or none compared with (``==``, ``!=``, ``in``)
+    nor in a shared helper of the main job (its ``run_<task>`` stages and summary are its
+    tasks')."""
+    for path in ("wtml/data/datamodule.py", "wtml/bench/evaluate.py",
+                 "wtml/exporters/common.py", "wtml/exporters/matrix.py"):
+        tree = ast.parse((ROOT / path).read_text())
+        assert not _task_names(tree), (path, _task_names(tree))
+    tree = ast.parse((ROOT / "wtml/pipeline.py").read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Compare):
+            assert not _task_names(node), ("wtml/pipeline.py", node.lineno, ast.unparse(node))
+    for function in ("write_sample_csv", "_export_and_predict", "_export_and_predict_records"):
+        body = next(n for n in ast.walk(tree)
+                    if isinstance(n, ast.FunctionDef) and n.name == function)
+        assert not _task_names(body), ("wtml/pipeline.py", function, _task_names(body))

@@ -298,19 +298,40 @@ def _bench_runtime(args: argparse.Namespace) -> int:
     return 0
 
 
+def _frontier(args: argparse.Namespace) -> int:
+    """``wtml bench all`` and ``wtml bench TASK --frontier``."""
+    from wtml.bench.suite import run_frontiers
+
+    names = (args.only or list(TASKS)) if args.task == "all" else [args.task]
+    out = args.out or ("runs/frontier" if args.task == "all" else f"runs/{args.task}/frontier")
+    data = {} if args.task == "all" else {args.task: args.data}
+    print(run_frontiers(names, out, variants=args.variants, data=data, threads=args.threads,
+                        latency_repeats=args.latency_repeats, max_epochs=args.max_epochs))
+    return 0
+
+
+def _out(args: argparse.Namespace) -> str:
+    """The bench's folder: ``--out``, else ``runs/<task>/bench``."""
+    return args.out or f"runs/{args.task}/bench"
+
+
 def _bench(args: argparse.Namespace) -> int:
+    if args.frontier:
+        return _frontier(args)
     from wtml.bench.fluid import run_bench
 
-    print(run_bench(args.data, args.checkpoint, args.model, args.out, threads=args.threads,
+    print(run_bench(args.data, args.checkpoint, args.model, _out(args), threads=args.threads,
                     device_records=args.device_records))
     return 0
 
 
 def _bench_radial(args: argparse.Namespace) -> int:
+    if args.frontier:
+        return _frontier(args)
     from wtml.bench.radial import run_bench
 
     print(run_bench(args.data, args.checkpoint, args.thesis_checkpoint, args.model,
-                    args.thesis_model, args.out, invalid_dir=args.invalid,
+                    args.thesis_model, _out(args), invalid_dir=args.invalid,
                     spread_dir=args.spread_data, spread_model_dir=args.spread_model,
                     spread_scene=args.spread_scene, threads=args.threads,
                     max_samples=args.max_samples, spread_samples=args.spread_samples))
@@ -334,9 +355,11 @@ def _bench_device(args: argparse.Namespace) -> int:
 
 
 def _bench_onset(args: argparse.Namespace) -> int:
+    if args.frontier:
+        return _frontier(args)
     from wtml.bench.onset import run_bench
 
-    print(run_bench(args.data, args.model, args.out, free_records=args.free_records,
+    print(run_bench(args.data, args.model, _out(args), free_records=args.free_records,
                     variant_records=args.variant_records, repeats=args.repeats,
                     transfer_records=args.transfer_records,
                     independent_records=args.independent_records,
@@ -345,14 +368,86 @@ def _bench_onset(args: argparse.Namespace) -> int:
 
 
 def _bench_texture(args: argparse.Namespace) -> int:
+    if args.frontier:
+        return _frontier(args)
     from wtml.bench.texture import run_bench
 
-    print(run_bench(args.data, args.fepa, args.checkpoint, args.model, args.out,
+    print(run_bench(args.data, args.fepa, args.checkpoint, args.model, _out(args),
                     peer_kernels=args.peer_kernels,
                     ablation_records=args.ablation_records,
                     transfer_records=args.transfer_records,
                     device_records=args.device_records))
     return 0
+
+
+def _bench_stability(args: argparse.Namespace) -> int:
+    from wtml.bench.stability import run_stability
+
+    print(run_stability(args.models, args.out, records=args.records, seed=args.seed,
+                        threads=args.threads, tasks=tuple(args.tasks or ()) or None))
+    return 0
+
+
+def _bench_models(args: argparse.Namespace) -> int:
+    from wtml.bench.model_cost import run_models
+
+    print(run_models(args.models, args.out, records=args.records,
+                     radial_records=args.radial_records, threads=args.threads))
+    return 0
+
+
+# ---------------------------------------------------- wtml bench coverage (issue 25 §4)
+
+
+def _bench_coverage(args: argparse.Namespace) -> int:
+    from wtml.bench.coverage import run_coverage
+
+    tasks = {t: {"data": f"datasets/{t}", "checkpoint": f"runs/{t}/checkpoints/last.ckpt",
+                 "model": f"export/{t}"} for t in (args.only or TASKS)}
+    if "radial" in tasks:
+        tasks["radial"]["invalid"] = args.invalid
+    records = {"fluid": args.records, "radial": args.records, "onset": args.time_records,
+               "texture": args.time_records, "independent": args.independent_records}
+    print(run_coverage(tasks, args.out, records=records, threads=args.threads,
+                       sbi_simulations=args.sbi_simulations, sbi_epochs=args.sbi_epochs))
+    return 0
+
+
+def _coverage_parser(be_sub) -> None:
+    """``wtml bench coverage``'s options."""
+    bc = be_sub.add_parser("coverage", help="honest uncertainty: every decoder's interval "
+                           "coverage and the classifier's calibration", formatter_class=_Help,
+                           description="Per regression decoder, the coverage of its ±1σ and "
+                                       "±1.96σ intervals (nominal 68.27 % and 95 %) overall "
+                                       "and per range of the target, before and after its "
+                                       "export's recalibration, on the test shard, fresh "
+                                       "records and the held-out physics of the transfer "
+                                       "benches; the texture classifier's expected "
+                                       "calibration error and reliability curve; beside the "
+                                       "fluid decoder, sbi's neural posterior estimation "
+                                       "(the [sbi] extra). Reads datasets/<task>, "
+                                       "runs/<task>/checkpoints/last.ckpt and export/<task>.")
+    bc.add_argument("--only", choices=list(TASKS), action="append", default=None,
+                    help="the tasks (repeat; default all)")
+    bc.add_argument("--out", default="runs/coverage",
+                    help="report.md, summary.json and reliability.png go here")
+    bc.add_argument("--records", type=COUNT, default=2000,
+                    help="fresh fluid and radial records per row")
+    bc.add_argument("--time-records", type=COUNT, default=24,
+                    help="fresh onset and texture records per held-out row")
+    bc.add_argument("--independent-records", type=_number(0, 10**4, int), default=8,
+                    help="records of the independent simulator (onset; 0: none)")
+    bc.add_argument("--invalid", default="datasets/radial_invalid",
+                    help="the invalid-contact dataset (a radial row where it exists)")
+    bc.add_argument("--sbi-simulations", type=_number(0, 10**7, int), default=10000,
+                    help="simulations of sbi's NPE on the fluid scene (0: none)")
+    bc.add_argument("--sbi-epochs", type=_number(1, 10**4, int), default=50,
+                    help="NPE's most training epochs")
+    bc.add_argument("--threads", type=THREADS, default=2, help="torch and onnxruntime threads")
+    bc.set_defaults(func=_bench_coverage)
+
+
+# ------------------------------------------------------------------------------------------
 
 
 def _pipeline(args: argparse.Namespace) -> int:
@@ -402,10 +497,29 @@ def _bench_options(parser: argparse.ArgumentParser, task: str) -> None:
     parser.add_argument("--checkpoint", default=f"runs/{task}/checkpoints/last.ckpt",
                         help="the decoder's checkpoint")
     parser.add_argument("--model", default=f"export/{task}", help="the export folder")
-    parser.add_argument("--out", default=f"runs/{task}/bench",
-                        help="report.md, summary.json and plots go here")
+    parser.add_argument("--out", default=None,
+                        help=f"report.md, summary.json and plots go here (default: "
+                             f"runs/{task}/bench, with --frontier runs/{task}/frontier)")
     parser.add_argument("--threads", type=THREADS, default=2,
                         help="torch and onnxruntime threads")
+    _frontier_options(parser, every=False)
+
+
+def _frontier_options(parser: argparse.ArgumentParser, *, every: bool) -> None:
+    """The frontier's options (``wtml bench all``; ``wtml bench TASK --frontier``)."""
+    if not every:
+        parser.add_argument("--frontier", action="store_true",
+                            help="instead: the task's speed-accuracy frontier (every method "
+                                 "and decoder variant, onnxruntime's quantisations, the best "
+                                 "method per latency budget, a Pareto plot)")
+    parser.add_argument("--variants", default="configs/frontier.yaml",
+                        help="the frontier's decoder variants: task -> variant -> training "
+                             "config (each trained and exported where it is missing or stale)")
+    parser.add_argument("--latency-repeats", type=_number(1, 10**6, int), default=2000,
+                        help="frontier: calls at batch 1 per latency (each measurement stops "
+                             "after 3 s)")
+    parser.add_argument("--max-epochs", type=_number(1, 10**6, int), default=None,
+                        help="frontier: override the variants' epochs (default: their configs')")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -677,6 +791,50 @@ def build_parser() -> argparse.ArgumentParser:
                          "extras) or reused (default: <out>/runtime-venv)")
     bu.set_defaults(func=_bench_runtime)
 
+    bs = be_sub.add_parser("stability", help="every method at the extremes of its task",
+                           formatter_class=_Help,
+                           description="Every method of every exported task on fresh records "
+                                       "at the extremes of its task: the middle of the trained "
+                                       "domain, the ends of its ranges and beyond them, free and "
+                                       "clamped tips, contacts far softer or stiffer than "
+                                       "trained, near resonance: each method's error against "
+                                       "its mid-domain error and the share its domain flag "
+                                       "marks; and the classical path in float32 (its ONNX "
+                                       "graph) against float64 (numpy) on the same inputs.")
+    bs.add_argument("--models", default="export",
+                    help="the folder holding each task's export (<models>/<task>)")
+    bs.add_argument("--out", default="runs/stability",
+                    help="report.md and summary.json go here")
+    bs.add_argument("--records", type=_number(2, 10**6, int), default=48,
+                    help="fresh records per condition")
+    bs.add_argument("--seed", type=_number(0, 2**32 - 1, int), default=2025,
+                    help="seed of the conditions' records")
+    bs.add_argument("--task", dest="tasks", choices=list(TASKS), action="append",
+                    default=None,
+                    help="a task to run (repeat; default every task with an export)")
+    bs.add_argument("--threads", type=THREADS, default=2, help="onnxruntime threads")
+    bs.set_defaults(func=_bench_stability)
+
+    bm = be_sub.add_parser("models", help="what each scene models and what that costs",
+                           formatter_class=_Help,
+                           description="Per scene, the cheaper models it could use against "
+                                       "its own: radial's 2x2 path against the beam path (speed, "
+                                       "the Ze it gives, the decoder's and the polynomial's "
+                                       "error); onset's and texture's modal orders 1, 3, 6, 14 "
+                                       "(truncation error over the scene's band, simulator "
+                                       "time per second of signal, the current's difference, "
+                                       "the shipped decoder's error on each order's records); "
+                                       "and what n_modes: auto picks for each scene.")
+    bm.add_argument("--models", default="export",
+                    help="the folder holding each task's export (<models>/<task>)")
+    bm.add_argument("--out", default="runs/models", help="report.md and summary.json go here")
+    bm.add_argument("--records", type=_number(5, 10**5, int), default=32,
+                    help="onset and texture records per modal order")
+    bm.add_argument("--radial-records", type=_number(10, 10**7, int), default=2000,
+                    help="radial contacts for the beam and 2x2 paths")
+    bm.add_argument("--threads", type=THREADS, default=2, help="onnxruntime threads")
+    bm.set_defaults(func=_bench_models)
+
     bd = be_sub.add_parser("device", help="what fitting one's own device costs the radial, "
                            "onset and fluid decoders", formatter_class=_Help,
                            description="A hidden true device is measured (simulated) and "
@@ -735,8 +893,12 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--checkpoint", default="runs/texture/checkpoints/last.ckpt",
                     help="the decoder's checkpoint (its graph at other window lengths)")
     bt.add_argument("--model", default="export/texture", help="the export folder")
-    bt.add_argument("--out", default="runs/texture/bench",
-                    help="report.md, summary.json and plots go here")
+    bt.add_argument("--out", default=None,
+                    help="report.md, summary.json and plots go here (default: "
+                         "runs/texture/bench, with --frontier runs/texture/frontier)")
+    bt.add_argument("--threads", type=THREADS, default=2,
+                    help="frontier: torch and onnxruntime threads")
+    _frontier_options(bt, every=False)
     bt.add_argument("--peer-kernels", type=_number(84, 10**6, int), default=10000,
                     help="MiniRocket's kernels")
     bt.add_argument("--ablation-records", type=COUNT, default=40,
@@ -747,6 +909,28 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--device-records", type=COUNT, default=24,
                     help="fresh records per row of the device-spread table")
     bt.set_defaults(func=_bench_texture)
+    _coverage_parser(be_sub)
+
+    ba = be_sub.add_parser("all", help="every task's speed-accuracy frontier, one report",
+                           formatter_class=_Help,
+                           description="For every task: its decoder variants (tiny, default, "
+                                       "large: --variants), onnxruntime's int8 (dynamic, "
+                                       "static) and float16 quantisations of each, the "
+                                       "classical path, the peers and the best achievable, on "
+                                       "the same held-out data in one run: the task's metric "
+                                       "with its interval, p50 latency at batch 1, throughput, "
+                                       "model size, the ONNX session's memory; per budget of "
+                                       "10 us, 100 us, 1 ms and 10 ms (per sample, or per "
+                                       "second of signal) the most accurate method; a Pareto "
+                                       "plot per task. Needs the main job's datasets.")
+    ba.add_argument("--out", default=None,
+                    help="report.md, summary.json, plots and the variants' exports (default: "
+                         "runs/frontier)")
+    ba.add_argument("--only", choices=list(TASKS), action="append", default=None,
+                    help="these tasks only (repeat; default: all)")
+    ba.add_argument("--threads", type=THREADS, default=2, help="torch and onnxruntime threads")
+    _frontier_options(ba, every=True)
+    ba.set_defaults(func=_frontier)
 
     pl = verb("pipeline", "the main job: generate, train, export, predict, bench, summary")
     pl.add_argument("task", nargs="?", choices=["all", *TASKS],

@@ -12,6 +12,7 @@ import csv
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -87,34 +88,33 @@ def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
 
 
 def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> dict[str, Path]:
-    """A few test-shard measurements as a CSV that ``wtml predict`` reads, and the reference
-    their export needs beside it: for fluid their devices' calibrated T, ``calibration.npz``
-    (``--calibration``); for radial their devices' free references, ``sample_reference.npz``
-    (``--reference``). Returns ``{keyword: path}`` of that reference (empty for the others)."""
+    """A few test-shard measurements of a measurement task's dataset as a CSV that ``wtml
+    predict`` reads (``sample``, ``frequency_hz`` Hz, ``ze_real``, ``ze_imag`` Ω, then the
+    truth columns the task declares), and the reference their export needs beside it, as its
+    ``MatrixTask`` (``wtml.tasks``' ``measurement`` part) names it: fluid their devices'
+    calibrated T, ``calibration.npz`` (``--calibration``); radial their devices' free
+    references, ``sample_reference.npz`` (``--reference``). Returns ``{keyword: path}`` of that
+    reference, ``predict_file``'s keyword argument.
+
+    Raises:
+        ValueError: a dataset of a task that reads recordings.
+    """
     manifest = read_manifest(data_dir)
     data = load_shards(data_dir, split_shards(manifest["n_shards"], 1, 1)["test"])
     scene = dataset_scene(data_dir)
-    if scene.task == "fluid":
-        freq, truth = scene.excitation.frequency_hz, {"eta": "true_eta_pa_s",
-                                                      "rho": "true_rho_kg_m3"}
-    else:
-        freq, truth = np.asarray(scene.excitation.frequencies_hz), {"distance": "true_distance_m"}
+    spec = TASKS[scene.task].load("measurement")
+    freq = scene.excitation.frequency_hz
     with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["sample", "frequency_hz", "ze_real", "ze_imag", *truth.values()])
+        w.writerow(["sample", "frequency_hz", "ze_real", "ze_imag", *spec.truth.values()])
         for s in range(n):
             for f, z in zip(freq, data["ze"][s], strict=True):
                 w.writerow([s, repr(float(f)), repr(float(z.real)), repr(float(z.imag))]
-                           + [repr(float(data[k][s])) for k in truth])
-    if scene.task == "fluid":
-        calibration = path.with_name("calibration.npz")
-        np.savez(calibration, frequency_hz=freq, t=data["t"][:n])
-        return {"calibration": calibration}
-    if scene.task == "radial":
-        reference = path.with_name("sample_reference.npz")
-        np.savez(reference, frequency_hz=freq, ze=data["ref"][:n])
-        return {"reference": reference}
-    return {}
+                           + [repr(float(data[k][s])) for k in spec.truth])
+    reference = path.with_name(spec.reference_file)
+    np.savez(reference, frequency_hz=freq,
+             **{spec.reference_key: data[spec.reference_array][:n]})
+    return {spec.reference: reference}
 
 
 def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
@@ -124,27 +124,38 @@ def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
     return manifest
 
 
-def _train(stages: Stages, slice_: str, config: str, data: Path, scene_hash: str,
-           max_epochs: int | None) -> Path:
+def train_config(config: str, data: Path, *, max_epochs: int | None = None,
+                 begin: Callable[[str], None] = print) -> Path:
+    """Train ``config`` on the dataset ``data``, resuming its ``last.ckpt`` where that
+    matches (:func:`checkpoint_matches`; a finished run is kept as it is) and starting afresh
+    where it does not; ``begin`` is given the stand-alone command first. Returns the
+    checkpoint."""
     root = Path(read_yaml(config)["trainer"]["default_root_dir"])
     ckpt = root / "checkpoints" / "last.ckpt"
     args = ["fit", "--config", config, "--data.init_args.data_dir", str(data)]
     if max_epochs is not None:
         args += ["--trainer.max_epochs", str(max_epochs)]
     finished = False
-    if checkpoint_matches(ckpt, scene_hash, config, max_epochs):
+    if checkpoint_matches(ckpt, read_manifest(data)["scene_hash"], config, max_epochs):
         state = read_checkpoint(ckpt)
         finished = state["epoch"] + 1 >= state["wtml"]["max_epochs"]  # nothing to resume
         args += ["--ckpt_path", str(ckpt)]
     elif ckpt.exists():
         print(f"{ckpt} is for another scene, model config or run length: training afresh")
         args += ["--overwrite", "true"]
-    stages.begin(slice_, f"train {root.name}", "python train.py " + " ".join(args))
+    begin("python train.py " + " ".join(args))
     if finished:
         print(f"{ckpt}: trained already ({state['wtml']['max_epochs']} epochs)")
     else:
         cli_main(args)
     return ckpt
+
+
+def _train(stages: Stages, slice_: str, config: str, data: Path,
+           max_epochs: int | None) -> Path:
+    name = Path(read_yaml(config)["trainer"]["default_root_dir"]).name
+    return train_config(config, data, max_epochs=max_epochs,
+                        begin=lambda command: stages.begin(slice_, f"train {name}", command))
 
 
 def _export_and_predict(stages: Stages, slice_: str, ckpt: Path, model: Path,
@@ -169,9 +180,8 @@ def run_fluid(stages: Stages, *, max_epochs: int | None = None) -> dict:
     from wtml.bench.fluid import run_bench
 
     data, model, bench = Path("datasets/fluid"), Path("export/fluid"), Path("runs/fluid/bench")
-    manifest = _generate(stages, "fluid", "configs/scenes/fluid.yaml", data)
-    ckpt = _train(stages, "fluid", "configs/fluid.yaml", data, manifest["scene_hash"],
-                  max_epochs)
+    _generate(stages, "fluid", "configs/scenes/fluid.yaml", data)
+    ckpt = _train(stages, "fluid", "configs/fluid.yaml", data, max_epochs)
     _export_and_predict(stages, "fluid", ckpt, model, data)
     stages.begin("fluid", "bench", f"wtml bench fluid --out {bench} --device-records 300")
     report = run_bench(data, ckpt, model, bench, device_records=300)
@@ -187,14 +197,13 @@ def run_radial(stages: Stages, *, max_epochs: int | None = None) -> dict:
 
     data, invalid = Path("datasets/radial"), Path("datasets/radial_invalid")
     spread = Path("datasets/radial_spread")
-    manifest = _generate(stages, "radial", "configs/scenes/radial.yaml", data)
+    _generate(stages, "radial", "configs/scenes/radial.yaml", data)
     _generate(stages, "radial", "configs/scenes/radial_invalid.yaml", invalid)
-    spread_manifest = _generate(stages, "radial", "configs/scenes/radial_spread.yaml", spread)
+    _generate(stages, "radial", "configs/scenes/radial_spread.yaml", spread)
     ckpts = {}
     for name in ("radial", "radial_thesis", "radial_spread"):
-        on = (spread, spread_manifest) if name == "radial_spread" else (data, manifest)
-        ckpts[name] = _train(stages, "radial", f"configs/{name}.yaml", on[0],
-                             on[1]["scene_hash"], max_epochs)
+        on = spread if name == "radial_spread" else data
+        ckpts[name] = _train(stages, "radial", f"configs/{name}.yaml", on, max_epochs)
         if name == "radial_thesis":
             stages.begin("radial", "export radial_thesis",
                          f"wtml export --checkpoint {ckpts[name]} --out export/{name}")
@@ -312,11 +321,12 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
 
 
 def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: Path,
-                                data: Path, predict_records) -> dict:
+                                data: Path, predict_records, calibration_file) -> dict:
     """Export a time-domain slice, write two test records as ``model/rec.npz`` (e, i,
-    sample_rate_hz) and the devices' calibration where the graph takes it, as
-    ``model/cal.npz`` (``--calibration``: onset's T at the probe and HUE(0), texture's T on
-    its ``calibration_hz``), print ``wtml predict`` on them; returns the test shard."""
+    sample_rate_hz) and their devices' calibration as ``model/cal.npz`` with the task's
+    ``calibration_file(path, scene, records) -> path`` (``--calibration``: onset's T at the
+    probe and HUE(0), texture's T on its ``calibration_hz``), print ``wtml predict`` on them;
+    returns the test shard."""
     stages.begin(slice_, f"export {model.name}",
                  f"wtml export --checkpoint {ckpt} --out {model}")
     for kind, path in export_model(ckpt, model).items():
@@ -326,32 +336,25 @@ def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: 
     scene = dataset_scene(data)
     np.savez(sample, e=test["e"][:2], i=test["i"][:2],
              sample_rate_hz=scene.acquisition.sample_rate_hz)
-    options, flag = {}, ""
-    if slice_ == "onset":
-        from wtml.exporters.onset import calibration_file
-
-        options["calibration"] = calibration_file(
-            model / "cal.npz", scene, {k: test[k][:2] for k in ("t_probe", "hue0")})
-    elif "t" in test:  # texture: the graph takes the device's calibrated T
-        options["calibration"] = model / "cal.npz"
-        np.savez(options["calibration"], t=test["t"][:2], frequency_hz=scene.calibration_hz)
-    if options:
-        flag = f" --calibration {options['calibration']}"
-    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample}{flag}")
-    print(format_predictions(predict_records(model, sample, **options)))
+    calibration = calibration_file(model / "cal.npz", scene,
+                                   {k: v[:2] for k, v in test.items()})
+    stages.begin(slice_, "predict", f"wtml predict --model {model} --input {sample} "
+                                    f"--calibration {calibration}")
+    print(format_predictions(predict_records(model, sample, calibration=calibration)))
     return test
 
 
 def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
     """The onset slice end to end; returns its bench summary."""
     from wtml.bench.onset import run_bench
+    from wtml.exporters.onset import calibration_file
     from wtml.runtime.onset import predict_records
 
     data, model, bench = Path("datasets/onset"), Path("export/onset"), Path("runs/onset/bench")
-    manifest = _generate(stages, "onset", "configs/scenes/onset.yaml", data)
-    ckpt = _train(stages, "onset", "configs/onset.yaml", data, manifest["scene_hash"],
-                  max_epochs)
-    test = _export_and_predict_records(stages, "onset", ckpt, model, data, predict_records)
+    _generate(stages, "onset", "configs/scenes/onset.yaml", data)
+    ckpt = _train(stages, "onset", "configs/onset.yaml", data, max_epochs)
+    test = _export_and_predict_records(stages, "onset", ckpt, model, data, predict_records,
+                                       calibration_file)
     print("true: gap " + ", ".join(f"{g:.4g} m" for g in test["gap"][:2]) + "; onsets "
           + ", ".join(f"{t:.4f}" for t in test["onset"][:2].ravel() if np.isfinite(t)) + " s")
     stages.begin("onset", "bench", f"wtml bench onset --out {bench} --free-records 50 "
@@ -440,15 +443,16 @@ def _onset_transfer_lines(rows: list[dict]) -> list[str]:
 def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
     """The texture slice end to end; returns its bench summary."""
     from wtml.bench.texture import run_bench
+    from wtml.exporters.texture import calibration_file
     from wtml.runtime.texture import predict_records
 
     data, fepa = Path("datasets/texture"), Path("datasets/texture_fepa")
     model, bench = Path("export/texture"), Path("runs/texture/bench")
-    manifest = _generate(stages, "texture", "configs/scenes/texture.yaml", data)
+    _generate(stages, "texture", "configs/scenes/texture.yaml", data)
     _generate(stages, "texture", "configs/scenes/texture_fepa.yaml", fepa)
-    ckpt = _train(stages, "texture", "configs/texture.yaml", data, manifest["scene_hash"],
-                  max_epochs)
-    test = _export_and_predict_records(stages, "texture", ckpt, model, data, predict_records)
+    ckpt = _train(stages, "texture", "configs/texture.yaml", data, max_epochs)
+    test = _export_and_predict_records(stages, "texture", ckpt, model, data, predict_records,
+                                       calibration_file)
     names = dataset_scene(data).class_names()
     print("true: " + ", ".join(f"{names[g]} ({1e6 * d:.1f} µm)"
                                for g, d in zip(test["grade"][:2], test["grain_m"][:2],
@@ -537,13 +541,33 @@ def _texture_transfer_lines(rows: list[dict]) -> list[str]:
                     if verdicts else "")]
 
 
+def run_slice(name: str, max_epochs: int | None = None) -> tuple[dict, dict[str, float]]:
+    """One slice of the main job (the task ``name``'s ``pipeline`` part): its results and its
+    stages' times (s)."""
+    stages = Stages()
+    result = TASKS[name].load("pipeline")(stages, max_epochs=max_epochs)
+    stages.end()
+    return result, stages.times.get(name, {})
+
+
 def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:
     """The main job for ``task`` (``"all"``, or one of :data:`wtml.tasks.TASKS`, in their
-    order); prints and returns the closing summary."""
+    order); prints and returns the closing summary. With more than one slice, each runs in a
+    process of its own (spawned, so it starts from a bare interpreter), which returns all its
+    memory when it ends: the job's peak is its largest slice's, not the sum of what each
+    left behind (2.9 GB in one process on 27 Nov)."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
     stages, results = Stages(), {}
-    for spec in TASKS.values():
-        if task in (spec.name, "all"):
-            results[spec.name] = spec.load("pipeline")(stages, max_epochs=max_epochs)
+    names = [spec.name for spec in TASKS.values() if task in (spec.name, "all")]
+    for name in names:
+        if len(names) == 1:
+            results[name], stages.times[name] = run_slice(name, max_epochs)
+            continue
+        with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
+            results[name], stages.times[name] = pool.submit(run_slice, name,
+                                                            max_epochs).result()
     text = summary(results, stages)
     print(text)
     sys.stdout.flush()

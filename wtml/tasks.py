@@ -31,6 +31,14 @@ class Task:
         rows: ``wtml predict``'s rows: ``(model_dir, input, *, calibration, reference)`` for
             measurements, ``(model_dir, input, *, calibration, profile)`` for recordings.
         pipeline: its stage of ``wtml pipeline``: ``(stages, *, max_epochs) -> results``.
+        frontier: its problem for the frontier bench (:mod:`wtml.bench.frontier`):
+            ``(data_dir, model_dir, *, threads) -> Problem``.
+        evaluate: ``wtml evaluate``'s report of a checkpoint on its dataset's test shard:
+            ``(checkpoint, data_dir, scene, split, test, where) -> markdown``; ``""``: the
+            task has none (its bench has the numbers).
+        measurement: a task that reads measurements: what its export and ``wtml pipeline``'s
+            sample measurements are made of (a :class:`wtml.exporters.matrix.MatrixTask`);
+            ``""`` for one that reads recordings.
     """
 
     name: str
@@ -41,10 +49,19 @@ class Task:
     export: str
     rows: str
     pipeline: str
+    frontier: str
+    evaluate: str = ""
+    measurement: str = ""
 
     def load(self, part: str) -> Any:
         """The object a part names (``"scene"``, ``"decoder"``, ``"export"``, ``"rows"``,
-        ``"pipeline"``), imported now."""
+        ``"pipeline"``, ``"frontier"``, ``"evaluate"``, ``"measurement"``), imported now.
+
+        Raises:
+            ValueError: the task declares no such part (``""``).
+        """
+        if not getattr(self, part):
+            raise ValueError(f"the {self.name} task has no {part!r} part")
         module, _, attribute = getattr(self, part).partition(":")
         return getattr(import_module(module), attribute)
 
@@ -52,20 +69,26 @@ class Task:
 TASKS = {t.name: t for t in (
     Task("fluid", "viscosity and density of a fluid from a sphere tip's Ze sweep",
          "measurements", "wtml.scenes.fluid:FluidScene", "wtml.decoders.fluid:FluidDecoder",
-         "wtml.exporters.common:export_matrix_task", "wtml.runtime.predict:predict_file",
-         "wtml.pipeline:run_fluid"),
+         "wtml.exporters.fluid:export_fluid", "wtml.runtime.predict:predict_file",
+         "wtml.pipeline:run_fluid",
+         "wtml.bench.fluid:frontier_problem", evaluate="wtml.bench.fluid:evaluate_checkpoint",
+         measurement="wtml.exporters.fluid:FLUID"),
     Task("radial", "a contact's distance from the tip along the whisker from Ze",
          "measurements", "wtml.scenes.radial:RadialScene", "wtml.decoders.radial:RadialDecoder",
-         "wtml.exporters.common:export_matrix_task", "wtml.runtime.predict:predict_file",
-         "wtml.pipeline:run_radial"),
+         "wtml.exporters.radial:export_radial", "wtml.runtime.predict:predict_file",
+         "wtml.pipeline:run_radial",
+         "wtml.bench.radial:frontier_problem", evaluate="wtml.bench.radial:evaluate_checkpoint",
+         measurement="wtml.exporters.radial:RADIAL"),
     Task("onset", "contact onsets, detachments and the wall's horizontal location from e, i",
          "recordings", "wtml.scenes.onset:OnsetScene", "wtml.decoders.onset:OnsetDecoder",
          "wtml.exporters.onset:export_onset", "wtml.runtime.onset:predict_records",
-         "wtml.pipeline:run_onset"),
+         "wtml.pipeline:run_onset",
+         "wtml.bench.onset:frontier_problem"),
     Task("texture", "a swept sandpaper's grade and grain size from e, i",
          "recordings", "wtml.scenes.texture:TextureScene",
          "wtml.decoders.texture:TextureDecoder", "wtml.exporters.texture:export_texture",
-         "wtml.runtime.texture:predict_records", "wtml.pipeline:run_texture"),
+         "wtml.runtime.texture:predict_records", "wtml.pipeline:run_texture",
+         "wtml.bench.texture:frontier_problem"),
 )}
 """Every task, in the main job's order."""
 UNNAMED = "fluid"

@@ -23,6 +23,16 @@ A resumed run is the run it resumes: each epoch's data order and torch random st
 drawn from the run's seed and the epoch alone (``wtml.data.datamodule.epoch_seed``), and the
 seed comes from the checkpoint, so a run killed after epoch k and resumed ends with the same
 weights, bit for bit on CPU, as the run never killed.
+
+Distributed: the same config trains under Lightning's DDP, e.g. ``--trainer.strategy ddp
+--trainer.devices 2 --trainer.accelerator cpu`` (gloo) or ``--trainer.num_nodes N`` under
+Slurm (``docs/cluster.md``). Every process loads the whole training split, so every one
+builds the same net and domain gate from the same statistics; each trains on every
+``world_size``-th batch (Lightning's sampler around ``EpochBatches``, the last batches repeated
+to even the count), the logged losses are means over all processes, ``train_samples`` their
+sum, and only the first process prints progress, writes the logs and the checkpoint. The
+radial decoder's two stages each leave the other's weights without a gradient: train it with
+``--trainer.strategy ddp_find_unused_parameters_true``.
 """
 
 from __future__ import annotations
@@ -78,8 +88,12 @@ class EpochProgress(L.Callback):
 
     def on_train_start(self, trainer, module) -> None:
         self.start, self.first_epoch = time.perf_counter(), trainer.current_epoch
+        if not trainer.is_global_zero:  # DDP: one process speaks for all
+            return
         tensors = getattr(trainer.datamodule, "train_tensors", None)
         size = f"{len(tensors()[0])} training samples, " if tensors else ""
+        if trainer.world_size > 1:
+            size += f"{trainer.world_size} processes, "
         print(f"training {type(module).__name__}: {size}epochs {trainer.current_epoch + 1}-"
               f"{trainer.max_epochs}, checkpoint {Path(trainer.default_root_dir)}/checkpoints/"
               "last.ckpt", flush=True)
@@ -87,7 +101,7 @@ class EpochProgress(L.Callback):
     def on_train_epoch_end(self, trainer, module) -> None:
         epoch, total = trainer.current_epoch + 1, trainer.max_epochs
         every = max(1, total // self.lines)
-        if epoch % every and epoch != total:
+        if not trainer.is_global_zero or epoch % every and epoch != total:
             return
         elapsed = time.perf_counter() - self.start
         done = epoch - self.first_epoch
@@ -191,7 +205,8 @@ class WtmlCLI(LightningCLI):
         if not last.exists():
             return
         if config.get("overwrite"):
-            shutil.rmtree(root / "checkpoints")
+            if self.trainer.is_global_zero:  # one remover: DDP processes that srun starts
+                shutil.rmtree(root / "checkpoints")
             return
         try:
             state = read_checkpoint(last)
@@ -220,6 +235,12 @@ class WtmlCLI(LightningCLI):
                 f"{path}: trainer.max_epochs: {epochs} here, {info['max_epochs']} in the run "
                 "it resumes (its learning-rate schedule is laid out over that); resume with "
                 f"--trainer.max_epochs {info['max_epochs']}")
+        processes, here = info.get("world_size", 1), self.trainer.world_size
+        if processes != here:
+            raise CheckpointError(
+                f"{path}: trained on {processes} process(es), resumed on {here} (an epoch's "
+                "steps, and so its learning-rate schedule, depend on it); resume with as many "
+                "(--trainer.devices times --trainer.num_nodes)")
         if state["epoch"] + 1 >= info["max_epochs"]:
             raise CheckpointError(
                 f"{path}: a finished run (epoch {state['epoch'] + 1} of {info['max_epochs']}): "

@@ -31,6 +31,8 @@ from wtml.baselines import ClassicalFluid
 from wtml.baselines.fluid_bayes import BayesFluid
 from wtml.bench.accuracy import by_decade, format_decades, relative_errors, sampled_errors
 from wtml.bench.bounds import fluid_crlb
+from wtml.bench.frontier import Method, Problem, open_graph
+from wtml.bench.resampling import statistic_interval
 from wtml.bench.timing import latency_p50, throughput
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
@@ -98,6 +100,21 @@ def classical_exactness(scene, n: int = 2000) -> dict[str, float]:
                                                                                data["t"])
     err = relative_errors(pred, data["eta"], data["rho"])
     return {k: float(v.max()) for k, v in err.items()}
+
+
+def evaluate_checkpoint(checkpoint: str | Path, data_dir: str | Path, scene,
+                        split: dict[str, list[int]], test: dict[str, np.ndarray],
+                        where: str) -> str:
+    """``wtml evaluate``'s report (markdown) of a fluid checkpoint: the decoder (torch) and
+    the thesis's closed form, median and worst relative errors of η and ρ by viscosity decade
+    on ``test`` (the test shard's arrays, ``where`` naming it; ``split``, ``data_dir``: the
+    dataset's, unused here) with each record's calibrated T."""
+    net, _ = load_fluid_net(str(checkpoint))
+    parts = []
+    for p in (TorchFluid(net), ClassicalFluid(scene.excitation.omega, scene.sphere.radius)):
+        err = relative_errors(p.predict(test["ze"], test["t"]), test["eta"], test["rho"])
+        parts.append(format_decades(f"{p.name} on {where}", by_decade(err, test["eta"])))
+    return "\n\n".join(parts)
 
 
 def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Path,
@@ -237,3 +254,46 @@ def _plot(results: list[dict], path: Path) -> None:
     ax.legend(fontsize=7)
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: int = 2,
+                     max_samples: int = 3000):
+    """The fluid task for :mod:`wtml.bench.frontier`: η's median relative error (%) on the
+    test shard (its first ``max_samples``), each record with its calibrated T; the classical
+    path in numpy and as ``model_dir``'s ONNX graph, the Bayes posterior mean (the best
+    achievable under the scene's prior) and the Cramér–Rao bound (no prior), as rows."""
+    manifest, scene = read_manifest(data_dir), dataset_scene(data_dir)
+    split = split_shards(manifest["n_shards"], 1, 1)
+    data = load_shards(data_dir, split["test"])
+    ze, t, eta, rho = (data[k][:max_samples] for k in ("ze", "t", "eta", "rho"))
+    train = load_shards(data_dir, split["train"][:1])
+
+    def median(values):
+        return np.median(values, -1)
+
+    def score(pred: dict) -> tuple[float, float, float]:
+        err = 100 * np.abs(pred["eta"] / eta - 1)
+        return (float(np.median(err)), *statistic_interval(err, median))
+
+    bound = fluid_crlb(scene, eta, rho)
+    drawn, _ = sampled_errors(bound, eta, draws=BOUND_DRAWS)
+    crlb = 100 * drawn["eta"]
+    classical = Path(model_dir) / "classical.onnx"
+    methods = [
+        Method("thesis closed form numpy (float64)", "classical",
+               ClassicalFluid(scene.excitation.omega, scene.sphere.radius)),
+        Method("thesis closed form ONNX", "classical",
+               open_graph(classical, "measurements", threads), classical),
+        Method("Bayes posterior mean", "reference", BayesFluid(scene),
+               note="the best achievable under the scene's prior (exact, by grid)"),
+        Method("Cramér–Rao bound (no prior)", "bound",
+               score=(float(np.median(crlb)), *statistic_interval(
+                   crlb[::BOUND_DRAWS // 10], median)),
+               note=f"median of errors drawn from each sample's bound ({BOUND_DRAWS} each)"),
+    ]
+    return Problem(
+        "fluid", "η median relative error", "%", False, "sample", 1.0, (ze, t), score,
+        "measurements", 4096, (train["ze"][:512], train["t"][:512]), methods,
+        data=f"`{data_dir}` test shard {split['test']}, {len(ze)} samples (noise "
+             f"{scene.noise.ze_relative:g} on Ze, calibration error "
+             f"{scene.nuisance.calibration_error:g})")

@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from wtml.baselines.onset_classical import ruptures_contacts
+from wtml.bench.frontier import Method, Problem, open_graph
 from wtml.bench.onset_transfer import (
     device_variants,
     independent_variant,
@@ -44,6 +45,7 @@ from wtml.bench.onset_transfer import (
     transfer_table,
 )
 from wtml.bench.onset_transfer import scorer as transfer_scorer
+from wtml.bench.resampling import statistic_interval
 from wtml.bench.transfer import run_variants
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
@@ -161,46 +163,103 @@ class RupturesPeer:
         return np.array(gaps), on + self.frame_s / 2, off - self.frame_s / 2
 
 
-def cramer_rao_bound(scene, labels: dict, *, upsample: int = 4, step_m: float = 20e-9
-                     ) -> np.ndarray:
+def cramer_rao_bound(scene, labels: dict, *, upsample: int = 4, step_m: float = 20e-9,
+                     chunk: int = 4) -> np.ndarray:
     """The Cramér–Rao bound on the std of any unbiased estimate of g (m, ``(n,)``; NaN for a
-    record without a wall), for each record's own parameters under the scene's model.
+    record without a wall), for each record's own parameters under the scene's model and its
+    acquisition.
 
     The unknowns are g and the nuisances the scene draws per record: contact stiffness k,
-    damping c and the device's coupling s. The drive is the scene's known waveform; the
-    current is the simulated one plus white noise of the scene's rms and the ADC's step
-    (``LSB²/12``). The Fisher information is ``Σ_t ∂i/∂θ ∂i/∂θᵀ / σ²`` with the derivatives
-    by central differences (g ± ``step_m``, k ± 1 %, c ± 2 %, s ± 1e-4), simulated at
-    ``upsample`` × the sampling rate so that a contact's start moves by less than a sample
-    (the bound changes by < 2× over steps of 5-80 nm and upsampling 1-8). It ignores the
-    noise on e, which only makes it lower: a floor, not a promise.
+    damping c and the device's coupling s, and, where the scene's acquisition adds mains hum,
+    the amplitude and phase of each of its harmonics (two linear nuisances each). The drive
+    is the scene's known waveform (the recorded e measures its DAC error to ~1e-8). The
+    current's noise is Gaussian with the one-sided density :func:`current_noise_density`:
+    the scene's white noise and the ADC's step (``LSB²/12``), and, where its acquisition has
+    them, the I–V converter's coloured noise and the ADC floor. The Fisher information is the
+    Whittle sum over the record's frequencies (:func:`whittle_fisher`; for white noise exactly
+    ``Σ_t ∂i/∂θ ∂i/∂θᵀ / σ²``), the derivatives by central differences (g ± ``step_m``,
+    k ± 1 %, c ± 2 %, s ± 1e-4), simulated at ``upsample`` × the sampling rate so that a
+    contact's start moves by less than a sample (the bound changes by < 2× over steps of
+    5-80 nm and upsampling 1-8), ``chunk`` records at a time (memory: ~8 · chunk records at
+    ``upsample`` × the rate, float64). It ignores the noise on e, which only makes it lower:
+    a floor, not a promise; and it holds the device known but for s (its geometry, moduli
+    and losses as the nominal device's).
     """
     acq = scene.acquisition
     fine = dataclasses.replace(scene, acquisition=dataclasses.replace(
         acq, sample_rate_hz=upsample * acq.sample_rate_hz))
     e, de = fine.drive_voltage(lead=True)
     n_lead = len(e) - fine.n_samples
-    lsb = 2 * acq.i_full_scale_a / 2**acq.adc_bits
-    var = acq.i_noise_a**2 + lsb**2 / 12
+    model = scene.transducer()
     theta = np.stack([labels["gap"], labels["stiffness"], labels["damping"],
                       labels["coupling"]], 1)
     walled = np.isfinite(theta[:, 0])
-    theta = theta[walled]
-    h = np.stack([np.full(len(theta), step_m), 0.01 * theta[:, 1], 0.02 * theta[:, 2],
-                  np.full(len(theta), 1e-4)], 1)
-    shifted = theta[:, None, None, :] + np.array([1.0, -1.0])[None, :, None, None] * (
-        h[:, None, :, None] * np.eye(4))  # (n, ±, which, θ)
-    p = shifted.reshape(-1, 4)
-    cur = scene.transducer().simulate(
-        e, 1 / fine.acquisition.sample_rate_hz, Wall(p[:, 0], p[:, 1], p[:, 2]),
-        drive_rate=de, coupling_scale=p[:, 3], record=("i",), dtype=np.float64,
-        tones=[(w, x) for w, x, _ in fine.drive_tones(lead=True)])["i"]
-    cur = cur[:, n_lead::upsample].reshape(len(theta), 2, 4, -1)
-    grad = (cur[:, 0] - cur[:, 1]) / (2 * h[:, :, None])
-    fisher = np.einsum("njt,nkt->njk", grad, grad) / var
+    rate, n_samples = acq.sample_rate_hz, scene.n_samples
+    fx = acq.effects
+    nuisance = np.zeros((0, n_samples))
+    if fx.hum.enabled:  # each harmonic's cos and sin: linear nuisances, the same per record
+        t = np.arange(n_samples) / rate
+        hum = 2 * np.pi * fx.hum.mains_hz * np.arange(1, len(fx.hum.amplitudes()) + 1)
+        nuisance = np.concatenate([np.cos(hum[:, None] * t), np.sin(hum[:, None] * t)])
+    density = current_noise_density(scene, np.fft.rfftfreq(n_samples, 1 / rate),
+                                    model.capacitance)
     out = np.full(len(walled), np.nan)
-    out[walled] = np.sqrt(np.linalg.inv(fisher)[:, 0, 0])
+    rows = np.flatnonzero(walled)
+    for start in range(0, len(rows), chunk):  # 8 simulations of ~upsample·n_samples each
+        part = theta[rows[start:start + chunk]]
+        h = np.stack([np.full(len(part), step_m), 0.01 * part[:, 1], 0.02 * part[:, 2],
+                      np.full(len(part), 1e-4)], 1)
+        shifted = part[:, None, None, :] + np.array([1.0, -1.0])[None, :, None, None] * (
+            h[:, None, :, None] * np.eye(4))  # (n, ±, which, θ)
+        p = shifted.reshape(-1, 4)
+        cur = model.simulate(
+            e, 1 / fine.acquisition.sample_rate_hz, Wall(p[:, 0], p[:, 1], p[:, 2]),
+            drive_rate=de, coupling_scale=p[:, 3], record=("i",), dtype=np.float64,
+            tones=[(w, x) for w, x, _ in fine.drive_tones(lead=True)])["i"]
+        cur = cur[:, n_lead::upsample].reshape(len(part), 2, 4, -1)
+        grad = (cur[:, 0] - cur[:, 1]) / (2 * h[:, :, None])  # (n, 4, n_samples)
+        grad = np.concatenate([grad, np.broadcast_to(nuisance, (len(grad), *nuisance.shape))],
+                              1)
+        fisher = whittle_fisher(grad, density, rate)
+        out[rows[start:start + chunk]] = np.sqrt(np.linalg.inv(fisher)[:, 0, 0])
     return out
+
+
+def current_noise_density(scene, f: np.ndarray, capacitance: float) -> np.ndarray:
+    """The one-sided density (A²/Hz) of the noise on the recorded current at ``f`` (Hz,
+    ``(n_f,)``, ``f[0]`` may be 0) under the scene's acquisition: its white noise and the
+    ADC's step (``LSB²/12``) at every f, and where the acquisition has them, the ADC floor
+    (white) and the I–V converter's density for the device's capacitance (F; none at f = 0,
+    as :func:`wtml.signals.acquisition.coloured_noise` draws it)."""
+    acq, fx = scene.acquisition, scene.acquisition.effects
+    lsb = 2 * acq.i_full_scale_a / 2**acq.adc_bits
+    white = acq.i_noise_a**2 + lsb**2 / 12
+    if fx.adc.enabled:
+        white += fx.adc.rms(acq.i_full_scale_a) ** 2
+    density = np.full(np.shape(f), 2 * white / acq.sample_rate_hz)
+    if fx.iv.enabled:
+        positive = np.asarray(f) > 0
+        density[positive] += fx.iv.density(np.asarray(f)[positive], capacitance)
+    return density
+
+
+def whittle_fisher(grad: np.ndarray, density: np.ndarray, rate: float) -> np.ndarray:
+    """The Fisher information of parameters whose derivatives of a record's mean are ``grad``
+    (``(n, n_params, n_samples)``, per unit of each parameter) under stationary Gaussian noise
+    of one-sided density ``density`` (``(n_samples // 2 + 1,)``, on ``numpy.fft.rfftfreq``'s
+    frequencies, unit²/Hz) sampled at ``rate`` (Hz): Whittle's ``Σ_f 2 Re(G_j G_k*) / v_f``
+    over the interior frequencies (``v_f = N S(f) rate / 2``, the variance of a noise bin)
+    and ``G_j G_k / v_f`` at 0 and Nyquist, with ``G = rfft(grad)``. For white noise of
+    variance σ² it is exactly ``Σ_t g_j g_k / σ²`` (Parseval). Returns ``(n, n_params,
+    n_params)``."""
+    n_samples = grad.shape[-1]
+    g = np.fft.rfft(grad, axis=-1)
+    weight = np.full(g.shape[-1], 2.0)
+    weight[0] = 1.0
+    if n_samples % 2 == 0:
+        weight[-1] = 1.0
+    scale = weight / (n_samples * np.asarray(density) * rate / 2)
+    return np.einsum("njf,nkf,f->njk", g, g.conj(), scale).real
 
 
 def calibrated_reference(scene, labels: dict) -> np.ndarray:
@@ -364,7 +423,8 @@ def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_recor
     ref = calibrated_reference(scene, test) - test["gap"]
     reference = [{"name": "reference: true onsets through the calibrated model",
                   "rows": location_rows(ref, frac)},
-                 {"name": "Cramér–Rao bound (the scene's model; g, k, c, s unknown)",
+                 {"name": "Cramér–Rao bound (the scene's model and acquisition; g, k, c, s "
+                          "and the hum unknown)",
                   "rows": location_rows(cramer_rao_bound(scene, test), frac)}]
     band = 2 * np.pi * np.linspace(0.9, 1.1, 41) * scene.drive.probe_hz
     conv = convergence_table(build(scene.device), band)
@@ -519,3 +579,64 @@ def _plots(results, test, fig, positions, amp, scene, methods, out: Path) -> Non
     f.tight_layout()
     f.savefig(out / "example_record.png", dpi=120)
     plt.close(f)
+
+
+class _Peer:
+    """:class:`RupturesPeer` behind the frontier's predictor interface."""
+
+    def __init__(self, peer: RupturesPeer) -> None:
+        self.peer, self.name = peer, peer.name
+
+    def predict(self, *inputs: np.ndarray) -> dict:
+        gap, onsets, detachments = self.peer.run(*inputs)
+        return {"gap": gap, "onsets": onsets, "detachments": detachments}
+
+
+def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: int = 2
+                     ) -> Problem:
+    """The onset task for :mod:`wtml.bench.frontier`: the RMSE of the wall's location g (µm)
+    over the test shard's records with a wall (each record with its own calibration), costs
+    per second of signal; beside it each method's onset F1 (±1 ms), median onset error and
+    walls missed. The thesis pipeline (``model_dir``'s classical graph), the ruptures peer,
+    the true onsets read through the calibrated model (a reference without a cost) and the
+    Cramér–Rao bound, as rows."""
+    scene = dataset_scene(data_dir)
+    split = split_shards(read_manifest(data_dir)["n_shards"], 1, 1)
+    test = load_shards(data_dir, split["test"])
+    inputs = record_inputs(test)
+    wall = np.isfinite(test["gap"])
+    calibration = record_inputs(load_shards(data_dir, split["train"][:1]))
+
+    def rms(values):
+        return np.sqrt(np.mean(values**2, -1))
+
+    def location(err: np.ndarray) -> tuple[float, float, float]:
+        err = 1e6 * err[wall & np.isfinite(err)]
+        return float(rms(err)), *statistic_interval(err, rms)
+
+    def score(pred: dict) -> tuple[float, float, float, str]:
+        ev = event_metrics(test, pred["onsets"], pred["detachments"])
+        missed = int(np.sum(wall & ~np.isfinite(pred["gap"])))
+        return (*location(pred["gap"] - test["gap"]),
+                f"onset F1 {ev['f1']:.3f}, onset error {ev['onset_ms']:.2f} ms, "
+                f"walls missed {missed} of {int(wall.sum())}")
+
+    bound = cramer_rao_bound(scene, test)
+    drawn = bound * np.random.default_rng(0).standard_normal(len(bound))
+    classical = Path(model_dir) / "classical.onnx"
+    methods = [
+        Method("thesis pipeline ONNX", "classical", open_graph(classical, "records", threads),
+               classical),
+        Method(RupturesPeer.name, "peer", _Peer(RupturesPeer(scene))),
+        Method("true onsets through the calibrated model", "reference",
+               score=location(calibrated_reference(scene, test) - test["gap"]),
+               note="a perfect detector that does not infer the device's coupling"),
+        Method("Cramér–Rao bound", "bound", score=location(drawn),
+               note="RMS of one error drawn from each record's bound (g, k, c, s unknown)"),
+    ]
+    seconds = scene.n_samples / scene.acquisition.sample_rate_hz
+    return Problem(
+        "onset", "RMSE of the wall's location g", "µm", False, "s of signal", seconds, inputs,
+        score, "records", 16, calibration, methods,
+        data=f"`{data_dir}` test shard {split['test']}, {len(wall)} records of {seconds:g} s "
+             f"({int(wall.sum())} with a wall)")

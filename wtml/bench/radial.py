@@ -28,8 +28,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from wtml.baselines.radial import InversionRadial, PolynomialRadial
+from wtml.baselines.radial import BayesRadial, InversionRadial, PolynomialRadial
 from wtml.bench.bounds import radial_crlb
+from wtml.bench.frontier import Method, Problem, open_graph
+from wtml.bench.resampling import statistic_interval
 from wtml.bench.timing import latency_p50, throughput
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
@@ -135,6 +137,24 @@ def format_spread(table: dict[str, dict[str, dict]]) -> str:
                  for r in row.values()]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def evaluate_checkpoint(checkpoint: str | Path, data_dir: str | Path, scene,
+                        split: dict[str, list[int]], test: dict[str, np.ndarray],
+                        where: str) -> str:
+    """``wtml evaluate``'s report (markdown) of a radial checkpoint: the decoder (torch) and
+    the polynomial in Im Ze (fitted on the ``split``'s training shards of ``data_dir``), RMSE
+    (µm) and RMSE / CRLB by range of d on ``test`` (the test shard's arrays, ``where`` naming
+    it)."""
+    net, _ = load_radial_net(str(checkpoint))
+    train = load_shards(data_dir, split["train"])
+    d, crlb = test["distance"], radial_crlb(scene, test["distance"], test["stiffness"])
+    results = []
+    for p in (TorchRadial(net),
+              PolynomialRadial("imag").fit(train["ze"], train["ref"], train["distance"])):
+        err = p.predict(test["ze"], test["ref"])["distance"] - d
+        results.append({"name": p.name, "rows": range_rows(err, d, crlb)})
+    return f"RMSE (µm) by range of d and RMSE / CRLB, on {where}\n\n" + format_ranges(results)
 
 
 def run_bench(data_dir, checkpoint, thesis_checkpoint, model_dir, thesis_model_dir, out, *,
@@ -402,3 +422,57 @@ def _plots(results, d, crlb, out: Path) -> None:
     ax.legend(fontsize=7)
     fig.savefig(out / "error_vs_d.png", dpi=120)
     plt.close(fig)
+
+
+def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: int = 2,
+                     max_samples: int = 4000, thesis_model_dir: str | Path = "export/radial_thesis"
+                     ) -> Problem:
+    """The radial task for :mod:`wtml.bench.frontier`: the RMSE of d (µm) on the first
+    ``max_samples`` of the test shard, each with its device's free reference; the polynomial
+    in Im Ze/ref (numpy, fitted on the training shards, and as ``model_dir``'s ONNX graph),
+    the thesis's 2-10-1 decoder (``thesis_model_dir``, where it exists), the physics
+    inversion, the Bayes posterior mean (:class:`~wtml.baselines.radial.BayesRadial`, the
+    best achievable; left out for a scene with a device spread, which it does not integrate
+    over) and the Cramér–Rao bound, as rows."""
+    manifest, scene = read_manifest(data_dir), dataset_scene(data_dir)
+    split = split_shards(manifest["n_shards"], 1, 1)
+    test = load_shards(data_dir, split["test"])
+    ze, ref, d, k = (test[key][:max_samples] for key in ("ze", "ref", "distance", "stiffness"))
+    train = load_shards(data_dir, split["train"])
+
+    def rms(values):
+        return np.sqrt(np.mean(values**2, -1))
+
+    def score(pred: dict) -> tuple[float, float, float]:
+        err = 1e6 * (pred["distance"] - d)
+        return (float(rms(err)), *statistic_interval(err, rms))
+
+    crlb = 1e6 * radial_crlb(scene, d, k)
+    drawn = crlb * np.random.default_rng(0).standard_normal(len(crlb))
+    classical = Path(model_dir) / "classical.onnx"
+    methods = [
+        Method("polynomial Im Ze/ref numpy", "classical", PolynomialRadial("imag").fit(
+            train["ze"], train["ref"], train["distance"])),
+        Method("polynomial Im Ze/ref ONNX", "classical",
+               open_graph(classical, "measurements", threads), classical),
+    ]
+    thesis = Path(thesis_model_dir) / "model.onnx"
+    if thesis.is_file():
+        methods.append(Method("thesis 2-10-1 decoder ONNX", "peer",
+                              open_graph(thesis, "measurements", threads), thesis,
+                              note="the thesis's network on Ze alone"))
+    if not any(scene.spread.widths(scene.device).values()) and not scene.spread.posterior:
+        methods.append(Method("Bayes posterior mean", "reference", BayesRadial(scene),
+                              note="the best achievable under the scene's prior "
+                                   "(importance sampling about the MAP)"))
+    methods += [
+        Method("physics inversion", "classical", InversionRadial(scene),
+               note="MAP: damped, bounded Gauss–Newton on the beam model"),
+        Method("Cramér–Rao bound", "bound", score=(float(rms(drawn)), *statistic_interval(
+            drawn, rms)), note="RMS of one error drawn from each sample's bound"),
+    ]
+    return Problem(
+        "radial", "RMSE of d", "µm", False, "sample", 1.0, (ze, ref), score, "measurements",
+        4096, (train["ze"][:512], train["ref"][:512]), methods,
+        data=f"`{data_dir}` test shard {split['test']}, {len(d)} samples ({scene.device.name} "
+             f"device, noise {scene.noise.ze_relative:g} on Ze)")

@@ -36,3 +36,30 @@ def group_interval(values, groups, *, level: float = 0.95, draws: int = 4000,
     means = sums[pick].sum(1) / counts[pick].sum(1)
     low, high = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
     return float(low), float(high)
+
+
+def statistic_interval(values, statistic, *, level: float = 0.95, draws: int = 1000,
+                       seed: int = 0) -> tuple[float, float]:
+    """Percentile-bootstrap interval of ``statistic(values)`` over independent samples.
+
+    Args:
+        values: per sample, ``(n,)`` (e.g. absolute errors).
+        statistic: ``(draws, n) -> (draws,)`` along the last axis (``lambda x: np.median(x,
+            -1)``; an RMS: ``lambda x: np.sqrt(np.mean(x**2, -1))``).
+        level: the interval's coverage, in (0, 1).
+        draws: bootstrap resamples (in chunks, so memory stays ~ 64 MB).
+
+    Returns:
+        ``(low, high)``.
+    """
+    values = np.asarray(values, float)
+    if values.ndim != 1 or len(values) == 0:
+        raise ValueError(f"values: one per sample, at least one; got shape {values.shape}")
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must be in (0, 1); got {level}")
+    rng = np.random.default_rng(seed)
+    chunk = max(1, 8_000_000 // len(values))
+    stats = np.concatenate([statistic(values[rng.integers(0, len(values), (k, len(values)))])
+                            for k in np.diff(np.r_[0:draws:chunk, draws])])
+    low, high = np.quantile(stats, [(1 - level) / 2, (1 + level) / 2])
+    return float(low), float(high)

@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from wtml.baselines.texture_peers import KineticSignature, MiniRocketPeer
+from wtml.bench.frontier import Method, Problem, open_graph
 from wtml.bench.resampling import group_interval
 from wtml.bench.texture_transfer import (
     DEVICE_TARGET,
@@ -576,3 +577,76 @@ def _plots(s: dict, out: Path) -> None:
     fig.tight_layout()
     fig.savefig(out / "unseen.png", dpi=110)
     plt.close(fig)
+
+
+class _Windows:
+    """A window classifier's ``run(e, i, t)`` (or ``predict``) behind the frontier's
+    predictor interface."""
+
+    def __init__(self, name: str, run) -> None:
+        self.name, self.run = name, run
+
+    def predict(self, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict:
+        return self.run(e, i, t)
+
+
+def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: int = 2,
+                     peer_kernels: int = 10000, oracle_draws: int = 100_000) -> Problem:
+    """The texture task for :mod:`wtml.bench.frontier`: accuracy (%) on the test shard's
+    windows of the exported window length (its specimens never seen in training; the
+    interval by resampling specimens), costs per second of signal. The thesis's cues
+    (``model_dir``'s classical graph), MiniRocket (fitted here on the training shards'
+    windows), the kinetic signature, and the amplitude and every-grain oracles (the best
+    achievable from what they know; :func:`amplitude_oracle`), as rows."""
+    scene = dataset_scene(data_dir)
+    rate = scene.acquisition.sample_rate_hz
+    split = split_shards(read_manifest(data_dir)["n_shards"], 1, 1)
+    test = load_shards(data_dir, split["test"])
+    classical = Path(model_dir) / "classical.onnx"
+    window_s = json.loads(load_export(model_dir)[0].metadata["window_s"])
+    e, i, owner, t = _cut(test, window_s, rate)
+    truth, specimen = test["grade"][owner], test["specimen"][owner]
+    train = load_shards(data_dir, split["train"])
+    e_tr, i_tr, own_tr, t_tr = _cut(train, window_s, rate)
+    _progress(f"fitting MiniRocket ({peer_kernels} kernels) on {len(e_tr)} training windows")
+    peer = MiniRocketPeer(peer_kernels).fit(e_tr, i_tr, train["grade"][own_tr])
+    kinetic = KineticSignature(WhiskFeatures(scene.calibration_hz, rate),
+                               np.array(list(THESIS_GRADES.values())) * 1e-6, rate)
+    pick = np.random.default_rng(0).permutation(len(e_tr))[:256]
+    calibration = (e_tr[pick], i_tr[pick], t_tr[pick])
+    del train, e_tr, i_tr
+
+    def score(pred: dict) -> tuple[float, float, float, str]:
+        correct = (pred["grade"] == truth).astype(float)
+        low, high = group_interval(correct, specimen)
+        detail = ""
+        if "grain" in pred and np.isfinite(pred["grain"]).all():
+            detail = f"grain size RMS {_grain_errors(pred['grain'], sizes)['rms_pct']:.1f} %"
+        return 100 * correct.mean(), 100 * low, 100 * high, detail
+
+    sizes = np.array(list(THESIS_GRADES.values()))[truth] * 1e-6
+    _progress("the oracles")
+    oracles = []
+    nominal = nominal_response(scene)
+    sweep = 2 * np.abs(nominal["velocity"]) / (2 * np.pi * NOMINAL_HZ)
+    for label, extra in (("amplitude oracle", {}), ("every-grain oracle", {"sweep_m": sweep})):
+        acc = amplitude_oracle(scene, oracle_draws, **extra)["accuracy"]
+        half = 1.96 * np.sqrt(acc * (1 - acc) / oracle_draws)
+        oracles.append(Method(label, "reference", score=(100 * acc, 100 * (acc - half),
+                                                         100 * (acc + half)),
+                              note="the Bayes rule on what it knows (gradient boosting on "
+                                   f"{oracle_draws} draws)"))
+    methods = [
+        Method("thesis cues ONNX", "classical", open_graph(classical, "windows", threads),
+               classical),
+        Method(peer.name, "peer", _Windows(peer.name, peer.predict),
+               note=f"{peer_kernels} kernels, fitted on the training windows"),
+        Method(kinetic.name, "classical", _Windows(kinetic.name, kinetic.predict),
+               note="the kinetic signature (the hypothesis the thesis refuted)"),
+        *oracles,
+    ]
+    return Problem(
+        "texture", "accuracy", "%", True, "s of signal", window_s, (e, i, t), score, "windows",
+        64, calibration, methods,
+        data=f"`{data_dir}` test shard {split['test']}: {len(truth)} windows of {window_s:g} s "
+             f"from {len(np.unique(specimen))} specimens never seen in training")

@@ -11,8 +11,16 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Sampler, TensorDataset
 
-from wtml.data.shards import DatasetError, checked_manifest, load_shards, shard_name
+from wtml.data.shards import (
+    NAN_BY_DESIGN,
+    DatasetError,
+    checked_manifest,
+    load_shards,
+    shard_name,
+)
 from wtml.scenes import to_dict
+from wtml.scenes.onset import onset_calibration as onset_calibration  # its old home
+from wtml.tasks import TASKS
 
 
 def split_shards(n_shards: int, val_shards: int, test_shards: int) -> dict[str, list[int]]:
@@ -26,46 +34,23 @@ def split_shards(n_shards: int, val_shards: int, test_shards: int) -> dict[str, 
             "test": list(range(train_end + val_shards, n_shards))}
 
 
-TARGETS = {
-    "fluid": lambda a: np.stack([np.log10(a["eta"]), a["rho"]], -1),  # log10 Pa·s, kg/m³
-    "radial": lambda a: a["distance"][:, None],  # m from the tip
-    "onset": lambda a: np.concatenate([a["gap"][:, None], a["onset"], a["detachment"],
-                                       a["coupling"][:, None]], 1),
-    "texture": lambda a: np.stack([a["grade"], a["grain_m"]], -1),  # class index, m
-}
-"""The training targets of each task, shape ``(n, n_targets)``."""
-
-INPUT_KEYS = {"fluid": ("ze", "ze", "t", "t"), "radial": ("ze", "ze", "ref", "ref"),
-              "onset": ("e", "i", "t_probe", "t_probe", "hue0"), "texture": ("e", "i", "t", "t")}
-"""The shard array each input tensor of :func:`task_tensors` comes from."""
-
-
-def target_keys(task: str, n_targets: int) -> tuple[str, ...]:
-    """The shard array each column of ``TARGETS[task]`` comes from."""
-    if task == "onset":
-        c = (n_targets - 2) // 2
-        return ("gap", *["onset"] * c, *["detachment"] * c, "coupling")
-    return {"fluid": ("eta", "rho"), "radial": ("distance",),
-            "texture": ("grade", "grain_m")}[task]
-
-
 def check_tensors(tensors: tuple[torch.Tensor, ...], task: str, where: list[tuple[str, int]]
                   ) -> None:
     """Refuse a non-finite training value before the first step: a NaN or inf in an input,
-    or in a target but for the NaN that onset's are padded with (``gap``, ``onset``,
-    ``detachment``: NaN by design, never inf). ``where`` is each shard's file and record count
-    in the order the rows come; the :class:`DatasetError` names the shard, the key and the row
-    there. The shards' own values were checked on load: this finds what the float32 tensors
-    add (a number beyond float32's range, the log of an ``eta`` <= 0)."""
+    or in a target but for the NaN its task's arrays hold by design (never inf;
+    ``wtml.data.shards.NAN_BY_DESIGN``: onset's ``gap``, ``onset``, ``detachment``), each
+    named by its scene's ``INPUT_KEYS`` and ``target_keys``. ``where`` is each shard's file
+    and record count in the order the rows come; the :class:`DatasetError` names the shard,
+    the key and the row there. The shards' own values were checked on load: this finds what
+    the float32 tensors add (a number beyond float32's range, the log of an ``eta`` <= 0)."""
     *inputs, targets = tensors
-    keys = [*INPUT_KEYS[task]]
-    columns = target_keys(task, targets.shape[1])
-    for key, x in zip(keys, inputs, strict=True):
+    scene = TASKS[task].load("scene")
+    for key, x in zip(scene.INPUT_KEYS, inputs, strict=True):
         bad = ~torch.isfinite(x.reshape(len(x), -1)).all(1)
         _refuse_rows(bad, key, where)
-    for col, key in enumerate(columns):
+    for col, key in enumerate(scene.target_keys(targets.shape[1])):
         y = targets[:, col]
-        nan_ok = task == "onset" and key != "coupling"
+        nan_ok = key in NAN_BY_DESIGN.get(task, ())
         _refuse_rows(torch.isinf(y) if nan_ok else ~torch.isfinite(y), key, where)
 
 
@@ -81,46 +66,24 @@ def _refuse_rows(bad: torch.Tensor, key: str, where: list[tuple[str, int]]) -> N
                        "hold finite numbers: generate it again")
 
 
-def onset_calibration(arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
-    """Each onset record's calibration as the decoder's graph takes it
-    (``wtml.decoders.onset.CALIBRATION``): ``t_re, t_im`` ``(n, 4)`` (its device's T at the
-    probe, flattened t11, t12, t21, t22) and ``hue0`` ``(n,)`` m/V."""
-    if "t_probe" not in arrays or "hue0" not in arrays:
-        raise DatasetError("an onset dataset without each record's calibration ('t_probe', "
-                           "'hue0'): made by an older wtml; generate it again")
-    t = np.asarray(arrays["t_probe"]).reshape(-1, 4)
-    return t.real, t.imag, np.asarray(arrays["hue0"], float)
-
-
 def task_tensors(arrays: dict[str, np.ndarray], task: str) -> tuple[torch.Tensor, ...]:
-    """The input tensors and the targets, float32: ``(ze_re, ze_im, ref_re, ref_im,
-    targets)`` for radial (``ref``: the free whisker's Ze of the record's device, the user's
-    reference), ``(ze_re, ze_im, t_re, t_im, targets)`` for fluid (each record's calibrated T,
-    ``(n, n_freq, 4)`` flattened as t11, t12, t21, t22), ``(e, i, t_re, t_im, targets)`` (V, A;
-    NaN-padded targets: gap m, onsets s, detachments s) for texture (T at the scene's
-    ``calibration_hz``), and for onset ``e, i`` then each record's calibration
-    (:func:`onset_calibration`); targets as in ``TARGETS``. The arrays each task needs are
-    checked when the manifest is read (``wtml.data.shards.TASK_ARRAYS``)."""
-    if task == "onset":
-        inputs = (arrays["e"], arrays["i"], *onset_calibration(arrays))
-    elif task in ("fluid", "texture"):
-        if "t" not in arrays:
-            raise DatasetError(f"a {task} dataset without each record's calibrated T ('t'): "
-                               "made by an older wtml; generate it again")
-        t = arrays["t"].reshape(*arrays["t"].shape[:-2], 4)
-        signals = ((arrays["ze"].real, arrays["ze"].imag) if task == "fluid"
-                   else (arrays["e"], arrays["i"]))
-        inputs = (*signals, t.real, t.imag)
-    elif task == "radial":
-        if "ref" not in arrays:
-            raise DatasetError("a radial dataset without each record's free reference ('ref'): "
-                               "made by an older wtml; generate it again")
-        inputs = (arrays["ze"].real, arrays["ze"].imag, arrays["ref"].real, arrays["ref"].imag)
-    else:
-        inputs = (arrays["ze"].real, arrays["ze"].imag)
+    """The decoder's input tensors, then its training targets, float32: the task's scene's
+    ``decoder_inputs(arrays)`` (its ``INPUT_KEYS`` name the array of each) and
+    ``targets(arrays)``, ``(n, n_targets)`` (``wtml.scenes``). The arrays each task needs are
+    checked when the manifest is read (``wtml.data.shards.TASK_ARRAYS``); ``arrays`` without
+    one of the inputs' (an older wtml's) is refused here.
+
+    Raises:
+        DatasetError: an input's array is missing.
+    """
+    scene = TASKS[task].load("scene")
+    missing = [key for key in dict.fromkeys(scene.INPUT_KEYS) if key not in arrays]
+    if missing:
+        raise DatasetError(f"no {', '.join(map(repr, missing))} in this {task} dataset (its "
+                           "decoder reads it): made by an older wtml; generate it again")
     with np.errstate(all="ignore"):  # a log10 of eta <= 0: refused by check_tensors
-        targets = TARGETS[task](arrays)
-        return tuple(torch.tensor(a, dtype=torch.float32) for a in (*inputs, targets))
+        return tuple(torch.tensor(a, dtype=torch.float32)
+                     for a in (*scene.decoder_inputs(arrays), scene.targets(arrays)))
 
 
 def epoch_seed(epoch: int) -> int:
@@ -136,6 +99,7 @@ class EpochBatches(Sampler):
     """Batches of the indices ``0 .. n-1``, whole tensors of indices: in order, or in a
     permutation drawn for each epoch from :func:`epoch_seed` (like ``DistributedSampler``
     with ``set_epoch``, but the epoch read when the batches are drawn, from ``epoch()``).
+    Under DDP, Lightning wraps it: each process takes every ``world_size``-th batch.
 
     Args:
         n: samples.
@@ -192,7 +156,7 @@ class ShardDataModule(L.LightningDataModule):
         self.scene_dict = to_dict(self.scene)
         self._data: dict[str, TensorDataset] = {}
         self._input_map = None
-        records = self.scene.task in ("onset", "texture")
+        records = TASKS[self.scene.task].reads == "recordings"
         self.eval_batch = 64 if records else 4096  # records vs phasors
 
     def _dataset(self, split: str) -> TensorDataset:

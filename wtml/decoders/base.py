@@ -135,7 +135,8 @@ class DecoderModule(L.LightningModule, ABC):
                                                    "values"))
         checkpoint["wtml"] = {"scene": self.scene, "shape": self.net_shape(),
                               "max_epochs": self.trainer.max_epochs,
-                              "seed": int(os.environ.get("PL_GLOBAL_SEED", -1))}
+                              "seed": int(os.environ.get("PL_GLOBAL_SEED", -1)),
+                              "world_size": self.trainer.world_size}
 
     def _diverged(self, what: str) -> str:
         """The one line a diverged run ends with: where, what, and the checkpoint kept."""
@@ -162,12 +163,19 @@ class DecoderModule(L.LightningModule, ABC):
         if stage != "test" and not search and not math.isfinite(float(loss.detach())):
             which = "training" if stage == "train" else "validation"
             raise DivergedError(self._diverged(f"the {which} loss is {float(loss.detach())}"))
+        # sync_dist: under DDP, the mean over every process's batches, not rank 0's alone
         self.log(f"{stage}_loss", loss, prog_bar=stage == "val", on_epoch=True,
-                 on_step=False, batch_size=len(batch[0]))
+                 on_step=False, batch_size=len(batch[0]), sync_dist=True)
         return loss
 
     def training_step(self, batch, batch_idx):
         return self._step(batch, "train")
+
+    def on_train_batch_end(self, outputs, batch, batch_idx) -> None:
+        """Logs ``train_samples``: the samples of the epoch's batches, summed over the DDP
+        processes (once per batch, however many times L-BFGS evaluates it)."""
+        self.log("train_samples", float(len(batch[0])), on_epoch=True, on_step=False,
+                 reduce_fx="sum", sync_dist=True)
 
     def validation_step(self, batch, batch_idx):
         self._step(batch, "val")

@@ -41,12 +41,15 @@ class CheckpointInfo:
         max_epochs: the run's length (its learning-rate schedules are laid out over it).
         seed: the run's seed (``seed_everything``), from which each epoch's data order and
             random state are drawn; -1 in checkpoints written before it was kept.
+        world_size: the processes the run trained on (DDP; its steps per epoch, hence its
+            schedules, depend on it); 1 in checkpoints written before it was kept.
     """
 
     scene: dict
     shape: dict
     max_epochs: int = bounded(1, 10**6)
     seed: int = bounded(-1, 2**32 - 1, default=-1)
+    world_size: int = bounded(1, 2**20, default=1)
 
 
 def _load_bytes(data: bytes, path: Path) -> dict:

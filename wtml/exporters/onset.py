@@ -17,19 +17,21 @@ import torch
 
 from wtml import __version__
 from wtml.baselines.onset_classical import ThesisOnset
-from wtml.data.datamodule import onset_calibration
 from wtml.decoders.domain import Gated
 from wtml.decoders.onset import TOUCH_LOOKBACK, frame_period
 from wtml.decoders.onset_stream import StreamingOnset
+from wtml.decoders.recalibration import Recalibrated, fit_uncertainty, metadata
 from wtml.exporters.graphs import domain_metadata, export_graph
 from wtml.runtime.metadata import (
     DECODER_OUTPUTS,
+    GATE_OUTPUTS,
     ONSET_INPUTS,
     ONSET_OUTPUTS,
     STREAM_INPUTS,
     STREAM_OUTPUTS,
 )
 from wtml.scenes import config_hash, to_dict
+from wtml.scenes.onset import onset_calibration
 
 ONSET_REFERENCES = {"calibration": "the device's calibrated T at the probe frequency and its "
                                    "HUE(0) (the calibration of physics.md §4 on the user's own "
@@ -48,8 +50,13 @@ records of its scene; the offline rule's figures are the same over 4 to 1000 fra
 of touches being successive frames)."""
 STREAM_CHUNK_FRAMES = 1
 """Probe periods per chunk of the exported streaming graph (2.4 ms at the defaults)."""
-FRESH_RECORDS = 64
-"""Fresh records of the scene on which the exported decoder's false-alarm rate is measured."""
+FRESH_RECORDS = 128
+"""Fresh records of the scene (its own seed, not the training data) on which the exported
+decoder's false-alarm rate is measured and its σ recalibrated (one scale: ~110 records with a
+wall; :mod:`wtml.decoders.recalibration`)."""
+GAP_INTERVAL = {"sigma": "sigma", "value": "gap", "by": "gap", "log_value": False,
+                "stored": "std"}
+"""The onset graphs' interval: σ, the std of the wall's location g (m)."""
 
 
 def thesis_pipeline(scene) -> ThesisOnset:
@@ -85,10 +92,19 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
     """Write the onset decoder and the thesis pipeline, each with the decoder's domain gate,
     to ``out/model.onnx`` and ``out/classical.onnx``, and the decoder's streaming form to
     ``out/stream.onnx`` (inputs ``e``, ``i`` of one chunk and ``state``, zeros at a record's
-    start; outputs :data:`STREAM_OUTPUTS` then ``in_domain``, ``domain_score``)."""
-    decoder = Gated(module.net, module.gate, (1,)).eval()
+    start; outputs :data:`STREAM_OUTPUTS` then ``in_domain``, ``domain_score``). The decoder's
+    and the stream's σ are recalibrated on :data:`FRESH_RECORDS` fresh records (one scale)."""
+    raw = Gated(module.net, module.gate, (1,)).eval()
     fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
-    inside = decoder(*(torch.tensor(x) for x in record_inputs(fresh)))[-2]
+    answers = [raw(*(torch.tensor(x[s:s + 32]) for x in record_inputs(fresh)))
+               for s in range(0, FRESH_RECORDS, 32)]
+    gap, sigma, inside = (torch.cat([a[k] for a in answers]) for k in (0, 1, -2))
+    uncertainty = fit_uncertainty(
+        {"gap": gap.double().numpy(), "sigma": sigma.double().numpy()}, fresh,
+        [GAP_INTERVAL], 1, f"{FRESH_RECORDS} fresh records of the trained scene (seed "
+        f"[{scene.seed}, 1000001]; not the training data)")
+    decoder = Gated(Recalibrated(module.net, DECODER_OUTPUTS, uncertainty), module.gate,
+                    (1,)).eval()
     domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
     rate = scene.acquisition.sample_rate_hz
     period = frame_period(scene)
@@ -107,22 +123,25 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
             "scene": json.dumps(to_dict(scene), sort_keys=True), "scene_hash": config_hash(scene),
             "domain": json.dumps(domain)}
     paths = {"decoder": out / "model.onnx", "classical": out / "classical.onnx"}
+    recalibrated = {"uncertainty": metadata(uncertainty)}
     frames = {"frame_s": json.dumps(period / rate), "onset_offset_s": json.dumps(on_off[0]),
               "detach_offset_s": json.dumps(on_off[1])}
     samples = {"frame_s": json.dumps(1 / rate), "onset_offset_s": "0.0",
                "detach_offset_s": "0.0"}
     widths = (scene.n_samples,) * 2 + (4, 4, ())
     export_graph(decoder, scene.n_samples, paths["decoder"],
-            meta | frames | {"kind": "decoder", "label": "decoder",
-                             "outputs": json.dumps(list(DECODER_OUTPUTS))}, ONSET_INPUTS, widths)
+            meta | frames | recalibrated | {"kind": "decoder", "label": "decoder",
+                                            "outputs": json.dumps(list(DECODER_OUTPUTS))},
+            ONSET_INPUTS, widths)
     classical = Gated(thesis_pipeline(scene), module.gate.inputs_only()).eval()
     export_graph(classical, scene.n_samples, paths["classical"],
             meta | samples | {"kind": "classical", "label": "thesis pipeline"}, ONSET_INPUTS,
             widths)
     stream = StreamingOnset(module.net, module.gate, STREAM_CHUNK_FRAMES).eval()
     paths["stream"] = out / "stream.onnx"
-    export_graph(stream, stream.chunk_samples, paths["stream"],
-            meta | frames | {"kind": "stream", "label": "decoder (streaming)",
+    export_graph(Recalibrated(stream, STREAM_OUTPUTS + GATE_OUTPUTS, uncertainty).eval(),
+            stream.chunk_samples, paths["stream"],
+            meta | frames | recalibrated | {"kind": "stream", "label": "decoder (streaming)",
                              "outputs": json.dumps(list(STREAM_OUTPUTS)),
                              "inputs": json.dumps(list(STREAM_INPUTS)),
                              "chunk_samples": json.dumps(stream.chunk_samples),

@@ -248,17 +248,24 @@ class BeamTransducer(Structure):
         w2 = eigh(k.real, m, eigvals_only=True, subset_by_index=[0, count - 1])
         return np.sqrt(w2) / (2 * np.pi)
 
-    def _forms(self, omega: np.ndarray, contact=None):
-        """``a, β, δ`` of shape ``(n_freq,)`` or, with ``contact = (n_vectors, k)`` for
-        ``n_vectors (n_contacts, n_dof)``, shape ``(n_contacts, n_freq)``."""
-        k, m, theta = self.matrices()
+    def dynamic_stiffness(self, omega: np.ndarray) -> np.ndarray:
+        """``D(ω) = K - ω² M + jω (αM + βK)``, N/m, shape ``(n_freq, n_dof, n_dof)`` for
+        ``omega`` (rad/s) of shape ``(n_freq,)``: electrodes shorted, tip free."""
+        k, m, _ = self.matrices()
         alpha_r, beta_r = self.rayleigh
-        tip = np.zeros(len(theta))
-        tip[-2] = 1.0
-        w = omega[:, None, None]
+        w = np.asarray(omega)[:, None, None]
         d = k[None] - w**2 * m[None]
         if alpha_r or beta_r:
             d = d + 1j * w * (alpha_r * m + beta_r * k)[None]
+        return d
+
+    def _forms(self, omega: np.ndarray, contact=None):
+        """``a, β, δ`` of shape ``(n_freq,)`` or, with ``contact = (n_vectors, k)`` for
+        ``n_vectors (n_contacts, n_dof)``, shape ``(n_contacts, n_freq)``."""
+        theta = self.matrices()[2]
+        tip = np.zeros(len(theta))
+        tip[-2] = 1.0
+        d = self.dynamic_stiffness(omega)
         # D⁻¹ applied to b, Θ and each contact's n only (one LU per frequency, not an inverse)
         vecs, stiff = contact if contact is not None else (np.zeros((0, len(theta))), None)
         rhs = np.concatenate([tip[None], theta[None], vecs]).T  # (n_dof, 2 + n_contacts)
@@ -311,6 +318,41 @@ class BeamTransducer(Structure):
         stiff = np.broadcast_to(np.asarray(stiffness, dtype=float), (len(vecs),))
         check_range("contact stiffness", stiff, 0.0, np.inf, unit="N/m")
         return self._t_from_forms(omega, *self._forms(omega, (vecs, stiff)))
+
+    def contact_as_tip_load(self, omega, positions, stiffness) -> np.ndarray:
+        """The 2×2 path's stand-in for a shaft contact: the spring seen at the tip through the
+        free structure's deflection under a tip force, ``Zm = ψ² k / (jω)`` with
+        ``ψ(x, ω) = nᵀD⁻¹b / bᵀD⁻¹b`` (the deflection at the contact per tip deflection), so
+        that ``ze_from_zm(T_free, Zm)`` needs T once per frequency and ψ per contact.
+
+        It is exact for a contact at the tip (ψ = 1). Elsewhere, against the exact rank-one
+        update (module docstring, ``a = bᵀGb``): the tip's receptance agrees to first order
+        in k (``k (nᵀGb)²`` both), but the coupling moves by ``k ψ² a β`` instead of
+        ``k (nᵀGb)(nᵀGΘ)`` (the piezo's drive shape at the contact is not the tip force's),
+        and ``1 + k ψ² a`` replaces ``1 + k nᵀGn`` (the contact point's compliance beyond the
+        tip force's shape is left out), so a rigid contact anywhere clamps the tip
+        (``Zm = inf``). What that costs a radial decoder: ``wtml bench models``.
+
+        Args:
+            omega: rad/s, shape ``(n_freq,)``.
+            positions: contact positions, m from the clamp, shape ``(n,)``.
+            stiffness: N/m (``inf`` rigid), broadcast against ``positions``.
+
+        Returns:
+            Zm in N·s/m, complex ``(n, n_freq)`` (``inf`` for a rigid contact).
+        """
+        omega = np.atleast_1d(check_omega(omega))
+        vecs = self.contact_vectors(positions)
+        stiff = np.broadcast_to(np.asarray(stiffness, dtype=float), (len(vecs),))
+        check_range("contact stiffness", stiff, 0.0, np.inf, unit="N/m")
+        tip = np.zeros(vecs.shape[1])
+        tip[-2] = 1.0
+        gb = np.linalg.solve(self.dynamic_stiffness(omega),
+                             np.broadcast_to(tip[:, None], (len(omega), len(tip), 1)))[..., 0]
+        psi = vecs @ gb.T / gb[:, -2]  # (n, n_freq)
+        rigid = np.isinf(stiff)[:, None]
+        zm = np.where(rigid, 0.0, stiff[:, None]) * psi**2 / (1j * omega)
+        return np.where(rigid, np.inf + 0j, zm)
 
     def static_tip_displacement_per_volt(self) -> float:
         """``U/E`` at ω -> 0 with a free tip, m/V (the thesis's HUE(0))."""

@@ -28,6 +28,12 @@ per core. The force of an engaged load is part of the linear system, never fed b
 (explicit feedback is unstable for stiff walls, §9). With a residual compliance ``a_r > 0`` and
 a damped load, ``F`` is a state: ``c a_r F' + (1 + k a_r) F = k (u_m - g) + c u_m'`` where
 ``u_m = φb·q + β_r E``; otherwise it is algebraic.
+
+How many modes: :func:`truncation_errors` measures a truncation against the model with every
+mode kept, as the largest relative error of Ze with the tip free and with it clamped (the two
+limits of any tip load's Ze) over a band; :func:`fewest_modes` picks the fewest modes within a
+tolerance there. A scene's ``n_modes: auto`` uses it over the scene's band with its
+``modes_tolerance`` (``wtml.scenes.modes``, configs/README.md).
 """
 
 from __future__ import annotations
@@ -574,6 +580,73 @@ def _output_at(now_out, now_feed, row, w, ek, ok, b):
     for j in range(w.shape[1]):
         y += now_out[0, row, j, b] * w[0, j, b] - now_out[1, row, j, b] * w[1, j, b]
     return y
+
+
+def ze_limits(t: np.ndarray) -> np.ndarray:
+    """Ze (Ω) of a two-port with its tip free (``t12/t22``) and clamped (``t11/t21``): the two
+    limits of the bilinear map Ze(Zm) (physics.md §2), shape ``t.shape[:-2] + (2,)``."""
+    return np.stack([t[..., 0, 1] / t[..., 1, 1], t[..., 0, 0] / t[..., 1, 0]], -1)
+
+
+def truncation_errors(beam: BeamTransducer, omega, most: int | None = None) -> np.ndarray:
+    """How far the modal model with n = 1, 2, ... modes is from the one with every mode kept
+    (the same modal damping: truncation alone), as the largest relative error over ``omega``
+    of Ze with the tip free and with it clamped (:func:`ze_limits`).
+
+    Args:
+        beam: the full model.
+        omega: rad/s, shape ``(n_freq,)`` (the scene's band).
+        most: the largest n (default: every mode of the beam).
+
+    Returns:
+        shape ``(most,)``: entry n - 1 is n modes' error (relative, 1).
+    """
+    errors = _truncation_errors(beam, omega)
+    if most is not None:
+        check_range("most", most, 1, len(beam.matrices()[2]))
+    return np.array([next(errors) for _ in range(most or len(beam.matrices()[2]))])
+
+
+def fewest_modes(beam: BeamTransducer, omega, tolerance: float) -> tuple[int, np.ndarray]:
+    """``n_modes: auto``: the fewest modes whose model stays within ``tolerance`` of the model
+    with every mode kept over the band ``omega``, by :func:`truncation_errors` (Ze with the tip
+    free and clamped, pointwise relative: the two ends of every tip load's bilinear map
+    Ze(Zm); where a truncated mode's resonance falls in the band, both miss it).
+
+    Static correction makes ω -> 0 exact whatever n (HUE(0) is the beam's), so the band need
+    hold only the frequencies the scene drives and records. The model with every mode is the
+    converged reference of the truncation; the modal damping's own difference from the beam's
+    complex modulus (1.3 % in the micro preset's free Ze at 420 Hz, physics.md §9) is not a
+    truncation error and does not shrink with n. A tolerance on Ze is not one on a decoder
+    trained on another count: ``wtml bench models`` measures both.
+
+    Args:
+        beam: the full model.
+        omega: the band, rad/s, shape ``(n_freq,)``, sampled densely enough to resolve its
+            resonances (log-spaced, a few hundred points per decade).
+        tolerance: the largest relative error allowed, in (0, 1).
+
+    Returns:
+        the count n and the errors of 1..n modes (the last within ``tolerance``, the one
+        before it, where there is one, not).
+    """
+    check_range("tolerance", tolerance, 0.0, 1.0, low_open=True, high_open=True)
+    errors = []
+    for err in _truncation_errors(beam, omega):  # every mode kept: error 0, so it ends
+        errors.append(err)
+        if err <= tolerance:
+            break
+    return len(errors), np.array(errors)
+
+
+def _truncation_errors(beam: BeamTransducer, omega):
+    """Yield :func:`truncation_errors`' entries for n = 1, 2, ... up to every mode."""
+    omega = check_omega(omega)
+    n_dof = len(beam.matrices()[2])
+    full = ze_limits(ModalTransducer.from_beam(beam, n_dof).transduction_matrix(omega))
+    for n in range(1, n_dof + 1):
+        model = ModalTransducer.from_beam(beam, n)
+        yield float(np.max(np.abs(ze_limits(model.transduction_matrix(omega)) / full - 1)))
 
 
 def convergence_table(beam: BeamTransducer, omega, n_modes=(1, 2, 3, 4, 6, 10)) -> list[dict]:

@@ -65,7 +65,11 @@ GRAPH_INPUTS = {("fluid", "decoder"): FLUID_INPUTS, ("fluid", "classical"): FLUI
                 ("onset", "stream"): STREAM_INPUTS,
                 ("texture", "decoder"): TEXTURE_INPUTS, ("texture", "classical"): TEXTURE_INPUTS}
 """Each task's and kind's graph inputs, in order (a kind not listed does not exist)."""
-GRAPH_OUTPUTS = {("fluid", "decoder"): ("eta", "rho"), ("fluid", "classical"): ("eta", "rho"),
+FLUID_SIGMAS = ("eta_log_sigma", "rho_sigma")
+"""The fluid decoder's intervals, after η and ρ: the std of ln η (1) and of ρ (kg/m³), which
+its net has none of; the export adds them (:mod:`wtml.decoders.recalibration`)."""
+GRAPH_OUTPUTS = {("fluid", "decoder"): ("eta", "rho", *FLUID_SIGMAS),
+                 ("fluid", "classical"): ("eta", "rho"),
                  ("radial", "decoder"): ("distance", "sigma"),
                  ("radial", "classical"): ("distance", "sigma"),
                  ("onset", "decoder"): DECODER_OUTPUTS, ("onset", "classical"): ONSET_OUTPUTS,
@@ -146,6 +150,61 @@ class Domain:
 
 
 @dataclass(frozen=True)
+class IntervalRecalibration:
+    """One σ output's recalibration (:mod:`wtml.decoders.recalibration`): output ``sigma`` is
+    the std of output ``value`` (of ln ``value`` where ``log_value``), scaled by
+    ``scales[k]`` in the k-th range of output ``by``'s answer (``edges`` ascending, in
+    ``by``'s unit: range k is ``edges[k-1] <= by < edges[k]``, open at both ends). ``stored``
+    is how the net gave σ before: ``"std"`` (σ × scale), ``"log_std"`` (a log std: + ln
+    scale), ``"none"`` (no σ of its own: σ = scale). Fitted on ``n`` held-out answers in
+    domain (too few: scale 1), whose coverage of ±1σ and ±1.96σ was ``coverage_before``
+    (empty without a σ) and is ``coverage_after`` (empty without answers)."""
+
+    sigma: str
+    value: str
+    by: str
+    log_value: bool
+    stored: str = one_of("std", "log_std", "none")
+    edges: tuple[float, ...] = bounded(-1e300, 1e300, default=())
+    scales: tuple[float, ...] = bounded(1e-30, 1e30, default=())
+    n: int = bounded(0, 10**9, default=0)
+    coverage_before: tuple[float, ...] = bounded(0.0, 1.0, default=())
+    coverage_after: tuple[float, ...] = bounded(0.0, 1.0, default=())
+
+    def check(self, path: str) -> None:
+        if len(self.scales) != len(self.edges) + 1:
+            raise _fail(f"{path}.scales", f"must hold one scale per range, len(edges) + 1 = "
+                        f"{len(self.edges) + 1}, got {len(self.scales)}")
+        if any(b <= a for a, b in zip(self.edges, self.edges[1:], strict=False)):
+            raise _fail(f"{path}.edges", f"must ascend strictly, got {list(self.edges)}")
+        for name in ("coverage_before", "coverage_after"):
+            if len(getattr(self, name)) not in (0, 2):
+                raise _fail(f"{path}.{name}", f"must be [±1σ, ±1.96σ] shares or empty, got "
+                            f"{list(getattr(self, name))}")
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """How a decoder graph's uncertainties were recalibrated after training, on data it did
+    not train on (``fitted_on`` says which): its σ outputs (``intervals``) and, for a
+    classifier, its ``probabilities`` output tempered by ``temperature``, with the expected
+    calibration error on those data before and after. The parameters are constants of the
+    graph (its outputs are the recalibrated values); the metadata states them."""
+
+    fitted_on: str
+    intervals: tuple[IntervalRecalibration, ...] = ()
+    probabilities: str | None = None
+    temperature: float | None = bounded(1e-3, 1e3, default=None)
+    ece_before: float | None = bounded(0.0, 1.0, default=None)
+    ece_after: float | None = bounded(0.0, 1.0, default=None)
+
+    def check(self, path: str) -> None:
+        if (self.probabilities is None) != (self.temperature is None):
+            raise _fail(f"{path}.temperature", "must be given with probabilities (the output "
+                        "it tempers), and only then")
+
+
+@dataclass(frozen=True)
 class GraphMetadata:
     """The metadata every exported graph carries (each key a string in the ONNX file; all but
     :data:`PLAIN` hold JSON)."""
@@ -162,6 +221,8 @@ class GraphMetadata:
     scene: dict = dataclasses.field(default_factory=dict)
     scene_hash: str = ""
     domain: Domain = None  # type: ignore[assignment]  (REQUIRED: always given)
+    uncertainty: Uncertainty | None = None
+    """The decoder's and the stream's: how their σ and probabilities were recalibrated."""
 
     REQUIRED = ("wtml_version", "task", "kind", "inputs", "outputs", "units", "references",
                 "frequency_hz", "scene", "scene_hash", "domain")
@@ -203,6 +264,29 @@ class GraphMetadata:
         extra = sorted(set(outputs) - set(self.outputs))
         if extra:
             raise _fail("domain.outputs", f"{extra[0]!r} is not an output of this graph")
+        self.check_uncertainty()
+
+    def check_uncertainty(self) -> None:
+        """A decoder or stream graph states its recalibration (an export of an older wtml,
+        whose σ and probabilities were not recalibrated, does not: refused), naming outputs
+        of the graph; a classical graph has none."""
+        u = self.uncertainty
+        if self.kind == "classical":
+            if u is not None:
+                raise _fail("uncertainty", "a classical graph has no recalibration")
+            return
+        if u is None:
+            raise _fail("uncertainty", f"missing: this {self.kind} graph does not state how its "
+                        f"σ and probabilities were recalibrated (exported by a wtml before issue "
+                        f"25); {REDO}")
+        for k, r in enumerate(u.intervals):
+            for name in (r.sigma, r.value, r.by):
+                if name not in self.outputs:
+                    raise _fail(f"uncertainty.intervals[{k}]", f"{name!r} is not an output of "
+                                f"this graph ({list(self.outputs)})")
+        if u.probabilities is not None and u.probabilities not in self.outputs:
+            raise _fail("uncertainty.probabilities", f"{u.probabilities!r} is not an output of "
+                        f"this graph")
 
 
 @dataclass(frozen=True)

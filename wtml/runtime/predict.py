@@ -58,8 +58,10 @@ model's metadata; another grid is refused, never interpolated):
 --reference (radial models: required): the free (untouched) whisker's Ze of the device,
   taken when it is set up, on the same grid: .npz with frequency_hz (n_freq,) and ze
   (complex, (n_freq,) for every measurement, or (n, n_freq) one per measurement).
-Fluid models return eta (Pa*s) and rho (kg/m^3); radial models distance (m from the tip)
-and sigma (m, the decoder's std; NaN out of domain).
+Fluid models return eta (Pa*s) and rho (kg/m^3), the decoder also eta_log_sigma (the std of
+ln eta) and rho_sigma (kg/m^3); radial models distance (m from the tip) and sigma (m, the
+decoder's std). A decoder's stds are recalibrated on held-out data (the metadata's
+uncertainty) and NaN out of domain.
 Fluid and texture models also need the device's calibration (--calibration): .npz with
 frequency_hz (n_freq,) on the model's grid (texture: its metadata's calibration_hz) and t, the
 calibrated T (complex, (n_freq, 2, 2) for every measurement, or (n, n_freq, 2, 2) one per
@@ -145,6 +147,8 @@ class OnnxModel:
         self.domain = parse_json(self.metadata["domain"], f"{path}: domain", infinity=True)
         self.references = dict(self.meta.references)
         """What the graph needs besides the measurement, ``{name: description}``."""
+        self.uncertainty = self.meta.uncertainty
+        """How the graph's σ and probabilities were recalibrated (None: a classical path)."""
         self.name = f"{self.meta.label or self.meta.kind} ONNX"
         self._inputs = [i.name for i in self.session.get_inputs()]
 

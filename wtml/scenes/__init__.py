@@ -5,6 +5,7 @@ from pathlib import Path
 from typing import Any
 
 from wtml.scenes.fluid import FluidScene
+from wtml.scenes.modes import auto_request, with_auto_modes
 from wtml.scenes.onset import OnsetScene
 from wtml.scenes.radial import RadialScene
 from wtml.scenes.texture import TextureScene
@@ -77,8 +78,9 @@ def beside(folder: Path, data: Any) -> Any:
 def scene_from_dict(data: Any, path: str = ""
                     ) -> FluidScene | RadialScene | OnsetScene | TextureScene:
     """Rebuild a scene from a mapping (a scene YAML's, or the one stored in a manifest); its
-    ``task`` key picks the class (default ``fluid``). Errors are :class:`SceneError` starting
-    with the key path under ``path`` (``scene.samples: ...``), whatever ``data`` is."""
+    ``task`` key picks the class (default ``fluid``); ``n_modes: auto`` is resolved to a count
+    here (:mod:`wtml.scenes.modes`). Errors are :class:`SceneError` starting with the key path
+    under ``path`` (``scene.samples: ...``), whatever ``data`` is."""
     if not isinstance(data, Mapping):
         raise SceneError(f"{path or 'scene'}: must be a mapping of a scene's keys, got "
                          f"{type(data).__name__}")
@@ -86,7 +88,9 @@ def scene_from_dict(data: Any, path: str = ""
     if not isinstance(task, str) or task not in SCENES:
         raise SceneError(f"{path + '.' if path else ''}task: must be one of {sorted(SCENES)}, "
                          f"got {task!r:.80}")
-    return build(SCENES[task], legacy_keys(data), path)
+    data, auto = auto_request(SCENES[task], legacy_keys(data), path)  # n_modes: auto
+    scene = build(SCENES[task], data, path)
+    return scene if auto is None else with_auto_modes(scene, auto, path)
 
 
 def device_of(scene: Any) -> Any:

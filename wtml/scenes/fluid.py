@@ -24,6 +24,7 @@ All spreads zero (the dataclass default) draws nothing: the records are today's,
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -36,6 +37,8 @@ from wtml.physics import cascade, tip_mass, ze_from_zm
 from wtml.physics.fluids import glycerol_water, water
 from wtml.physics.loads import stokes_sphere
 from wtml.physics.lumped import LumpedTransducer
+from wtml.physics.twoport import flat_parts
+from wtml.physics.validation import check_range
 from wtml.schema import SceneError, bounded, one_of
 from wtml.signals import complex_noise
 
@@ -178,6 +181,8 @@ class FluidScene:
     OUTPUTS: ClassVar[tuple[str, ...]] = ("eta", "rho")
     """What a fluid decoder returns, each ``(batch,)``."""
     UNITS: ClassVar[dict[str, str]] = {"eta": "Pa*s", "rho": "kg/m^3"}
+    INPUT_KEYS: ClassVar[tuple[str, ...]] = ("ze", "ze", "t", "t")
+    """The array each of :meth:`decoder_inputs` comes from."""
 
     name: str = "fluid"
     task: str = one_of("fluid", default="fluid")
@@ -191,6 +196,23 @@ class FluidScene:
     noise: NoiseSpec = field(default_factory=NoiseSpec)
     nuisance: NuisanceSpec = field(default_factory=NuisanceSpec)
     spread: DeviceSpread = field(default_factory=DeviceSpread)
+
+    @staticmethod
+    def decoder_inputs(arrays: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """What the decoder and the exported graphs take, from a dataset's (or
+        :meth:`simulate`'s) arrays: ``ze_re, ze_im`` ``(n, n_freq)`` Ω and each record's
+        calibrated T as ``t_re, t_im`` ``(n, n_freq, 4)`` float32 (t11, t12, t21, t22)."""
+        return arrays["ze"].real, arrays["ze"].imag, *flat_parts(arrays["t"])
+
+    @staticmethod
+    def targets(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The training targets, ``(n, 2)``: log10 of η (Pa·s) and ρ (kg/m³)."""
+        return np.stack([np.log10(arrays["eta"]), arrays["rho"]], -1)
+
+    @staticmethod
+    def target_keys(n_targets: int) -> tuple[str, ...]:
+        """The array each of the ``n_targets`` columns of :meth:`targets` comes from."""
+        return ("eta", "rho")
 
     def check(self, path: str) -> None:
         p = path + "." if path else ""
@@ -235,8 +257,13 @@ class FluidScene:
         return float(np.abs(stokes_sphere(*water(25.0), self.sphere.radius,
                                           0.5 * (omega[0] + omega[-1]))))
 
-    def simulate(self, n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """``n`` samples.
+    def simulate(self, n: int, rng: np.random.Generator, *,
+                 properties: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> dict[str, np.ndarray]:
+        """``n`` samples; ``properties`` (η Pa·s, ρ kg/m³, each broadcast to ``(n,)``) fixes
+        the fluid instead of drawing it from the scene's glycerol–water range (a fluid outside
+        it: air, a paste; the prior's draws are still made, so the nuisance is the one drawn
+        without it, and ``volume_fraction``, ``temperature_c`` are NaN).
 
         Returns:
             ``ze`` (n, n_freq) complex128 in Ω and ``t`` (n, n_freq, 2, 2) complex128, each
@@ -249,6 +276,14 @@ class FluidScene:
         cv = rng.uniform(*self.fluid.volume_fraction, n)
         temp = rng.uniform(*self.fluid.temperature_c, n)
         eta, rho = glycerol_water(cv, temp)
+        if properties is not None:
+            eta, rho = (np.broadcast_to(np.asarray(x, dtype=float), (n,)).copy()
+                        for x in properties)
+            check_range("properties eta", eta, 0.0, np.inf, unit="Pa·s", low_open=True,
+                        high_open=True)
+            check_range("properties rho", rho, 0.0, np.inf, unit="kg/m³", low_open=True,
+                        high_open=True)
+            cv, temp = np.full(n, np.nan), np.full(n, np.nan)
         sigma = self.nuisance.calibration_error / np.sqrt(2)
         alpha = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
         beta = sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))

@@ -39,6 +39,7 @@ record at the defaults.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -180,6 +181,15 @@ class WallSpec:
             raise SceneError(f"{path}.friction: low {lo:g} above high {hi:g}")
 
 
+def onset_calibration(arrays: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    """Each onset record's calibration as the decoder's graph takes it
+    (``wtml.decoders.onset.CALIBRATION``): ``t_re, t_im`` ``(n, 4)`` (its device's T at the
+    probe, flattened t11, t12, t21, t22) and ``hue0`` ``(n,)`` m/V, from a dataset's (or
+    :meth:`OnsetScene.simulate`'s) ``t_probe`` ``(n, 2, 2)`` and ``hue0`` ``(n,)``."""
+    t = np.asarray(arrays["t_probe"]).reshape(-1, 4)
+    return t.real, t.imag, np.asarray(arrays["hue0"], float)
+
+
 @dataclass(frozen=True)
 class OnsetScene:
     """A contact-onset scene (``configs/scenes/onset.yaml``)."""
@@ -188,6 +198,8 @@ class OnsetScene:
     """What an onset decoder returns per record, each ``(batch,)``: the wall's location g and
     the decoder's own std of it; the contact intervals come beside them."""
     UNITS: ClassVar[dict[str, str]] = {"gap": "m", "sigma": "m"}
+    INPUT_KEYS: ClassVar[tuple[str, ...]] = ("e", "i", "t_probe", "t_probe", "hue0")
+    """The array each of :meth:`decoder_inputs` comes from."""
 
     name: str = "onset"
     task: str = one_of("onset", default="onset")
@@ -207,6 +219,27 @@ class OnsetScene:
     """The device's own calibration (``wtml calibrate --hue0``'s ``.npz``, over the probe
     frequency): the T at the probe and the HUE(0) every record carries, instead of the model's
     with ``calibration_error``; the records still come from the device's model."""
+
+    @staticmethod
+    def decoder_inputs(arrays: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """What the decoder takes, from a dataset's (or :meth:`simulate`'s) arrays: ``e``
+        (V), ``i`` (A), each ``(n, n_samples)``, then each record's calibration
+        (:func:`onset_calibration`)."""
+        return arrays["e"], arrays["i"], *onset_calibration(arrays)
+
+    @staticmethod
+    def targets(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The training targets, ``(n, 2 + 2 max_contacts)``: ``gap`` (m), the contacts'
+        ``onset`` then ``detachment`` times (s; NaN-padded, and ``gap`` NaN without a wall)
+        and ``coupling``."""
+        return np.concatenate([arrays["gap"][:, None], arrays["onset"], arrays["detachment"],
+                               arrays["coupling"][:, None]], 1)
+
+    @staticmethod
+    def target_keys(n_targets: int) -> tuple[str, ...]:
+        """The array each of the ``n_targets`` columns of :meth:`targets` comes from."""
+        c = (n_targets - 2) // 2
+        return ("gap", *["onset"] * c, *["detachment"] * c, "coupling")
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
@@ -232,6 +265,12 @@ class OnsetScene:
         """The calibrated modal model of the preset, or of a device off it (``factors``: each
         named parameter's actual / nominal, ``wtml.physics.spread.draw_factors``)."""
         return ModalTransducer.from_beam(build(self.device, factors=factors), self.n_modes)
+
+    def modal_band_hz(self) -> tuple[float, float]:
+        """The band (Hz) that ``n_modes: auto`` holds the modal model to
+        (:mod:`wtml.scenes.modes`): the whisk's tone up to 10 % above the probe's, where the
+        decoders read Zm (the probe band of the thesis's pipeline, ±10 %)."""
+        return self.drive.whisk_hz, 1.1 * self.drive.probe_hz
 
     def calibrated(self, model: ModalTransducer) -> tuple[np.ndarray, float]:
         """What a user measures on the device ``model`` when calibrating it: its T at the

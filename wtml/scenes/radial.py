@@ -25,6 +25,7 @@ for draw.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -50,6 +51,11 @@ class ToneSpec:
     def check(self, path: str) -> None:
         if not self.frequencies_hz:
             raise SceneError(f"{path}.frequencies_hz: needs at least one frequency")
+
+    @property
+    def frequency_hz(self) -> np.ndarray:
+        """The tones, ``(n_freq,)`` Hz."""
+        return np.asarray(self.frequencies_hz)
 
     @property
     def omega(self) -> np.ndarray:
@@ -87,6 +93,8 @@ class RadialScene:
     """What a radial decoder returns, each ``(batch,)``: the contact's distance from the tip
     and the decoder's own std of it (0 where it has none)."""
     UNITS: ClassVar[dict[str, str]] = {"distance": "m", "sigma": "m"}
+    INPUT_KEYS: ClassVar[tuple[str, ...]] = ("ze", "ze", "ref", "ref")
+    """The array each of :meth:`decoder_inputs` comes from."""
 
     name: str = "radial"
     task: str = one_of("radial", default="radial")
@@ -98,6 +106,23 @@ class RadialScene:
     contact: ContactSpec = field(default_factory=ContactSpec)
     noise: RadialNoise = field(default_factory=RadialNoise)
     spread: DeviceSpread = field(default_factory=DeviceSpread)
+
+    @staticmethod
+    def decoder_inputs(arrays: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """What the decoder and the exported graphs take, from a dataset's (or
+        :meth:`simulate`'s) arrays: ``ze_re, ze_im`` and ``ref_re, ref_im`` (the free
+        whisker's Ze of the record's device, the user's reference), each ``(n, n_freq)`` Ω."""
+        return arrays["ze"].real, arrays["ze"].imag, arrays["ref"].real, arrays["ref"].imag
+
+    @staticmethod
+    def targets(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The training targets, ``(n, 1)``: the contact's distance from the tip, m."""
+        return arrays["distance"][:, None]
+
+    @staticmethod
+    def target_keys(n_targets: int) -> tuple[str, ...]:
+        """The array each of the ``n_targets`` columns of :meth:`targets` comes from."""
+        return ("distance",)
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""

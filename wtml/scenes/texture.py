@@ -38,6 +38,7 @@ float32 ``(n, n_samples)``, 2 × 4 bytes × 51200 = 410 kB per 1 s record.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
@@ -51,6 +52,7 @@ from wtml.physics.beam_presets import build
 from wtml.physics.friction import LAWS, Friction, grains, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.physics.spread import DeviceSpread, draw_factors
+from wtml.physics.twoport import flat_parts
 from wtml.scenes.onset import Acquisition, check_shard_memory
 from wtml.schema import SceneError, bounded, mixture, one_of
 from wtml.signals.excitation import lead_in
@@ -63,6 +65,9 @@ FEPA_GRADES = {"P2500": 8.4, "P2000": 10.3, "P1500": 12.6, "P1000": 18.3, "P600"
 TABLE_4_10_RMS_SPEED = {"P1200": 0.361, "P800": 0.335, "P400": 0.293, "P320": 0.242,
                         "P280": 0.213}
 """The thesis's RMS tip speed per grade at 10 V, 36 Hz (Table 4.10), m/s."""
+SPECTRUM_TOP_HZ = 1e4
+"""Hz: the top of the thesis's measured texture spectra (Table 4.11's peaks reach 9.39 kHz),
+the band's top for ``n_modes: auto``."""
 NOMINAL_V, NOMINAL_HZ, NOMINAL_N, NOMINAL_ANGLE_DEG = 10.0, 36.0, 3.3e-4, 10.0
 """The thesis's set-up (§4.5): drive amplitude V, whisking frequency Hz, normal force N and
 contact angle, degrees."""
@@ -209,6 +214,8 @@ class TextureScene:
     """What a texture decoder returns per window: the mean grain size (m), the std of its
     natural log, and the five thesis grades' probabilities ``(batch, 5)``."""
     UNITS: ClassVar[dict[str, str]] = {"grain": "m", "log_sigma": "1", "probabilities": "1"}
+    INPUT_KEYS: ClassVar[tuple[str, ...]] = ("e", "i", "t", "t")
+    """The array each of :meth:`decoder_inputs` comes from."""
 
     name: str = "texture"
     task: str = one_of("texture", default="texture")
@@ -237,6 +244,24 @@ class TextureScene:
     land on the step grid: at 102.4 kS/s halving the step moves the current's phasor by less
     than a 0.25 s window's noise, at 51.2 kS/s by about twice it); records are then decimated
     by a polyphase FIR (``scipy.signal.resample_poly``)."""
+
+    @staticmethod
+    def decoder_inputs(arrays: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+        """What the decoder takes, from a dataset's (or :meth:`simulate`'s) arrays: ``e``
+        (V), ``i`` (A), each ``(n, n_samples)``, and each record's calibrated T at the
+        scene's :attr:`calibration_hz` as ``t_re, t_im`` ``(n, n_cal, 4)`` float32 (t11, t12,
+        t21, t22)."""
+        return arrays["e"], arrays["i"], *flat_parts(arrays["t"])
+
+    @staticmethod
+    def targets(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The training targets, ``(n, 2)``: the grade's class index and the grain size, m."""
+        return np.stack([arrays["grade"], arrays["grain_m"]], -1)
+
+    @staticmethod
+    def target_keys(n_targets: int) -> tuple[str, ...]:
+        """The array each of the ``n_targets`` columns of :meth:`targets` comes from."""
+        return ("grade", "grain_m")
 
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
@@ -294,6 +319,13 @@ class TextureScene:
         """The calibrated modal model: the preset's, or with ``factors`` (actual / nominal,
         :func:`~wtml.physics.spread.draw_factors`) a device off it."""
         return ModalTransducer.from_beam(build(self.device, factors=factors), self.n_modes)
+
+    def modal_band_hz(self) -> tuple[float, float]:
+        """The band (Hz) that ``n_modes: auto`` holds the modal model to
+        (:mod:`wtml.scenes.modes`): the slowest whisk up to :data:`SPECTRUM_TOP_HZ` (or the
+        sampling rate's Nyquist, if lower), where friction excites the structure's modes."""
+        top = min(SPECTRUM_TOP_HZ, self.acquisition.sample_rate_hz / 2)
+        return self.drive.whisk_hz[0], top
 
     CALIBRATION_POINTS: ClassVar[int] = 5
 

@@ -1,0 +1,202 @@
+"""Honest uncertainty (issue 25 §4): the coverage and calibration measures of
+``wtml bench coverage`` on synthetic answers whose truth is known, the recalibrations of
+``wtml.decoders.recalibration``, and the recalibrated graphs: ONNX against torch, and old
+exports refused."""
+
+import json
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+from torch import nn
+
+from wtml.bench.coverage import by_range, coverage_cell, ece_floor, hits, wilson
+from wtml.decoders.domain import DomainGate, Gated, ZeParts
+from wtml.decoders.recalibration import (
+    NOMINAL,
+    Recalibrated,
+    best_scale,
+    expected_calibration_error,
+    fit_scales,
+    fit_temperature,
+    fit_uncertainty,
+    metadata,
+    tempered,
+)
+from wtml.exporters.graphs import export_graph
+from wtml.runtime import metadata as md
+from wtml.schema import SchemaError, build
+
+
+def gaussian_answers(rng, n: int = 40000):
+    """Heteroscedastic answers: σ log-uniform over a decade, errors N(0, σ²)."""
+    sigma = np.exp(rng.uniform(np.log(0.1), np.log(1.0), n))
+    truth = rng.uniform(0.0, 1.0, n)
+    return truth, sigma * rng.standard_normal(n), sigma
+
+
+def test_coverage_recovers_the_nominal_rates_of_an_honest_sigma(rng):
+    truth, err, sigma = gaussian_answers(rng)
+    cells = by_range(hits(err, sigma), truth, np.linspace(0, 1, 6))
+    for c in cells:  # every quintile and all
+        assert c["verdict"] == ["ok", "ok"]
+        for share, nominal, (lo, hi) in zip(c["cover"], NOMINAL, c["interval"], strict=True):
+            assert abs(share - nominal) < 0.02 and lo <= nominal <= hi
+
+
+def test_a_sigma_too_small_by_two_is_a_miss_in_every_range(rng):
+    truth, err, sigma = gaussian_answers(rng)
+    cells = by_range(hits(err, sigma / 2), truth, np.linspace(0, 1, 6))
+    for c in cells:
+        assert c["verdict"] == ["miss", "miss"]
+        # Φ(±0.5) and Φ(±0.98): 38.3 % and 67.3 %
+        assert abs(c["cover"][0] - 0.383) < 0.03 and abs(c["cover"][1] - 0.673) < 0.03
+
+
+def test_too_few_answers_to_tell_are_marked_so_and_no_interval_is_not_counted(rng):
+    # 6 and 9 of 10 answers inside: 8 and 5 points off, yet within sampling of 10
+    covered = np.stack([np.arange(10) < 6, np.arange(10) < 9], 1).astype(float)
+    c = coverage_cell(covered)
+    assert c["cover"] == [0.6, 0.9] and c["verdict"] == ["?", "?"]
+    assert coverage_cell(np.tile(covered, (100, 1)))["verdict"] == ["miss", "miss"]
+    truth, err, sigma = gaussian_answers(rng, 12)
+    sigma[:5] = np.nan  # out of domain: no interval
+    assert coverage_cell(hits(err, sigma))["n"] == 7
+    lo, hi = wilson(7, 10)
+    assert lo < 0.7 < hi and wilson(0, 0) == (0.0, 1.0)
+
+
+def test_a_scale_fitted_on_held_out_answers_restores_the_coverage(rng):
+    """σ too small by 2× overall, and by 1.5× or 3× depending on the range: the scales per
+    range of the answer bring fresh answers back to nominal in every range."""
+    truth, err, sigma = gaussian_answers(rng)
+    assert best_scale(np.abs(err) / (sigma / 2)) == pytest.approx(2.0, rel=0.03)
+    wrong = np.where(truth < 0.5, 1.5, 3.0)
+    edges, scales = fit_scales(err, sigma / wrong, truth + 0.01 * err, 2)
+    assert len(edges) == 1 and abs(edges[0] - 0.5) < 0.02
+    assert scales == pytest.approx([1.5, 3.0], rel=0.04)
+    # too few answers in domain to fit (a decoder that flags nearly all): σ left as it is
+    assert [len(x) for x in fit_scales(err[:30], sigma[:30], truth[:30], 3)] == [0, 1]
+    truth2, err2, sigma2 = gaussian_answers(np.random.default_rng(1))
+    back = sigma2 / np.where(truth2 < 0.5, 1.5, 3.0) * scales[(truth2 >= edges[0]).astype(int)]
+    for c in by_range(hits(err2, back), truth2, np.linspace(0, 1, 6)):
+        assert c["verdict"] == ["ok", "ok"]
+
+
+def synthetic_classifier(rng, n: int, sharpen: float = 1.0):
+    """Probabilities from random logits, labels drawn from them (a calibrated classifier);
+    ``sharpen`` > 1: the same labels under logits × sharpen (over-confident)."""
+    logits = rng.normal(0.0, 1.5, (n, 5))
+    p = torch.softmax(torch.tensor(logits), -1).numpy()
+    labels = (p.cumsum(1) < rng.random(n)[:, None]).sum(1)
+    return torch.softmax(torch.tensor(sharpen * logits), -1).numpy(), labels
+
+
+def test_ece_of_a_calibrated_classifier_is_near_zero_and_of_an_overconfident_one_is_not(rng):
+    p, labels = synthetic_classifier(rng, 50000)
+    ece, curve = expected_calibration_error(p, labels)
+    assert ece < 0.01 and curve["count"].sum() == 50000
+    assert ece < ece_floor(p.max(1), draws=50)[1] * 2
+    sharp, labels = synthetic_classifier(rng, 50000, sharpen=3.0)
+    assert expected_calibration_error(sharp, labels)[0] > 0.05
+
+
+def test_temperature_scaling_lowers_the_ece_of_an_overconfident_classifier(rng):
+    p, labels = synthetic_classifier(rng, 20000, sharpen=3.0)
+    t = fit_temperature(p[:10000], labels[:10000])
+    assert t == pytest.approx(3.0, rel=0.1)
+    before = expected_calibration_error(p[10000:], labels[10000:])[0]
+    after = expected_calibration_error(tempered(p[10000:], t), labels[10000:])[0]
+    assert after < 0.025 and 0.05 < before and after < before / 4
+    assert np.array_equal(tempered(p, t).argmax(1), p.argmax(1))  # the answer stays
+
+
+class Toy(nn.Module):
+    """A stand-in decoder: a value, its std, a log std and class probabilities from
+    ``(x, y)`` ``(batch, 3)``."""
+
+    def forward(self, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        value = x.sum(-1)
+        return (value, torch.exp(y.mean(-1)), y[:, 0] - 1.0,
+                torch.softmax(torch.stack([x[:, 0], y[:, 1], x[:, 2] - y[:, 2]], -1) * 4, -1))
+
+
+def test_a_recalibrated_graph_gives_the_same_sigmas_and_probabilities_in_onnx_and_torch(
+        rng, tmp_path):
+    names = ("value", "sigma", "log_sigma", "probabilities")
+    x = rng.normal(0, 1, (4000, 3)).astype(np.float32)
+    y = rng.normal(0, 0.3, (4000, 3)).astype(np.float32)
+    net = Toy()
+    with torch.no_grad():
+        out = {k: v.double().numpy() for k, v in zip(names, net(torch.tensor(x),
+                                                                torch.tensor(y)), strict=True)}
+    # truths whose errors are 2× the net's σ, 3× its exp(log σ), and a second value without σ
+    truth = {"value": out["value"] - 2 * out["sigma"] * rng.standard_normal(4000)}
+    specs = [{"sigma": "sigma", "value": "value", "by": "value", "log_value": False,
+              "stored": "std"},
+             {"sigma": "log_sigma", "value": "value", "by": "value", "log_value": False,
+              "stored": "log_std"},
+             {"sigma": "value_sigma", "value": "value", "by": "value", "log_value": False,
+              "stored": "none"}]
+    labels = (out["probabilities"].cumsum(1) < rng.random(4000)[:, None]).sum(1)
+    u = fit_uncertainty(out, truth, specs, 3, "synthetic", "probabilities", labels)
+    assert len(u.intervals[0].scales) == 3 and u.temperature is not None
+    assert build(md.Uncertainty, json.loads(metadata(u))) == u  # what the export writes
+    graph = Recalibrated(net, names, u).eval()
+    assert graph.outputs == (*names, "value_sigma")
+    gated = Gated(graph, DomainGate(ZeParts(), 6), (1, 2, 4)).eval()  # every input inside
+    path = tmp_path / "toy.onnx"
+    export_graph(gated, 3, path, {"outputs": json.dumps(list(graph.outputs))}, ("x", "y"),
+                 optimize=False)
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    got = session.run(None, {"x": x, "y": y})
+    with torch.no_grad():
+        want = [t.numpy() for t in gated(torch.tensor(x), torch.tensor(y))]
+    assert len(got) == len(want) == 7 and got[-2].all()
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, w, rtol=2e-5, atol=1e-7)
+    # σ scaled per range of the answer, in both
+    r = u.intervals[0]
+    which = np.searchsorted(r.edges, out["value"], side="right")
+    np.testing.assert_allclose(got[1], out["sigma"] * np.array(r.scales)[which], rtol=2e-5)
+    np.testing.assert_allclose(got[4], np.array(u.intervals[2].scales)[which], rtol=2e-5)
+    np.testing.assert_allclose(got[3], tempered(out["probabilities"], u.temperature),
+                               atol=2e-5)
+
+
+def test_a_fluid_export_carries_its_intervals_and_an_old_one_is_refused(flow):
+    """The fluid decoder's graph adds the std of ln η and of ρ, per range of η, and says so in
+    its metadata; a decoder graph without ``uncertainty`` (an export of a wtml before issue
+    25) is refused, naming the key."""
+    from wtml.decoders.fluid import load_fluid_net
+    from wtml.runtime.predict import load_export
+    from wtml.scenes import scene_from_dict
+
+    folder = flow[0] / "export"
+    decoder, classical = load_export(folder)
+    assert decoder.outputs == ["eta", "rho", *md.FLUID_SIGMAS]
+    assert classical.outputs == ["eta", "rho"] and classical.uncertainty is None
+    u = decoder.uncertainty
+    assert [r.sigma for r in u.intervals] == list(md.FLUID_SIGMAS)
+    assert all(r.stored == "none" and r.by == "eta" for r in u.intervals)
+    net, scene = load_fluid_net(str(flow[1]))
+    data = scene_from_dict(scene).simulate(200, np.random.default_rng(5))
+    from wtml.physics.twoport import flat_parts
+
+    inputs = (data["ze"].real, data["ze"].imag, *flat_parts(data["t"]))
+    got = decoder.run(*inputs)
+    with torch.no_grad():
+        want = Recalibrated(net, ("eta", "rho"), u)(
+            *(torch.tensor(np.asarray(a), dtype=torch.float32) for a in inputs))
+    for name, w in zip(decoder.outputs, want, strict=True):
+        inside = got["in_domain"]
+        np.testing.assert_allclose(got[name][inside], w.numpy()[inside], rtol=2e-4)
+        assert np.isnan(got[name][~inside]).all() or name in ("eta", "rho")
+    props = dict(decoder.metadata)
+    del props["uncertainty"]
+    with pytest.raises(SchemaError, match="metadata uncertainty: missing.*export it again"):
+        md.graph_metadata(props, "model.onnx")
+    with pytest.raises(SchemaError, match="a classical graph has no recalibration"):
+        md.graph_metadata(dict(classical.metadata) | {"uncertainty": decoder.metadata[
+            "uncertainty"]}, "classical.onnx")

@@ -1,0 +1,118 @@
+"""``n_modes: auto`` (wtml.scenes.modes, wtml.physics.modal.fewest_modes), the 2×2 path's
+stand-in for a shaft contact (BeamTransducer.contact_as_tip_load) and ``wtml bench models``'
+modal table on a tiny onset export."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.conftest import ROOT
+from wtml.physics import ze_from_zm
+from wtml.physics.beam_presets import build
+from wtml.physics.modal import fewest_modes, truncation_errors
+from wtml.scenes import config_hash, scene_from_dict
+from wtml.scenes.modes import DEFAULT_TOLERANCE, band_omega
+from wtml.schema import SceneError, yaml_load
+
+
+def shipped(name: str) -> dict:
+    return yaml_load((ROOT / f"configs/scenes/{name}.yaml").read_text())
+
+
+@pytest.mark.parametrize("name", ["onset", "texture"])
+def test_auto_picks_the_fewest_modes_within_the_tolerance(name):
+    """The count meets the tolerance over the scene's band; one mode fewer does not; the
+    scene is the one that names the count (same hash); a tighter tolerance needs more."""
+    data = shipped(name)
+    scene = scene_from_dict(data | {"n_modes": "auto"})
+    n = scene.n_modes
+    errors = truncation_errors(build(scene.device), band_omega(scene.modal_band_hz()), n)
+    assert errors[n - 1] <= DEFAULT_TOLERANCE < errors[n - 2]
+    assert config_hash(scene) == config_hash(scene_from_dict(data | {"n_modes": n}))
+    tight = scene_from_dict(data | {"n_modes": "auto", "modes_tolerance": 1e-4})
+    assert tight.n_modes > n
+    narrow = scene_from_dict(data | {"n_modes": "auto", "modes_band_hz": [30.0, 40.0]})
+    assert narrow.n_modes <= n
+
+
+def test_fewest_modes_returns_the_errors_it_stopped_at():
+    beam = build("micro")
+    omega = 2 * np.pi * np.geomspace(300.0, 3000.0, 300)  # holds the 1.56 and 2.53 kHz modes
+    n, errors = fewest_modes(beam, omega, 1e-3)
+    assert len(errors) == n and errors[-1] <= 1e-3 < errors[:-1].min()
+    np.testing.assert_allclose(errors, truncation_errors(beam, omega, n))
+    assert n >= 3  # a mode inside the band cannot be left out
+    with pytest.raises(ValueError, match=r"tolerance must be in \(0, 1\)"):
+        fewest_modes(beam, omega, 0.0)
+
+
+@pytest.mark.parametrize("change,needle", [
+    ({"n_modes": "all"}, r"n_modes: must be an integer in \[1, 40\] or 'auto', got 'all'"),
+    ({"n_modes": "auto", "modes_tolerance": -0.1}, r"modes_tolerance: must be in \[1e-08, 0.5\]"),
+    ({"n_modes": "auto", "modes_tolerance": "tight"}, "modes_tolerance: must be a number"),
+    ({"n_modes": 3, "modes_tolerance": 0.01}, "modes_tolerance: only with n_modes: auto"),
+    ({"modes_band_hz": [1.0, 500.0]}, "modes_band_hz: only with n_modes: auto"),
+    ({"n_modes": "auto", "modes_band_hz": [500.0, 100.0]}, "modes_band_hz: low 500 is above"),
+    ({"n_modes": "auto", "modes_band_hz": [100.0, 100.0]}, "must be below high"),
+    ({"n_modes": "auto", "modes_band_hz": [0.0, 100.0]}, r"modes_band_hz\[0\]: must be in"),
+])
+def test_bad_auto_values_are_refused_naming_the_key(change, needle):
+    with pytest.raises(SceneError, match=needle):
+        scene_from_dict(shipped("onset") | change)
+
+
+def test_auto_is_refused_where_a_scene_has_no_modes_and_past_the_largest_count():
+    with pytest.raises(SceneError, match="n_modes: unknown key"):
+        scene_from_dict({"task": "radial", "n_modes": "auto"})
+    with pytest.raises(SceneError, match="modes_tolerance: unknown key"):
+        scene_from_dict({"task": "radial", "modes_tolerance": 0.01})
+    # the macro beam has 44 modes; the whole band to 20 kHz at 1e-8 needs more than 40
+    with pytest.raises(SceneError, match="n_modes: auto needs .* more than the 40"):
+        scene_from_dict(shipped("texture") | {"n_modes": "auto", "modes_tolerance": 1e-8,
+                                              "modes_band_hz": [30.0, 2e4]})
+
+
+def test_a_contact_as_a_tip_load_is_exact_at_the_tip_only():
+    """At the tip the contact is a tip load (the beam's rank-one update and the 2×2 map
+    agree to rounding); on the shaft the 2×2 path, through the free shape under a tip force,
+    clamps the tip for a stiff contact (tens of % in Ze) and gives the clamped Ze ``t11/t21``
+    for a rigid one."""
+    beam = build("micro")
+    omega = 2 * np.pi * np.array([380.0, 420.0, 460.0])
+    t = beam.transduction_matrix(omega)
+
+    def both(d, k):
+        exact = beam.contact_transduction_matrix(omega, [beam.length - d], k)[0]
+        lumped = ze_from_zm(t, beam.contact_as_tip_load(omega, [beam.length - d], k)[0])
+        return exact[:, 0, 1] / exact[:, 1, 1], lumped
+
+    for k in (1e3, 1e5, np.inf):
+        exact, lumped = both(0.0, k)
+        np.testing.assert_allclose(lumped, exact, rtol=1e-9)
+        exact, lumped = both(1.5e-3, k)
+        assert np.max(np.abs(lumped / exact - 1)) > 0.1
+    zm = beam.contact_as_tip_load(omega, [beam.length - 1.5e-3], np.inf)
+    assert np.all(np.isinf(zm))
+    np.testing.assert_allclose(ze_from_zm(t, zm)[0], t[:, 0, 0] / t[:, 1, 0], rtol=1e-12)
+    # even a contact far softer than the whisker there is off, at first order in k: the
+    # tip load moves the coupling β through the tip force's shape ψ, the contact through
+    # the piezo's own drive shape at the contact, nᵀGΘ ≠ ψ β
+    exact, lumped = both(1.5e-3, 1e-3)
+    free = t[:, 0, 1] / t[:, 1, 1]
+    assert np.max(np.abs(exact / free - 1)) < 1e-3  # a small change of Ze
+    assert np.min(np.abs(lumped - exact) / np.abs(exact - free)) > 0.1  # of which 10 % wrong
+
+
+def test_modal_table_on_a_tiny_onset_export(onset_export):
+    """More modes: a smaller truncation error and records closer to the reference's; the
+    reference's own difference is 0; the scene's count and the auto count are rows."""
+    from wtml.bench.model_cost import modal_cost
+
+    r = modal_cost(onset_export["model"], records=5, counts=(1, 3), threads=1)
+    rows = {x["n_modes"]: x for x in r["rows"]}
+    assert r["reference"] == 3 and set(rows) >= {1, 3, r["auto"]["n_modes"]}
+    assert rows[3]["current_difference"] == 0 and rows[1]["current_difference"] > 1e-3
+    assert rows[1]["truncation_error"] > rows[3]["truncation_error"]
+    assert any(x["scene"] for x in r["rows"]) and any(x["auto"] for x in r["rows"])
+    assert all(0 <= x["flagged"] <= 1 and x["real_time"] > 0 for x in r["rows"])

@@ -1,0 +1,494 @@
+"""``wtml bench coverage``: whether every decoder's uncertainty is honest (issue 25 §4).
+
+Per regression decoder and interval (radial distance, onset gap, fluid ln η and ρ, texture ln
+grain size), the empirical coverage of ±1σ and ±1.96σ (nominal 68.27 % and 95 %), overall
+and per range of the target (quintiles of the test shard's truth, the same ranges on every
+row), on the held-out test shard, on fresh records of the trained scene and on the held-out
+physics its task's benches score: fluid, devices off the trained spread (issue 21's, the
+sphere's radius); radial, devices off the preset and invalid contacts; onset, each contact
+law alone, the wall's friction, each acquisition effect alone and the independent simulator;
+texture, each friction law alone and each acquisition effect alone. Each row twice: the
+checkpoint's own σ (where it has one: ``raw``) and the export's, recalibrated
+(:mod:`wtml.decoders.recalibration`). Only in-domain answers have an interval (σ is NaN out of
+domain): the flagged share is beside each row.
+
+A coverage misses when it is more than :data:`TOLERANCE` from nominal and its binomial 95 %
+interval (Wilson) leaves out the nominal rate too, on at least :data:`MIN_VERDICT` answers
+(``✗``); more than :data:`TOLERANCE` off on too few answers to tell is marked ``?``.
+
+For the texture classifier: the expected calibration error (15 equal-width confidence bins)
+before and after its temperature, beside the ECE that a perfectly calibrated classifier shows
+on as many windows with the same confidences (its sampling floor, :func:`ece_floor`), and the
+reliability curve (``reliability.png``).
+
+Writes ``report.md``, ``summary.json`` and ``reliability.png``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from wtml.data.datamodule import split_shards
+from wtml.data.shards import dataset_scene, load_shards, read_manifest
+from wtml.decoders.checkpoint import load_decoder
+from wtml.decoders.domain import Gated
+from wtml.decoders.recalibration import (
+    NOMINAL,
+    WIDTHS,
+    errors,
+    expected_calibration_error,
+    raw_sigma,
+)
+from wtml.physics.twoport import flat_parts
+from wtml.runtime.predict import load_export
+
+TOLERANCE = 0.03
+"""A coverage may be this far from nominal (3 points)."""
+MIN_VERDICT = 20
+"""Answers a cell needs before a miss is called one (fewer: ``?``, whatever the interval)."""
+N_RANGES = 5
+"""Ranges of the target per table (quintiles of the test shard's truth)."""
+DISPLAY = {"distance": (1e6, "µm"), "gap": (1e6, "µm"), "grain": (1e6, "µm"),
+           "eta": (1.0, "Pa·s"), "rho": (1.0, "kg/m³")}
+"""How each value's ranges are written: a factor and a unit."""
+BATCH = 64
+"""Rows per call of the checkpoint's graph (texture windows are 12800 samples each)."""
+
+
+@dataclass(frozen=True)
+class RecordSet:
+    """One row's records: a name, what they hold out (``kind``) and a maker of
+    ``(graph inputs, truth)`` (truth by value name; ``"probabilities"``: the classes)."""
+
+    name: str
+    kind: str
+    make: Callable[[], tuple[tuple[np.ndarray, ...], dict[str, np.ndarray]]]
+
+
+# ------------------------------------------------------------------------------ metrics
+
+
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval of a share ``k / n`` (95 % at ``z`` 1.96); (0, 1) for
+    ``n = 0``."""
+    if n == 0:
+        return 0.0, 1.0
+    p = k / n
+    mid = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return float(mid - half), float(mid + half)
+
+
+def hits(err: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Per row whether ±1σ and ±1.96σ hold the truth, ``(n, 2)`` float: 1, 0, or NaN where
+    ``err`` or ``sigma`` is not finite (no answer, or no interval: out of domain)."""
+    err, sigma = np.asarray(err, float), np.asarray(sigma, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.abs(err) / sigma
+    out = np.stack([z <= w for w in WIDTHS], 1).astype(float)
+    out[~(np.isfinite(err) & np.isfinite(sigma))] = np.nan
+    return out
+
+
+def coverage_cell(covered: np.ndarray) -> dict:
+    """Coverage of the two intervals from :func:`hits` ``(n, 2)`` (rows of NaN left out):
+    ``n``, ``cover`` (two shares), ``interval`` (their Wilson intervals) and ``verdict`` per
+    level (``"ok"``, ``"miss"``: off by more than :data:`TOLERANCE` and significantly so,
+    ``"?"``: off by more on too few rows to tell)."""
+    covered = covered[np.isfinite(covered).all(1)]
+    n = len(covered)
+    cover, interval, verdict = [], [], []
+    for level, nominal in enumerate(NOMINAL):
+        k = int(covered[:, level].sum())
+        share = k / n if n else float("nan")
+        lo, hi = wilson(k, n)
+        cover.append(share)
+        interval.append((lo, hi))
+        off = not n or abs(share - nominal) > TOLERANCE
+        sure = n >= MIN_VERDICT and not lo <= nominal <= hi
+        verdict.append("ok" if not off else "miss" if sure else "?")
+    return {"n": n, "cover": cover, "interval": interval, "verdict": verdict}
+
+
+def by_range(covered: np.ndarray, truth: np.ndarray, edges: np.ndarray) -> list[dict]:
+    """:func:`coverage_cell` in each range of ``truth`` between ``edges`` ``(K+1,)`` (the
+    outer edges widened to hold every row), then over all rows."""
+    inner = np.searchsorted(edges[1:-1], truth, side="right")
+    cells = [coverage_cell(covered[inner == k]) for k in range(len(edges) - 1)]
+    return cells + [coverage_cell(covered)]
+
+
+def ece_floor(confidence: np.ndarray, draws: int = 400, seed: int = 0) -> tuple[float, float]:
+    """The expected calibration error of a perfectly calibrated classifier with these
+    ``confidence`` values ``(n,)``: each answer right with probability its confidence; the
+    median and the 95th percentile over ``draws`` draws (what sampling alone gives)."""
+    rng = np.random.default_rng(seed)
+    conf = np.asarray(confidence, float)
+    probs = np.stack([conf, 1 - conf], 1)
+    eces = [expected_calibration_error(probs, (rng.random(len(conf)) > conf).astype(int))[0]
+            for _ in range(draws)]
+    return float(np.median(eces)), float(np.quantile(eces, 0.95))
+
+
+# ------------------------------------------------------------------------------ answers
+
+
+@torch.no_grad()
+def raw_answers(module, names: tuple[str, ...], inputs: tuple[np.ndarray, ...]
+                ) -> dict[str, np.ndarray]:
+    """The checkpoint's own graph before recalibration (its net and domain gate, σ NaN out
+    of domain) on the export's inputs: each output by name."""
+    graph = Gated(module.net, module.gate, tuple(
+        k for k, n in enumerate(names) if n in ("sigma", "log_sigma"))).eval()
+    parts = [graph(*(torch.tensor(np.asarray(x[s:s + BATCH]), dtype=torch.float32)
+                     for x in inputs)) for s in range(0, len(inputs[0]), BATCH)]
+    return {name: torch.cat([p[k] for p in parts]).double().numpy()
+            for k, name in enumerate(names)} | {
+        "in_domain": torch.cat([p[-2] for p in parts]).numpy()}
+
+
+def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progress=print
+          ) -> dict:
+    """Every set's answers from the export (``decoder``, recalibrated) and the checkpoint
+    (``module``, raw): per interval of the export's metadata the errors and both σ, per set;
+    and for a classifier its probabilities. Returns ``{"intervals": {sigma name: [per set
+    {"name", "kind", "truth", "err", "sigma", "raw", "flagged"}]}, "classes": [per set
+    {"name", "kind", "labels", "after", "before", "flagged"}]}``."""
+    u = decoder.uncertainty
+    out = {"intervals": {r.sigma: [] for r in u.intervals}, "classes": []}
+    for s in sets:
+        progress(f"coverage: {decoder.task}: {s.name}")
+        inputs, truth = s.make()
+        after = decoder.run(*inputs)
+        before = raw_answers(module, names, inputs)
+        inside = after["in_domain"]
+        flagged = float(1 - inside.mean())
+        for r in u.intervals:
+            err = errors(after[r.value], truth[r.value], r.log_value)
+            # the export's σ is in its output whatever the net had; the net's as it stored it
+            sigma = np.exp(after[r.sigma]) if r.stored == "log_std" else after[r.sigma]
+            raw = (None if r.stored == "none" else
+                   raw_sigma({"sigma": r.sigma, "stored": r.stored}, before, len(err)))
+            out["intervals"][r.sigma].append({
+                "name": s.name, "kind": s.kind, "truth": truth[r.value], "err": err,
+                "sigma": np.where(inside, sigma, np.nan),
+                "raw": None if raw is None else np.where(inside, raw, np.nan),
+                "flagged": flagged})
+        if u.probabilities is not None:
+            out["classes"].append({"name": s.name, "kind": s.kind,
+                                   "labels": truth[u.probabilities],
+                                   "after": after[u.probabilities],
+                                   "before": before[u.probabilities], "flagged": flagged})
+    return out
+
+
+# ------------------------------------------------------------------------------ the tasks
+
+
+def _test_shard(data_dir: Path, keys: tuple[str, ...], limit: int | None = None) -> dict:
+    manifest = read_manifest(data_dir)
+    test = split_shards(manifest["n_shards"], 1, 1)["test"]
+    data = load_shards(data_dir, test)
+    return {k: data[k][:limit] for k in keys}
+
+
+def fluid_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[RecordSet]:
+    """The test shard, fresh records of the trained scene, and devices off the trained
+    spread: issue 21's (the sphere's radius ±1 % included) and the radius alone
+    (``records["fluid"]`` each)."""
+    data_dir, n = Path(paths["data"]), records["fluid"]
+    from wtml.bench.fluid import REFERENCE_SPREAD
+    from wtml.scenes.fluid import DeviceSpread
+
+    def made(records: dict):
+        return ((records["ze"].real, records["ze"].imag, *flat_parts(records["t"])),
+                {"eta": records["eta"], "rho": records["rho"]})
+
+    def fresh(spread, k: int):
+        return lambda: made(dataclasses.replace(scene, spread=spread).simulate(
+            n, np.random.default_rng([seed, k])))
+
+    return [RecordSet("test shard", "test shard",
+                      lambda: made(_test_shard(data_dir, ("ze", "t", "eta", "rho")))),
+            RecordSet("fresh records of the trained scene", "in family",
+                      fresh(scene.spread, 0)),
+            RecordSet("issue 21 spread (sphere radius ±1 % included)", "held out",
+                      fresh(REFERENCE_SPREAD, 1)),
+            RecordSet("sphere radius ±1 % alone", "held out",
+                      fresh(DeviceSpread(sphere_radius=REFERENCE_SPREAD.sphere_radius), 2))]
+
+
+RADIAL_SPREAD_SCENE = "configs/scenes/radial_spread.yaml"
+"""Devices off the preset for the radial rows: issue 21's manufacturing spread."""
+
+
+def radial_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[RecordSet]:
+    """The test shard (its first ``4 n``), ``n = records["radial"]`` fresh records, as many
+    of devices of issue 21's spread (:data:`RADIAL_SPREAD_SCENE`) and, where the folder
+    ``paths["invalid"]`` exists, the invalid contacts."""
+    data_dir, n, invalid_dir = Path(paths["data"]), records["radial"], paths.get("invalid")
+    from wtml.scenes import load_scene
+
+    def made(records: dict):
+        return ((records["ze"].real, records["ze"].imag, records["ref"].real,
+                 records["ref"].imag), {"distance": records["distance"]})
+
+    sets = [RecordSet("test shard", "test shard", lambda: made(_test_shard(
+                data_dir, ("ze", "ref", "distance"), 4 * n))),
+            RecordSet("fresh records of the trained scene", "in family",
+                      lambda: made(scene.simulate(n, np.random.default_rng([seed, 0])))),
+            RecordSet("devices of issue 21's spread", "held out",
+                      lambda: made(load_scene(RADIAL_SPREAD_SCENE).simulate(
+                          n, np.random.default_rng([seed, 1]))))]
+    if invalid_dir is not None and Path(invalid_dir).is_dir():
+        sets.append(RecordSet("invalid contacts (thesis §5.5.4)", "held out", lambda: made(
+            load_shards(invalid_dir, list(range(read_manifest(invalid_dir)["n_shards"]))))))
+    return sets
+
+
+def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[RecordSet]:
+    """The test shard, then the onset transfer table's rows
+    (:func:`wtml.bench.onset_transfer.onset_variants`, ``records["onset"]`` records each)
+    and the independent simulator's (``records["independent"]``; 0: none)."""
+    data_dir, n = Path(paths["data"]), records["onset"]
+    independent = records.get("independent", 0)
+    from wtml.bench.onset_transfer import independent_variant, onset_variants
+    from wtml.exporters.onset import record_inputs
+
+    keys = ("e", "i", "t_probe", "hue0", "gap")
+
+    def made(records: dict):
+        return record_inputs(records), {"gap": records["gap"]}
+
+    sets = [RecordSet("test shard", "test shard", lambda: made(_test_shard(data_dir, keys)))]
+    variants = onset_variants(scene) + ([independent_variant(scene)] if independent else [])
+    for k, v in enumerate(variants):
+        count = independent if v.kind == "independent" else n
+        sets.append(RecordSet(v.name, v.kind, lambda v=v, k=k, count=count: made(
+            v.make(count, np.random.default_rng([seed, 9100, k])))))
+    return sets
+
+
+def texture_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[RecordSet]:
+    """The test shard's windows (the export's), then the texture transfer table's rows
+    (:func:`wtml.bench.texture_transfer.texture_variants`, ``records["texture"]`` records
+    each)."""
+    data_dir, n, window = Path(paths["data"]), records["texture"], decoder.meta.n_samples
+    from wtml.bench.texture_transfer import texture_variants
+
+    def made(records: dict):
+        per = records["e"].shape[1] // window
+        cut = [np.asarray(records[c])[:, :per * window].reshape(-1, window) for c in "ei"]
+        t = np.repeat(records["t"], per, 0)
+        return ((*cut, *flat_parts(t)),
+                {"grain": np.repeat(records["grain_m"], per),
+                 "probabilities": np.repeat(records["grade"], per)})
+
+    keys = ("e", "i", "t", "grain_m", "grade")
+    sets = [RecordSet("test shard", "test shard", lambda: made(_test_shard(data_dir, keys)))]
+    for k, v in enumerate(texture_variants(scene)):
+        sets.append(RecordSet(v.name, v.kind, lambda v=v, k=k: made(
+            v.make(n, np.random.default_rng([seed, 9100, k])))))
+    return sets
+
+
+# ------------------------------------------------------------------------------ report
+
+
+def _fmt_range(value: str, lo: float, hi: float) -> str:
+    f, unit = DISPLAY[value]
+    if value == "eta":
+        return f"{lo:.2g}–{hi:.2g} {unit}"
+    return f"{f * lo:.4g}–{f * hi:.4g} {unit}"
+
+
+def _cell(c: dict) -> str:
+    if not c["n"]:
+        return "–"
+    marks = {"ok": "", "miss": " ✗", "?": " ?"}
+    return " / ".join(f"{100 * x:.1f}{marks[v]}"
+                      for x, v in zip(c["cover"], c["verdict"], strict=True))
+
+
+def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
+                   ) -> tuple[list[str], list]:
+    """Markdown lines of one interval's coverage table and its rows as JSON-ready dicts;
+    ``extra``: rows of another method (``{"name", "kind", "label", "truth", "hits",
+    "flagged"}``: its own intervals' :func:`hits`, e.g. the sbi posterior's central credible
+    intervals)."""
+    truth = np.asarray(rows[0]["truth"], float)
+    edges = np.quantile(truth[np.isfinite(truth)], np.linspace(0, 1, N_RANGES + 1))
+    heads = [_fmt_range(r.value, a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    what = f"ln {r.value}" if r.log_value else r.value
+    lines = [f"### {task}: {what} (σ output `{r.sigma}`)", "",
+             "| records | kind | σ | n | flagged | all | " + " | ".join(heads) + " |",
+             "|---" * (6 + len(heads)) + "|"]
+    out = []
+    for row in [*rows, *extra]:
+        answers = ([(row["label"], row["hits"])] if "hits" in row else
+                   [(label, hits(row["err"], sigma)) for label, sigma in
+                    (("raw", row["raw"]), ("recalibrated", row["sigma"])) if sigma is not None])
+        for label, covered in answers:
+            cells = by_range(covered, np.asarray(row["truth"], float), edges)
+            flagged = row.get("flagged")
+            lines.append(f"| {row['name']} | {row['kind']} | {label} | {cells[-1]['n']} | "
+                         + ("–" if flagged is None else f"{100 * flagged:.1f} %") + " | "
+                         + " | ".join(_cell(c) for c in [cells[-1], *cells[:-1]]) + " |")
+            out.append({"name": row["name"], "kind": row["kind"], "sigma": label,
+                        "flagged": flagged, "all": cells[-1], "ranges": cells[:-1]})
+    return lines, out
+
+
+def class_table(rows: list[dict], temperature: float) -> tuple[list[str], list]:
+    """Markdown lines of the classifier's calibration per set and its rows as dicts."""
+    lines = ["| records | kind | windows | accuracy | ECE raw | ECE tempered (T = "
+             f"{temperature:.3g}) | ECE of a calibrated classifier (median, 95th pct) |",
+             "|---" * 7 + "|"]
+    out = []
+    for row in rows:
+        labels = np.asarray(row["labels"], int)
+        raw, _ = expected_calibration_error(row["before"], labels)
+        after, _ = expected_calibration_error(row["after"], labels)
+        floor = ece_floor(row["after"].max(1))
+        acc = float(np.mean(row["after"].argmax(1) == labels))
+        lines.append(f"| {row['name']} | {row['kind']} | {len(labels)} | {100 * acc:.1f} % | "
+                     f"{100 * raw:.1f} % | {100 * after:.1f} % | {100 * floor[0]:.1f} %, "
+                     f"{100 * floor[1]:.1f} % |")
+        out.append({"name": row["name"], "kind": row["kind"], "windows": len(labels),
+                    "accuracy": acc, "ece_raw": raw, "ece": after, "ece_floor": floor,
+                    "flagged": row["flagged"]})
+    return lines, out
+
+
+def reliability_plot(row: dict, path: Path) -> None:
+    """The reliability curve (accuracy against confidence per bin) of one set, raw and
+    tempered, with the diagonal."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 5))
+    ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="calibrated")
+    for key, label in (("before", "raw"), ("after", "tempered")):
+        ece, curve = expected_calibration_error(row[key], np.asarray(row["labels"], int))
+        ok = curve["count"] > 0
+        ax.plot(curve["confidence"][ok], curve["accuracy"][ok], "o-",
+                label=f"{label} (ECE {100 * ece:.1f} %)")
+    ax.set_xlabel("confidence (top probability)")
+    ax.set_ylabel("accuracy")
+    ax.set_title(f"texture decoder, {row['name']} ({len(row['labels'])} windows)")
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------------------ the bench
+
+
+TASK_SETS = {"fluid": fluid_sets, "radial": radial_sets, "onset": onset_sets,
+             "texture": texture_sets}
+"""Each task's record sets (its test shard, fresh records, its held-out physics)."""
+
+
+def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, int],
+                 seed: int = 2025, threads: int = 2, sbi_simulations: int = 0,
+                 sbi_epochs: int = 50, progress=print) -> str:
+    """Run the bench; writes ``report.md``, ``summary.json`` and ``reliability.png`` under
+    ``out`` and returns the report.
+
+    Args:
+        tasks: per task, ``{"data", "checkpoint", "model"}`` (and radial's ``"invalid"``).
+        out: the folder.
+        records: fresh records per row, per task (onset: and ``"independent"``).
+        seed: the fresh records' seed.
+        threads: torch and onnxruntime threads.
+        sbi_simulations: with fluid, the simulations of ``sbi``'s NPE on the fluid scene
+            (:func:`wtml.bench.sbi_fluid.run_npe`, at most ``sbi_epochs`` epochs), its rows
+            beside the decoder's on the same fresh records; 0: none. Without the ``sbi``
+            package the report says so.
+    """
+    torch.set_num_threads(threads)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    sbi, sbi_note = None, []
+    if sbi_simulations and "fluid" in tasks:
+        from wtml.bench.sbi_fluid import run_npe
+
+        scene = dataset_scene(tasks["fluid"]["data"])
+        progress(f"coverage: sbi NPE on the fluid scene ({sbi_simulations} simulations)")
+        try:  # the fluid rows' fresh records (fluid_sets: the same seed)
+            sbi = run_npe(scene, scene.simulate(records["fluid"],
+                                                np.random.default_rng([seed, 0])),
+                          simulations=sbi_simulations, seed=seed, max_epochs=sbi_epochs,
+                          threads=threads)
+        except ModuleNotFoundError as err:
+            if err.name != "sbi":
+                raise
+            sbi_note = ["## sbi", "", "Not run: the `sbi` package is not installed (pip "
+                        "install -c constraints.txt -e '.[sbi]').", ""]
+    lines = ["# wtml bench coverage: honest uncertainty", "",
+             "Coverage of ±1σ / ±1.96σ in % (nominal 68.3 / 95.0) over the in-domain answers, "
+             f"overall and per range of the target (quintiles of the test shard's truth). ✗: "
+             f"off by more than {100 * TOLERANCE:.0f} points and outside the binomial 95 % "
+             f"interval; ?: off by more on too few answers to tell. raw: the checkpoint's own "
+             f"σ; recalibrated: the export's.", ""]
+    summary: dict = {"tolerance": TOLERANCE, "nominal": list(NOMINAL), "tasks": {}}
+    for task, paths in tasks.items():
+        decoder = load_export(paths["model"], threads=threads)[0]
+        module = load_decoder(paths["checkpoint"])
+        scene = dataset_scene(paths["data"])
+        sets = TASK_SETS[task](paths, scene, decoder, records, seed)
+        u = decoder.uncertainty
+        added = {r.sigma for r in u.intervals if r.stored == "none"} - set(scene.OUTPUTS)
+        names = tuple(name for name in decoder.outputs if name not in added)
+        scored = score(decoder, module, names, sets, progress)
+        lines += [f"## {task} ({paths['model']}; recalibrated on {u.fitted_on})", ""]
+        entry: dict = {"model": str(paths["model"]), "fitted_on": u.fitted_on,
+                       "intervals": {}}
+        for r in u.intervals:
+            extra = (sbi or {}).get("rows", {}).get(r.value, []) if task == "fluid" else []
+            table, rows = interval_table(task, r, scored["intervals"][r.sigma], extra)
+            scales = ", ".join(f"{s:.3g}" for s in r.scales)
+            lines += table + ["", f"Recalibration: {r.stored} σ × ({scales}) in {len(r.scales)} "
+                              f"range(s) of the answer `{r.by}`; on its {r.n} held-out answers "
+                              f"coverage {_pair(r.coverage_before)} → "
+                              f"{_pair(r.coverage_after)}.", ""]
+            entry["intervals"][r.sigma] = {"recalibration": dataclasses.asdict(r),
+                                           "rows": rows}
+        if scored["classes"]:
+            table, rows = class_table(scored["classes"], u.temperature)
+            lines += [f"### {task}: class probabilities (expected calibration error, 15 bins)",
+                      "", *table, "",
+                      f"Temperature {u.temperature:.3g} fitted on the held-out windows: ECE "
+                      f"{100 * u.ece_before:.1f} % → {100 * u.ece_after:.1f} % there. "
+                      "Reliability curve of the test shard: `reliability.png`.", ""]
+            reliability_plot(scored["classes"][0], out / "reliability.png")
+            entry["classes"] = {"temperature": u.temperature, "rows": rows}
+        summary["tasks"][task] = entry
+    if sbi is not None:
+        lines += sbi["report"]
+        summary["sbi"] = sbi["summary"]
+    lines += sbi_note
+    report = "\n".join(lines) + "\n"
+    (out / "report.md").write_text(report)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=_plain) + "\n")
+    return report
+
+
+def _pair(x) -> str:
+    return "–" if not x else f"{100 * x[0]:.1f} / {100 * x[1]:.1f}"
+
+
+def _plain(x):
+    if isinstance(x, np.ndarray | np.generic):
+        return x.tolist()
+    raise TypeError(f"not JSON: {type(x).__name__}")

@@ -18,6 +18,7 @@ from wtml.bench.frontier import (
     pareto,
     quantised_verdict,
     session_memory,
+    speed_verdict,
 )
 from wtml.data import load_shards
 from wtml.data.datamodule import split_shards
@@ -48,6 +49,26 @@ def test_each_budget_gets_the_most_accurate_method_that_fits():
     # accuracy: higher is better
     acc = [_row("a", 80.0, 5e-6), _row("b", 90.0, 5e-6)]
     assert budget_rows(_problem(higher=True), acc)[0]["name"] == "b"
+
+
+def test_the_speed_target_is_stated_with_what_meeting_it_costs():
+    problem = _problem()
+    problem.speed_target = (50e-6, 1e4)
+    rows = [_row("decoder default ONNX", 3.0, 80e-6), _row("decoder tiny ONNX", 5.0, 20e-6),
+            _row("decoder tiny int8 dynamic ONNX", 4.0, 10e-6, kind="quantised",
+                 verdict="kept: faster at equal accuracy"),
+            _row("decoder huge int8 static ONNX", 1.0, 10e-6, kind="quantised",
+                 verdict="dropped: less accurate")]
+    said = speed_verdict(problem, rows)
+    assert "p50 80.0 µs at batch 1 (target ≤ 50.0 µs: MISSED)" in said
+    assert "1.25e+04 samples/s" in said and "(target ≥ 1e+04: met)" in said
+    # a dropped quantisation is no answer; the most accurate that meets both is
+    assert said.endswith("decoder tiny int8 dynamic ONNX, 4 % against 3 % (p50 10.0 µs, "
+                         "1e+05/s).")
+    rows[0] = _row("decoder default ONNX", 3.0, 40e-6)
+    assert "MISSED" not in speed_verdict(problem, rows)
+    problem.speed_target = None
+    assert speed_verdict(problem, rows) == ""
 
 
 def test_the_pareto_front_has_no_dominated_method():

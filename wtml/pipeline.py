@@ -17,15 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from wtml.data import dataset_scene, generate, load_shards, read_manifest
-from wtml.data.datamodule import split_shards
-from wtml.decoders.checkpoint import CheckpointError, read_checkpoint
-from wtml.exporters.common import export_model
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
-from wtml.scenes import config_hash, load_scene, scene_from_dict
 from wtml.schema import read_yaml
 from wtml.tasks import TASKS
-from wtml.training import cli_main, duration
 
 TRANSFER_RECORDS = 4
 """Fresh records per row of the time-domain benches' transfer tables in the main job (a small
@@ -59,6 +53,8 @@ class Stages:
             self._stage = ""
 
     def line(self, slice_: str) -> str:
+        from wtml.training import duration
+
         return ", ".join(f"{k} {duration(v)}" for k, v in self.times.get(slice_, {}).items())
 
 
@@ -69,6 +65,9 @@ def checkpoint_matches(ckpt: Path, scene_hash: str, config: str,
     config starts afresh rather than failing on the old weights' shapes), and so is the run
     length (``max_epochs``, else the config's): the learning-rate schedules are laid out over
     it. A checkpoint that cannot be read safely never matches."""
+    from wtml.decoders.checkpoint import CheckpointError, read_checkpoint
+    from wtml.scenes import config_hash, scene_from_dict
+
     if not ckpt.exists():
         return False
     try:
@@ -99,6 +98,9 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> dict[str, Path]:
     Raises:
         ValueError: a dataset of a task that reads recordings.
     """
+    from wtml.data import dataset_scene, load_shards, read_manifest
+    from wtml.data.datamodule import split_shards
+
     manifest = read_manifest(data_dir)
     data = load_shards(data_dir, split_shards(manifest["n_shards"], 1, 1)["test"])
     scene = dataset_scene(data_dir)
@@ -118,6 +120,9 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> dict[str, Path]:
 
 
 def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
+    from wtml.data import generate
+    from wtml.scenes import load_scene
+
     stages.begin(slice_, "generate", f"wtml generate --config {scene_path} --out {out}")
     manifest = generate(load_scene(scene_path), out)
     print(f"{manifest['samples']} samples in {manifest['n_shards']} shards")
@@ -130,6 +135,10 @@ def train_config(config: str, data: Path, *, max_epochs: int | None = None,
     matches (:func:`checkpoint_matches`; a finished run is kept as it is) and starting afresh
     where it does not; ``begin`` is given the stand-alone command first. Returns the
     checkpoint."""
+    from wtml.data import read_manifest
+    from wtml.decoders.checkpoint import read_checkpoint
+    from wtml.training import cli_main
+
     root = Path(read_yaml(config)["trainer"]["default_root_dir"])
     ckpt = root / "checkpoints" / "last.ckpt"
     args = ["fit", "--config", config, "--data.init_args.data_dir", str(data)]
@@ -160,6 +169,8 @@ def _train(stages: Stages, slice_: str, config: str, data: Path,
 
 def _export_and_predict(stages: Stages, slice_: str, ckpt: Path, model: Path,
                         data: Path) -> None:
+    from wtml.exporters.common import export_model
+
     stages.begin(slice_, f"export {model.name}",
                  f"wtml export --checkpoint {ckpt} --out {model}")
     for kind, path in export_model(ckpt, model).items():
@@ -194,6 +205,7 @@ def run_radial(stages: Stages, *, max_epochs: int | None = None) -> dict:
     """The radial slice end to end (the shipped decoder on the preset's device, and the
     variant trained over the device spread); returns its bench summary."""
     from wtml.bench.radial import run_bench
+    from wtml.exporters.common import export_model
 
     data, invalid = Path("datasets/radial"), Path("datasets/radial_invalid")
     spread = Path("datasets/radial_spread")
@@ -272,6 +284,8 @@ def _device_lines(fluid: dict) -> list[str]:
 def summary(results: dict[str, dict], stages: Stages) -> str:
     """The closing summary: each slice's key numbers against its targets, where the reports
     and plots are, the stage timings and the total time."""
+    from wtml.training import duration
+
     lines = ["", "== summary"]
     fluid = results.get("fluid")
     if fluid:
@@ -327,6 +341,10 @@ def _export_and_predict_records(stages: Stages, slice_: str, ckpt: Path, model: 
     ``calibration_file(path, scene, records) -> path`` (``--calibration``: onset's T at the
     probe and HUE(0), texture's T on its ``calibration_hz``), print ``wtml predict`` on them;
     returns the test shard."""
+    from wtml.data import dataset_scene, load_shards, read_manifest
+    from wtml.data.datamodule import split_shards
+    from wtml.exporters.common import export_model
+
     stages.begin(slice_, f"export {model.name}",
                  f"wtml export --checkpoint {ckpt} --out {model}")
     for kind, path in export_model(ckpt, model).items():
@@ -443,6 +461,7 @@ def _onset_transfer_lines(rows: list[dict]) -> list[str]:
 def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
     """The texture slice end to end; returns its bench summary."""
     from wtml.bench.texture import run_bench
+    from wtml.data import dataset_scene
     from wtml.exporters.texture import calibration_file
     from wtml.runtime.texture import predict_records
 

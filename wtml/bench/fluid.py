@@ -256,6 +256,11 @@ def _plot(results: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+SPEED_TARGET = (50e-6, 1e6)
+"""The default decoder's speed on the frontier (issue 25 §2): p50 ≤ 50 µs at batch 1 and
+≥ 1e6 samples/s at a batch of 4096."""
+
+
 def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: int = 2,
                      max_samples: int = 3000):
     """The fluid task for :mod:`wtml.bench.frontier`: η's median relative error (%) on the
@@ -296,4 +301,5 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
         "measurements", 4096, (train["ze"][:512], train["t"][:512]), methods,
         data=f"`{data_dir}` test shard {split['test']}, {len(ze)} samples (noise "
              f"{scene.noise.ze_relative:g} on Ze, calibration error "
-             f"{scene.nuisance.calibration_error:g})")
+             f"{scene.nuisance.calibration_error:g})",
+        speed_target=SPEED_TARGET)

@@ -23,6 +23,7 @@ a child process that must not load the training stack.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import platform
 import subprocess
@@ -94,6 +95,10 @@ class Problem:
         methods: the methods that are not decoder variants.
         notes: lines for the report.
         data: where the held-out set comes from, for the report.
+        speed_target: ``(p50 latency at batch 1, s per unit; throughput at the large batch,
+            units/s)`` that the default decoder should meet (None: no target), stated against
+            the measurements with the most accurate decoder or quantisation that meets both
+            (:func:`speed_verdict`).
     """
 
     task: str
@@ -110,6 +115,7 @@ class Problem:
     methods: list[Method] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     data: str = ""
+    speed_target: tuple[float, float] | None = None
 
 
 class MeasurementGraph:
@@ -198,12 +204,7 @@ def quantise(path: Path, out: Path, feeds: list[dict]) -> dict[str, Path | str]:
     for each of :data:`QUANTISATIONS` that it made, ``{name: reason}`` for each it could not.
     Only the layers are quantised (:data:`LAYER_OPS`); the graph's metadata is kept."""
     import onnx
-    from onnxruntime.quantization import (
-        CalibrationDataReader,
-        QuantType,
-        quantize_dynamic,
-        quantize_static,
-    )
+    from onnxruntime.quantization import CalibrationDataReader
 
     class Reader(CalibrationDataReader):
         def __init__(self) -> None:
@@ -216,6 +217,22 @@ def quantise(path: Path, out: Path, feeds: list[dict]) -> dict[str, Path | str]:
     source = onnx.load(str(path))
     layers = layer_nodes(source)
     made: dict[str, Path | str] = {}
+    # the quantiser logs "please consider pre-processing" on the root logger for every graph:
+    # third-party advice, not this bench's output (the graphs are exported optimised)
+    quiet, logging.root.level = logging.root.level, logging.ERROR
+    try:
+        _quantise_each(path, out, source, layers, Reader, made)
+    finally:
+        logging.root.level = quiet
+    return made
+
+
+def _quantise_each(path: Path, out: Path, source, layers: list[str], reader, made: dict
+                   ) -> None:
+    """:func:`quantise`'s loop: each of :data:`QUANTISATIONS` into ``made``."""
+    import onnx
+    from onnxruntime.quantization import QuantType, quantize_dynamic, quantize_static
+
     for name in QUANTISATIONS:
         target = out / f"{path.stem}.{name.replace(' ', '_')}.onnx"
         try:
@@ -223,7 +240,7 @@ def quantise(path: Path, out: Path, feeds: list[dict]) -> dict[str, Path | str]:
                 quantize_dynamic(path, target, weight_type=QuantType.QInt8,
                                  nodes_to_quantize=layers)
             elif name == "int8 static":
-                quantize_static(path, target, Reader(), nodes_to_quantize=layers,
+                quantize_static(path, target, reader(), nodes_to_quantize=layers,
                                 op_types_to_quantize=list(LAYER_OPS),
                                 activation_type=QuantType.QInt8, weight_type=QuantType.QInt8)
             else:
@@ -235,7 +252,6 @@ def quantise(path: Path, out: Path, feeds: list[dict]) -> dict[str, Path | str]:
             made[name] = target
         except Exception as err:  # onnxruntime's quantiser raises its own and plain errors
             made[name] = f"onnxruntime could not make it: {str(err).splitlines()[0][:120]}"
-    return made
 
 
 def half_layers(model, layers: list[str]):
@@ -419,6 +435,40 @@ def pareto(problem: Problem, rows: list[dict]) -> list[str]:
                        and better(problem, o["value"], r["value"]) for o in timed)]
 
 
+def speed_verdict(problem: Problem, rows: list[dict], variant: str = "default") -> str:
+    """One line: the decoder ``variant``'s p50 latency and throughput against the task's
+    :attr:`Problem.speed_target`, and where it misses, the most accurate decoder or kept
+    quantisation that meets both and what it costs in accuracy ("" without a target)."""
+    if problem.speed_target is None:
+        return ""
+    latency, rate = problem.speed_target
+    base = next((r for r in rows if r["name"] == f"decoder {variant} ONNX"), None)
+    if base is None:
+        return f"Speed target: no decoder {variant!r} on this frontier."
+
+    def meets(r: dict) -> bool:
+        return r["latency_s"] <= latency and r["throughput"] >= rate
+
+    fast_enough = ("met" if base["latency_s"] <= latency else "MISSED",
+                   "met" if base["throughput"] >= rate else "MISSED")
+    said = (f"Speed target for the {variant} decoder: p50 {_time(base['latency_s'])} at "
+            f"batch 1 (target ≤ {_time(latency)}: {fast_enough[0]}), "
+            f"{base['throughput']:.3g} {problem.per}s/s at a batch of {problem.big_batch} "
+            f"(target ≥ {rate:.3g}: {fast_enough[1]}).")
+    if meets(base):
+        return said
+    fast = [r for r in usable(rows) if r["kind"] in ("decoder", "quantised") and meets(r)]
+    if not fast:
+        return said + " No decoder variant or quantisation meets both here."
+    best = fast[0]
+    for r in fast[1:]:
+        if better(problem, r["value"], best["value"]):
+            best = r
+    return (said + f" The most accurate that meets both: {best['name']}, "
+            f"{_value(problem, best)} against {_value(problem, base)} "
+            f"(p50 {_time(best['latency_s'])}, {best['throughput']:.3g}/s).")
+
+
 def _value(problem: Problem, row: dict) -> str:
     return f"{row['value']:.3g} {problem.unit}"
 
@@ -472,7 +522,8 @@ def report_lines(problem: Problem, result: dict) -> list[str]:
             lines.append(f"| {_budget(b['budget_s'])} | {b['name']} | {b['value']:.3g} "
                          f"[{b['low']:.3g}, {b['high']:.3g}] {problem.unit} | "
                          f"{_time(b['latency_s'])} |")
-    return lines + ["", *problem.notes, ""]
+    verdict = speed_verdict(problem, rows)
+    return lines + ["", *([verdict, ""] if verdict else []), *problem.notes, ""]
 
 
 def plot(problem: Problem, result: dict, path: Path) -> None:

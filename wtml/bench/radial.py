@@ -424,6 +424,11 @@ def _plots(results, d, crlb, out: Path) -> None:
     plt.close(fig)
 
 
+SPEED_TARGET = (50e-6, 1e6)
+"""The default decoder's speed on the frontier (issue 25 §2): p50 ≤ 50 µs at batch 1 and
+≥ 1e6 samples/s at a batch of 4096."""
+
+
 def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: int = 2,
                      max_samples: int = 4000, thesis_model_dir: str | Path = "export/radial_thesis"
                      ) -> Problem:
@@ -475,4 +480,5 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
         "radial", "RMSE of d", "µm", False, "sample", 1.0, (ze, ref), score, "measurements",
         4096, (train["ze"][:512], train["ref"][:512]), methods,
         data=f"`{data_dir}` test shard {split['test']}, {len(d)} samples ({scene.device.name} "
-             f"device, noise {scene.noise.ze_relative:g} on Ze)")
+             f"device, noise {scene.noise.ze_relative:g} on Ze)",
+        speed_target=SPEED_TARGET)

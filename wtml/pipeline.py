@@ -221,7 +221,7 @@ def run_radial(stages: Stages, *, max_epochs: int | None = None) -> dict:
                          f"wtml export --checkpoint {ckpts[name]} --out export/{name}")
             export_model(ckpts[name], Path("export") / name)
         else:
-            _export_and_predict(stages, "radial", ckpts[name], Path("export") / name, on[0])
+            _export_and_predict(stages, "radial", ckpts[name], Path("export") / name, on)
     bench = Path("runs/radial/bench")
     stages.begin("radial", "bench", f"wtml bench radial --out {bench}")
     print(run_bench(data, ckpts["radial"], ckpts["radial_thesis"], "export/radial",

@@ -32,6 +32,9 @@ CALIBRATION_RECORDS = 300
 (:mod:`wtml.decoders.recalibration`: a temperature, one scale). On 100 records alone (40
 specimens, whose windows are not independent) the temperature of the main job's decoder
 ranged 0.65–1.07 between draws, and the test shard's ECE 3.1–7.1 %; on 400, 0.94 and 3.2 %."""
+CHUNK_RECORDS = 60
+"""The calibration records are simulated and run this many at a time: all 300 at once took
+the main job's texture slice to 2.2 GB."""
 GRAIN_INTERVAL = {"sigma": "log_sigma", "value": "grain", "by": "grain", "log_value": True,
                   "stored": "log_std"}
 """The texture decoder's interval: ``log_sigma``, the log of the std of ln grain size."""
@@ -45,6 +48,19 @@ def calibration_file(path: str | Path, scene, records: dict[str, np.ndarray]) ->
     return Path(path)
 
 
+def _window_answers(module, raw, records: dict) -> tuple:
+    """The gated decoder ``raw`` on every whole window of ``records``, record after record:
+    ``(grain, log_sigma, probabilities, in_domain, grade, grain_m, windows per record)``,
+    the first six numpy arrays over the windows (float64; the truth repeated per window)."""
+    e, i, t_re, t_im = module.gate_inputs(*(torch.tensor(np.asarray(x)) for x in (
+        records["e"], records["i"], *flat_parts(records["t"]))))
+    per = len(e) // len(records["e"])
+    answers = [raw(e[s:s + 100], i[s:s + 100], t_re[s:s + 100], t_im[s:s + 100])
+               for s in range(0, len(e), 100)]
+    out = tuple(torch.cat([a[k] for a in answers]).double().numpy() for k in (0, 1, 2, -2))
+    return (*out, np.repeat(records["grade"], per), np.repeat(records["grain_m"], per), per)
+
+
 @torch.no_grad()
 def export_texture(module, scene, out: Path) -> dict[str, Path]:
     """Write ``out/model.onnx`` (decoder; its probabilities tempered and its grain σ scaled,
@@ -53,25 +69,22 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
     window = module._n
     raw = Gated(module.net, module.gate, (1,)).eval()
     fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
-    more = scene.simulate(CALIBRATION_RECORDS, np.random.default_rng([scene.seed, 10**6 + 3]))
-    answers, labels, grains = [], [], []
-    for records in (fresh, more):
-        e, i, t_re, t_im = module.gate_inputs(*(torch.tensor(np.asarray(x)) for x in (
-            records["e"], records["i"], *flat_parts(records["t"]))))
-        per = len(e) // len(records["e"])  # whole windows per record, record after record
-        answers += [raw(e[s:s + 100], i[s:s + 100], t_re[s:s + 100], t_im[s:s + 100])
-                    for s in range(0, len(e), 100)]
-        labels.append(np.repeat(records["grade"], per))
-        grains.append(np.repeat(records["grain_m"], per))
-    grain, log_sigma, probabilities, inside = (torch.cat([a[k] for a in answers]).double()
-                                               .numpy() for k in (0, 1, 2, -2))
-    labels = np.concatenate(labels)
+    parts = [_window_answers(module, raw, fresh)]
+    for k, start in enumerate(range(0, CALIBRATION_RECORDS, CHUNK_RECORDS)):
+        # a chunk at a time: the records' windows as tensors are ~6 MB a record
+        more = scene.simulate(min(CHUNK_RECORDS, CALIBRATION_RECORDS - start),
+                              np.random.default_rng([scene.seed, 10**6 + 3, k]))
+        parts.append(_window_answers(module, raw, more))
+        del more
+    per = parts[0][-1]
+    grain, log_sigma, probabilities, inside, labels, grains = (
+        np.concatenate([part[k] for part in parts]) for k in range(6))
     uncertainty = fit_uncertainty(
         {"grain": grain, "log_sigma": log_sigma, "probabilities": probabilities},
-        {"grain": np.concatenate(grains)}, [GRAIN_INTERVAL], 1,
+        {"grain": grains}, [GRAIN_INTERVAL], 1,
         f"{len(labels)} windows of {FRESH_RECORDS + CALIBRATION_RECORDS} fresh records of the "
-        f"trained scene (seeds [{scene.seed}, 1000001] and [{scene.seed}, 1000003]; not the "
-        f"training data)", "probabilities", labels)
+        f"trained scene (seeds [{scene.seed}, 1000001] and [{scene.seed}, 1000003, k] for "
+        f"chunks k of {CHUNK_RECORDS}; not the training data)", "probabilities", labels)
     decoder = Gated(Recalibrated(module.net, scene.OUTPUTS, uncertainty), module.gate,
                     (1,)).eval()
     # the false-alarm rate on the first window of each of the first FRESH_RECORDS

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wtml.bench.timing import duration
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.schema import read_yaml
 from wtml.tasks import TASKS
@@ -53,8 +54,6 @@ class Stages:
             self._stage = ""
 
     def line(self, slice_: str) -> str:
-        from wtml.training import duration
-
         return ", ".join(f"{k} {duration(v)}" for k, v in self.times.get(slice_, {}).items())
 
 
@@ -284,8 +283,6 @@ def _device_lines(fluid: dict) -> list[str]:
 def summary(results: dict[str, dict], stages: Stages) -> str:
     """The closing summary: each slice's key numbers against its targets, where the reports
     and plots are, the stage timings and the total time."""
-    from wtml.training import duration
-
     lines = ["", "== summary"]
     fluid = results.get("fluid")
     if fluid:

@@ -58,6 +58,7 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.loggers import CSVLogger
 
+from wtml.bench.timing import duration
 from wtml.data.shards import DatasetError
 from wtml.decoders.base import ConfigError, DivergedError
 from wtml.decoders.checkpoint import CheckpointError, read_checkpoint, resume_checkpoint
@@ -68,13 +69,6 @@ from wtml.schema import SchemaError, yaml_load
 DEFAULT_ROOT = "runs/default"
 CONFIG_MAX_BYTES = 1024**2
 """The largest training config file read (the shipped ones are under 2 kB)."""
-
-
-def duration(seconds: float) -> str:
-    """``12.3 s`` or ``4 min 05 s``."""
-    if not seconds < 60:
-        return f"{int(seconds // 60)} min {int(seconds % 60):02d} s" if seconds == seconds else "?"
-    return f"{seconds:.1f} s"
 
 
 class EpochProgress(L.Callback):

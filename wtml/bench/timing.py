@@ -3,7 +3,8 @@
 Each measurement stops at its repeat count or once it has run ``budget_s`` seconds (at
 least one call), and its warm-up once it has run a third of that, so a slow method (the
 physics inversion takes ~7 s per call at batch 4096) does not hold up a benchmark; the median
-is robust to the count."""
+is robust to the count. Also :func:`duration`, the one way wtml prints a wall-clock time
+(training's epoch lines, the main job's stages)."""
 
 from __future__ import annotations
 
@@ -39,3 +40,10 @@ def throughput(predictor, ze_batch, repeats: int, budget_s: float = 3.0) -> floa
     arguments, as for :func:`latency_p50`; median over the calls)."""
     n = len(ze_batch[0] if isinstance(ze_batch, tuple) else ze_batch)
     return n / _median_call(predictor, ze_batch, repeats, 1, budget_s)
+
+
+def duration(seconds: float) -> str:
+    """``12.3 s`` or ``4 min 05 s``."""
+    if not seconds < 60:
+        return f"{int(seconds // 60)} min {int(seconds % 60):02d} s" if seconds == seconds else "?"
+    return f"{seconds:.1f} s"

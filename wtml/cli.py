@@ -453,7 +453,7 @@ def _coverage_parser(be_sub) -> None:
 def _pipeline(args: argparse.Namespace) -> int:
     from wtml.pipeline import run_all
 
-    run_all(args.task, max_epochs=args.max_epochs)
+    run_all(args.task, max_epochs=args.max_epochs, lanes=args.lanes)
     return 0
 
 
@@ -938,6 +938,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="which slice")
     pl.add_argument("--max-epochs", type=_number(1, 10**6, int), default=None,
                     help="override the training configs' epochs (default: the configs')")
+    pl.add_argument("--lanes", type=_number(1, 64, int), default=2,
+                    help="slices run side by side, one thread each of the cores (default 2; "
+                         "1: one after another on every core, printing as they go)")
     pl.set_defaults(func=_pipeline)
     return parser
 

@@ -10,17 +10,21 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
 from wtml.bench.timing import duration
+from wtml.cores import THREADS_ENV, available_cores
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.schema import read_yaml
-from wtml.tasks import TASKS
+from wtml.tasks import TASKS, Task
 
 TRANSFER_RECORDS = 4
 """Fresh records per row of the time-domain benches' transfer tables in the main job (a small
@@ -33,18 +37,26 @@ the same specimens and nuisance on every device)."""
 
 
 class Stages:
-    """Wall-clock time of each stage of each slice, for the closing summary."""
+    """Wall-clock time of each stage of each slice, for the closing summary.
 
-    def __init__(self) -> None:
+    Args:
+        echo: where a one-line note of each stage also goes as it begins (a slice in a lane
+            of its own prints its log to a file: this is the terminal), or None.
+    """
+
+    def __init__(self, echo: TextIO | None = None) -> None:
         self.start = time.perf_counter()
         self.times: dict[str, dict[str, float]] = {}
         self._slice, self._stage, self._t0 = "", "", 0.0
+        self.echo = echo
 
     def begin(self, slice_: str, stage: str, command: str) -> None:
         """Close the running stage, open this one and print its stand-alone command."""
         self.end()
         self._slice, self._stage, self._t0 = slice_, stage, time.perf_counter()
         print(f"\n== {slice_} {stage}: {command}", flush=True)
+        if self.echo is not None:
+            print(f"{time.strftime('%H:%M:%S')} {slice_}: {stage}", file=self.echo, flush=True)
 
     def end(self) -> None:
         if self._stage:
@@ -193,8 +205,9 @@ def run_fluid(stages: Stages, *, max_epochs: int | None = None) -> dict:
     _generate(stages, "fluid", "configs/scenes/fluid.yaml", data)
     ckpt = _train(stages, "fluid", "configs/fluid.yaml", data, max_epochs)
     _export_and_predict(stages, "fluid", ckpt, model, data)
-    stages.begin("fluid", "bench", f"wtml bench fluid --out {bench} --device-records 300")
-    report = run_bench(data, ckpt, model, bench, device_records=300)
+    stages.begin("fluid", "bench", f"wtml bench fluid --out {bench} --device-records 300 "
+                                   f"--threads {available_cores()}")
+    report = run_bench(data, ckpt, model, bench, device_records=300, threads=available_cores())
     print(report.split("\n## By viscosity decade")[0])
     stages.end()
     return json.loads((bench / "summary.json").read_text())
@@ -222,10 +235,11 @@ def run_radial(stages: Stages, *, max_epochs: int | None = None) -> dict:
         else:
             _export_and_predict(stages, "radial", ckpts[name], Path("export") / name, on)
     bench = Path("runs/radial/bench")
-    stages.begin("radial", "bench", f"wtml bench radial --out {bench}")
+    stages.begin("radial", "bench", f"wtml bench radial --out {bench} "
+                                    f"--threads {available_cores()}")
     print(run_bench(data, ckpts["radial"], ckpts["radial_thesis"], "export/radial",
                     "export/radial_thesis", bench, invalid_dir=invalid, spread_dir=spread,
-                    spread_model_dir="export/radial_spread"))
+                    spread_model_dir="export/radial_spread", threads=available_cores()))
     stages.end()
     return json.loads((bench / "summary.json").read_text())
 
@@ -557,33 +571,119 @@ def _texture_transfer_lines(rows: list[dict]) -> list[str]:
                     if verdicts else "")]
 
 
-def run_slice(name: str, max_epochs: int | None = None) -> tuple[dict, dict[str, float]]:
-    """One slice of the main job (the task ``name``'s ``pipeline`` part): its results and its
-    stages' times (s)."""
-    stages = Stages()
-    result = TASKS[name].load("pipeline")(stages, max_epochs=max_epochs)
+LANES = 2
+"""Slices of the main job run side by side, one thread each (see :func:`run_all`)."""
+LOGS = Path("runs/pipeline")
+"""Where each slice run in a lane writes its log (``<task>.log``)."""
+PRELOAD = ["numpy", "scipy.signal", "sklearn.ensemble", "onnxruntime", "torch", "lightning",
+           "wtml.training"]
+"""Modules the slices' processes start with: imported once, by the fork server they are forked
+from (each slice imported them afresh, ~8 s, when it was spawned from a bare interpreter)."""
+
+
+def run_slice(task: str | Task, max_epochs: int | None = None, echo: TextIO | None = None
+              ) -> tuple[dict, dict[str, float]]:
+    """One slice of the main job (the ``pipeline`` part of ``task``, a registered task's name
+    or a :class:`wtml.tasks.Task`): its results and its stages' times (s); ``echo``:
+    :class:`Stages`'."""
+    spec = TASKS[task] if isinstance(task, str) else task
+    stages = Stages(echo)
+    result = spec.load("pipeline")(stages, max_epochs=max_epochs)
     stages.end()
-    return result, stages.times.get(name, {})
+    return result, stages.times.get(spec.name, {})
 
 
-def run_all(task: str = "all", *, max_epochs: int | None = None) -> str:
-    """The main job for ``task`` (``"all"``, or one of :data:`wtml.tasks.TASKS`, in their
-    order); prints and returns the closing summary. With more than one slice, each runs in a
-    process of its own (spawned, so it starts from a bare interpreter), which returns all its
-    memory when it ends: the job's peak is its largest slice's, not the sum of what each
-    left behind (2.9 GB in one process on 27 Nov)."""
-    from concurrent.futures import ProcessPoolExecutor
+@contextmanager
+def _logged(path: Path) -> Iterator[TextIO]:
+    """This process's stdout and stderr (file descriptors 1 and 2: the libraries' output too)
+    into ``path``; yields the terminal's stdout, for progress lines."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    terminal = os.fdopen(os.dup(saved[0]), "w", buffering=1)
+    with open(path, "w") as log:
+        os.dup2(log.fileno(), 1)
+        os.dup2(log.fileno(), 2)
+        try:
+            yield terminal
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            terminal.close()
+
+
+def _lane_slice(spec: Task, max_epochs: int | None, threads: int, log: Path | None
+                ) -> tuple[dict, dict[str, float]]:
+    """A slice in a process of its own, computing on ``threads`` threads (torch, BLAS,
+    onnxruntime, the stepper: :data:`wtml.cores.THREADS_ENV`), its output into ``log`` (None:
+    to the terminal)."""
+    import torch
+    from threadpoolctl import threadpool_limits
+
+    os.environ[THREADS_ENV] = str(threads)
+    torch.set_num_threads(threads)
+    with threadpool_limits(threads):
+        if log is None:
+            return run_slice(spec, max_epochs)
+        with _logged(log) as terminal:
+            return run_slice(spec, max_epochs, terminal)
+
+
+def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LANES) -> str:
+    """The main job for ``task`` (``"all"``, or one of :data:`wtml.tasks.TASKS`); prints and
+    returns the closing summary.
+
+    One slice runs in this process. More than one run each in a process of its own (forked
+    from a server that imported :data:`PRELOAD` once), which returns all its memory when it
+    ends. With ``lanes`` > 1 (and as many cores), that many run side by side, the longest
+    first (``Task.pipeline_s``), each on ``cores // lanes`` threads: most of a slice's work
+    (the trainers' steps on small batches, the stepper, the benches' small calls) gains
+    little from a second thread; each writes its log to :data:`LOGS` ``/<task>.log``,
+    printed whole when it ends, and a line per stage as it goes. ``lanes`` 1: one after
+    another on every core, printing as they go.
+
+    Raises:
+        ValueError: ``lanes`` < 1.
+    """
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from multiprocessing import get_context
 
+    if lanes < 1:
+        raise ValueError(f"--lanes: must be at least 1, got {lanes}")
     stages, results = Stages(), {}
     names = [spec.name for spec in TASKS.values() if task in (spec.name, "all")]
-    for name in names:
-        if len(names) == 1:
-            results[name], stages.times[name] = run_slice(name, max_epochs)
-            continue
-        with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
-            results[name], stages.times[name] = pool.submit(run_slice, name,
-                                                            max_epochs).result()
+    if len(names) == 1:
+        results[names[0]], stages.times[names[0]] = run_slice(names[0], max_epochs)
+    else:
+        lanes = min(lanes, len(names), available_cores())
+        threads = max(1, available_cores() // lanes)
+        context = get_context("forkserver")
+        context.set_forkserver_preload(PRELOAD)
+        order = sorted(names, key=lambda n: -TASKS[n].pipeline_s)
+        if lanes > 1:
+            print(f"{len(names)} slices in {lanes} lanes of {threads} thread(s), longest first "
+                  f"({', '.join(order)}); each slice's log: {LOGS}/<slice>.log, printed when "
+                  "it ends", flush=True)
+        with ProcessPoolExecutor(lanes, mp_context=context, max_tasks_per_child=1) as pool:
+            running = {pool.submit(_lane_slice, TASKS[name], max_epochs, threads,
+                                   LOGS / f"{name}.log" if lanes > 1 else None): name
+                       for name in order}
+            while running:
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in done:
+                    name = running.pop(future)
+                    log = LOGS / f"{name}.log"
+                    if lanes > 1 and log.is_file():
+                        print(log.read_text(), end="", flush=True)
+                    if future.exception() is not None:
+                        pool.shutdown(cancel_futures=True)
+                    results[name], stages.times[name] = future.result()
+        results = {name: results[name] for name in names}
     text = summary(results, stages)
     print(text)
     sys.stdout.flush()

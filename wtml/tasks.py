@@ -39,6 +39,8 @@ class Task:
         measurement: a task that reads measurements: what its export and ``wtml pipeline``'s
             sample measurements are made of (a :class:`wtml.exporters.matrix.MatrixTask`);
             ``""`` for one that reads recordings.
+        pipeline_s: its stage of the main job's wall-clock seconds, measured (27 Nov, 2 cores,
+            two threads): the main job's lanes start the longest first.
     """
 
     name: str
@@ -52,6 +54,7 @@ class Task:
     frontier: str
     evaluate: str = ""
     measurement: str = ""
+    pipeline_s: float = 60.0
 
     def load(self, part: str) -> Any:
         """The object a part names (``"scene"``, ``"decoder"``, ``"export"``, ``"rows"``,
@@ -72,23 +75,23 @@ TASKS = {t.name: t for t in (
          "wtml.exporters.fluid:export_fluid", "wtml.runtime.predict:predict_file",
          "wtml.pipeline:run_fluid",
          "wtml.bench.fluid:frontier_problem", evaluate="wtml.bench.fluid:evaluate_checkpoint",
-         measurement="wtml.exporters.fluid:FLUID"),
+         measurement="wtml.exporters.fluid:FLUID", pipeline_s=37),
     Task("radial", "a contact's distance from the tip along the whisker from Ze",
          "measurements", "wtml.scenes.radial:RadialScene", "wtml.decoders.radial:RadialDecoder",
          "wtml.exporters.radial:export_radial", "wtml.runtime.predict:predict_file",
          "wtml.pipeline:run_radial",
          "wtml.bench.radial:frontier_problem", evaluate="wtml.bench.radial:evaluate_checkpoint",
-         measurement="wtml.exporters.radial:RADIAL"),
+         measurement="wtml.exporters.radial:RADIAL", pipeline_s=219),
     Task("onset", "contact onsets, detachments and the wall's horizontal location from e, i",
          "recordings", "wtml.scenes.onset:OnsetScene", "wtml.decoders.onset:OnsetDecoder",
          "wtml.exporters.onset:export_onset", "wtml.runtime.onset:predict_records",
          "wtml.pipeline:run_onset",
-         "wtml.bench.onset:frontier_problem"),
+         "wtml.bench.onset:frontier_problem", pipeline_s=156),
     Task("texture", "a swept sandpaper's grade and grain size from e, i",
          "recordings", "wtml.scenes.texture:TextureScene",
          "wtml.decoders.texture:TextureDecoder", "wtml.exporters.texture:export_texture",
          "wtml.runtime.texture:predict_records", "wtml.pipeline:run_texture",
-         "wtml.bench.texture:frontier_problem"),
+         "wtml.bench.texture:frontier_problem", pipeline_s=252),
 )}
 """Every task, in the main job's order."""
 UNNAMED = "fluid"

@@ -47,12 +47,12 @@ from wtml.bench.onset_transfer import (
 from wtml.bench.onset_transfer import scorer as transfer_scorer
 from wtml.bench.resampling import statistic_interval
 from wtml.bench.transfer import run_variants
+from wtml.cores import available_cores
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.exporters.onset import record_inputs, thesis_pipeline
 from wtml.physics.beam_presets import build
 from wtml.physics.modal import Wall, convergence_table
-from wtml.physics.stepping import available_cores
 from wtml.runtime.contacts import Timing, contacts_from
 from wtml.runtime.onset import stream_record
 from wtml.runtime.predict import OnnxModel, load_export

@@ -75,7 +75,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from numba import njit
 
-from wtml.physics.stepping import available_cores, eigenbasis, record_blocks
+from wtml.cores import available_cores
+from wtml.physics.stepping import eigenbasis, record_blocks
 from wtml.physics.validation import check_range
 
 LAWS = ("linear", "power", "hunt_crossley", "mount_hertz")

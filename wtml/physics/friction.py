@@ -54,7 +54,8 @@ import numpy as np
 from numba import njit
 from scipy.special import dawsn
 
-from wtml.physics.stepping import available_cores, eigenbasis, record_blocks
+from wtml.cores import available_cores
+from wtml.physics.stepping import eigenbasis, record_blocks
 from wtml.physics.validation import check_range
 
 REFERENCE_SPEED = 1.0

@@ -46,10 +46,11 @@ import numpy as np
 from numba import njit
 from scipy.linalg import eigh, expm
 
+from wtml.cores import available_cores
 from wtml.physics.beam import BeamTransducer
 from wtml.physics.contact import CONTACT_OUTPUTS, simulate_contact
 from wtml.physics.friction import simulate_friction
-from wtml.physics.stepping import available_cores, eigenbasis, record_blocks
+from wtml.physics.stepping import eigenbasis, record_blocks
 from wtml.physics.structure import Structure
 from wtml.physics.validation import check_omega, check_range
 

@@ -1,6 +1,6 @@
 """The exact stepper's shared kernel: a regime's step map in the eigenbasis of its state map
 (:func:`eigenbasis`), and records split into blocks stepped side by side on the cores this
-process may use (:func:`record_blocks`, :func:`available_cores`).
+process may use (:func:`record_blocks`, on :func:`wtml.cores.available_cores`).
 
 :class:`wtml.physics.modal.ModalTransducer` steps its walls and the loads that
 :mod:`wtml.physics.contact` and :mod:`wtml.physics.friction` step with these, each importing
@@ -9,19 +9,14 @@ this module only: the loads know nothing of the modal model but the maps it hand
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
+
+from wtml.cores import available_cores
 
 BLOCK = (32, 64)
 """The fewest and most records stepped side by side in one call of the stepper: their maps
 stay in cache and each step's arithmetic runs across records in vector registers (measured:
 below 24 records per call the time per record-step doubles)."""
-
-
-def available_cores() -> int:
-    """The cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
 
 
 def record_blocks(bsz: int, threads: int | None) -> list[slice]:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
+from wtml.cores import available_cores
 from wtml.files import (
     CSV_MAX_BYTES,
     MEMORY_CEILING,
@@ -111,7 +112,8 @@ class OnnxModel:
 
     Args:
         path: ``model.onnx``, ``classical.onnx`` or ``stream.onnx``.
-        threads: intra-op threads (0: onnxruntime's default).
+        threads: intra-op threads (0: every core this process may use,
+            :func:`wtml.cores.available_cores`).
         data: the file's bytes, already read and checked against the export's manifest
             (:func:`load_export`); read from ``path`` when None.
 
@@ -128,7 +130,7 @@ class OnnxModel:
             if not data:
                 raise InputError(f"{path}: empty file; {REDO}")
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
+        opts.intra_op_num_threads = threads or available_cores()
         opts.inter_op_num_threads = 1
         opts.log_severity_level = 4  # onnxruntime's own messages are not ours to print
         try:
@@ -469,10 +471,10 @@ def read_reference(path: str | Path | None, model: OnnxModel, n: int) -> np.ndar
 def load_export(model_dir: str | Path, *, stream: bool = False, threads: int = 0
                 ) -> tuple[OnnxModel, ...]:
     """The decoder and the classical model of an export folder (and, ``stream``, its
-    streaming graph; ``threads``: onnxruntime's intra-op threads, 0 its default), each file
-    checked against the folder's manifest (sha256 and size) before onnxruntime opens it, each
-    graph's metadata against its task's schema, and the graphs against each other and the
-    manifest.
+    streaming graph; ``threads``: onnxruntime's intra-op threads, 0 every core this process
+    may use), each file checked against the folder's manifest (sha256 and size) before
+    onnxruntime opens it, each graph's metadata against its task's schema, and the graphs
+    against each other and the manifest.
 
     Raises:
         InputError, FileError, SchemaError: one line naming the file (and the key).

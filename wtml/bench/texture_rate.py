@@ -261,7 +261,7 @@ def _plot(s: dict, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5.5, 4))
+    fig, ax = plt.subplots(figsize=(6, 4.8))
     for r, marker, shift in zip(s["methods"], ("o", "o", "s"), (1.0, 1.0, 1.1), strict=True):
         acc, (low, high) = 100 * r["accuracy"], r["interval"]
         ax.errorbar(shift * r["rate_hz"] / 1e3, acc,
@@ -277,7 +277,7 @@ def _plot(s: dict, out: Path) -> None:
            xlim=(rates[0] / 1.6, rates[-1] * 1.6), xlabel="sampling rate (kS/s)",
            ylabel="accuracy (%)",
            title=f"{s['test_specimens']} held-out specimens, {s['window_s']:g} s windows")
-    ax.legend(fontsize=7, loc="lower right")
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     fig.tight_layout()
     fig.savefig(out / "rate.png", dpi=110)
     plt.close(fig)

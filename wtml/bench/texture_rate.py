@@ -135,7 +135,7 @@ def run_rate(out: str | Path = "runs/texture/rate", *, scenes: tuple[str, str] =
         window_s: the windows' length, s.
         record_s: each record's length, s (None: the scenes').
         per_grade: specimens of each grade per simulated chunk (memory: a 204.8 kS/s chunk of
-            20 one-second records takes ~1 GB to simulate).
+            20 one-second records: the default study peaks at 1.7 GB).
         oracle_draws: draws of each oracle's prior.
         max_iter: the peers' boosting iterations.
     """

@@ -2,7 +2,7 @@
 
 Subcommands: ``walkthrough`` (the thesis's calibration), ``presets``, ``fidelity``, ``generate``,
 ``evaluate``, ``export``, ``predict``, ``stream`` (an onset export on a live acquisition),
-``bench fluid|radial|onset|texture|device|runtime``, ``device``, ``calibrate`` and
+``bench fluid|radial|onset|texture|texture-rate|device|runtime``, ``device``, ``calibrate`` and
 ``pipeline`` (all of them in a row). Bad input ends a command with one line on stderr and
 exit code 2.
 Training runs through LightningCLI: ``python train.py fit --config configs/fluid.yaml``.
@@ -445,6 +445,48 @@ def _coverage_parser(be_sub) -> None:
                     help="NPE's most training epochs")
     bc.add_argument("--threads", type=THREADS, default=2, help="torch and onnxruntime threads")
     bc.set_defaults(func=_bench_coverage)
+
+
+# ----------------------------------------------- wtml bench texture-rate (issue 25 §3)
+
+
+def _bench_texture_rate(args: argparse.Namespace) -> int:
+    from wtml.bench.texture_rate import run_rate
+
+    print(run_rate(args.out, scenes=(args.low, args.high), train_specimens=args.train,
+                   test_specimens=args.test, window_s=args.window,
+                   oracle_draws=args.oracle_draws, per_grade=args.per_grade))
+    return 0
+
+
+def _texture_rate_parser(be_sub) -> None:
+    """``wtml bench texture-rate``'s options."""
+    br = be_sub.add_parser("texture-rate", help="the texture task at 51.2 and 204.8 kS/s: "
+                           "the band-power peer on paired specimens", formatter_class=_Help,
+                           description="Simulates the same training and held-out specimens "
+                                       "at both scenes' rates (paired draws), trains the "
+                                       "band-power peer at each and scores it on the held-out "
+                                       "specimens' windows: accuracy with its interval over "
+                                       "the specimens, the paired difference, P320/P280 "
+                                       "confusion, the peer on the faster records' bands "
+                                       "below the slower Nyquist, and the oracles.")
+    br.add_argument("--low", default="configs/scenes/texture.yaml",
+                    help="the slower rate's scene")
+    br.add_argument("--high", default="configs/scenes/texture_pxi.yaml",
+                    help="the faster rate's scene (the same but the acquisition)")
+    br.add_argument("--train", type=_number(5, 10**6, int), default=640,
+                    help="training specimens (one record each)")
+    br.add_argument("--test", type=_number(5, 10**6, int), default=200,
+                    help="held-out specimens (one record each)")
+    br.add_argument("--window", type=_number(0.01, 10.0), default=0.25,
+                    help="window length, s")
+    br.add_argument("--per-grade", type=_number(1, 100, int), default=4,
+                    help="specimens per grade simulated at once (memory)")
+    br.add_argument("--oracle-draws", type=COUNT, default=100_000,
+                    help="draws of each oracle's prior")
+    br.add_argument("--out", default="runs/texture/rate",
+                    help="report.md, summary.json and rate.png go here")
+    br.set_defaults(func=_bench_texture_rate)
 
 
 # ------------------------------------------------------------------------------------------
@@ -909,6 +951,7 @@ def build_parser() -> argparse.ArgumentParser:
     bt.add_argument("--device-records", type=COUNT, default=24,
                     help="fresh records per row of the device-spread table")
     bt.set_defaults(func=_bench_texture)
+    _texture_rate_parser(be_sub)
     _coverage_parser(be_sub)
 
     ba = be_sub.add_parser("all", help="every task's speed-accuracy frontier, one report",

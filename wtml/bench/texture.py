@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from wtml.baselines.texture_peers import KineticSignature, MiniRocketPeer
+from wtml.baselines.texture_peers import BandPowerPeer, KineticSignature, MiniRocketPeer
 from wtml.bench.frontier import Method, Problem, open_graph
 from wtml.bench.resampling import group_interval
 from wtml.bench.texture_transfer import (
@@ -127,6 +127,16 @@ def amplitude_oracle(scene, n: int = 200_000, seed: int = 0, *,
     pred = model.predict(x)
     return {"accuracy": float(np.mean(pred == y)), "confusion": confusion(y, pred, len(sizes)),
             "n": n}
+
+
+def oracles(scene, draws: int = 100_000) -> tuple[dict, dict]:
+    """Both bounds of :func:`amplitude_oracle` under ``scene``'s prior on ``draws`` draws: the
+    amplitude oracle's answer and the every-grain oracle's (the sweep at 10 V from the nominal
+    response's tip speed; its answer also holds ``sweep_mm``, peak to peak per grade, mm)."""
+    nominal = nominal_response(scene)
+    sweep = 2 * np.abs(nominal["velocity"]) / (2 * np.pi * NOMINAL_HZ)  # peak to peak, m
+    return (amplitude_oracle(scene, draws),
+            amplitude_oracle(scene, draws, sweep_m=sweep) | {"sweep_mm": (1e3 * sweep).tolist()})
 
 
 def confusion(true: np.ndarray, pred: np.ndarray, k: int) -> np.ndarray:
@@ -229,11 +239,7 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     gain = correct["decoder (ONNX)"] - correct[peer.name]
     versus_peer = {"difference": float(gain.mean()), "interval": group_interval(gain, specimen)}
     _progress("the oracles")
-    oracle = amplitude_oracle(scene, oracle_draws)
-    nominal = nominal_response(scene)
-    sweep = 2 * np.abs(nominal["velocity"]) / (2 * np.pi * NOMINAL_HZ)  # peak to peak, m
-    grain_oracle = amplitude_oracle(scene, oracle_draws, sweep_m=sweep) | {
-        "sweep_mm": (1e3 * sweep).tolist()}
+    oracle, grain_oracle = oracles(scene, oracle_draws)
     _progress("accuracy against window length")
     module = load_decoder(checkpoint)
     graph = Gated(module.net, module.gate, (1,)).eval()
@@ -595,9 +601,9 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
     """The texture task for :mod:`wtml.bench.frontier`: accuracy (%) on the test shard's
     windows of the exported window length (its specimens never seen in training; the
     interval by resampling specimens), costs per second of signal. The thesis's cues
-    (``model_dir``'s classical graph), MiniRocket (fitted here on the training shards'
-    windows), the kinetic signature, and the amplitude and every-grain oracles (the best
-    achievable from what they know; :func:`amplitude_oracle`), as rows."""
+    (``model_dir``'s classical graph), MiniRocket and the band-power peer (both fitted here on
+    the training shards' windows), the kinetic signature, and the amplitude and every-grain
+    oracles (the best achievable from what they know; :func:`amplitude_oracle`), as rows."""
     scene = dataset_scene(data_dir)
     rate = scene.acquisition.sample_rate_hz
     split = split_shards(read_manifest(data_dir)["n_shards"], 1, 1)
@@ -612,6 +618,9 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
     peer = MiniRocketPeer(peer_kernels).fit(e_tr, i_tr, train["grade"][own_tr])
     kinetic = KineticSignature(WhiskFeatures(scene.calibration_hz, rate),
                                np.array(list(THESIS_GRADES.values())) * 1e-6, rate)
+    _progress(f"fitting the band-power peer on {len(e_tr)} training windows")
+    bands = BandPowerPeer(scene.calibration_hz, rate).fit(e_tr, i_tr, t_tr,
+                                                          train["grade"][own_tr])
     pick = np.random.default_rng(0).permutation(len(e_tr))[:256]
     calibration = (e_tr[pick], i_tr[pick], t_tr[pick])
     del train, e_tr, i_tr
@@ -626,24 +635,26 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
 
     sizes = np.array(list(THESIS_GRADES.values()))[truth] * 1e-6
     _progress("the oracles")
-    oracles = []
-    nominal = nominal_response(scene)
-    sweep = 2 * np.abs(nominal["velocity"]) / (2 * np.pi * NOMINAL_HZ)
-    for label, extra in (("amplitude oracle", {}), ("every-grain oracle", {"sweep_m": sweep})):
-        acc = amplitude_oracle(scene, oracle_draws, **extra)["accuracy"]
+    bounds = []
+    for label, answer in zip(("amplitude oracle", "every-grain oracle"),
+                             oracles(scene, oracle_draws), strict=True):
+        acc = answer["accuracy"]
         half = 1.96 * np.sqrt(acc * (1 - acc) / oracle_draws)
-        oracles.append(Method(label, "reference", score=(100 * acc, 100 * (acc - half),
-                                                         100 * (acc + half)),
-                              note="the Bayes rule on what it knows (gradient boosting on "
-                                   f"{oracle_draws} draws)"))
+        bounds.append(Method(label, "reference", score=(100 * acc, 100 * (acc - half),
+                                                        100 * (acc + half)),
+                             note="the Bayes rule on what it knows (gradient boosting on "
+                                  f"{oracle_draws} draws)"))
     methods = [
         Method("thesis cues ONNX", "classical", open_graph(classical, "windows", threads),
                classical),
         Method(peer.name, "peer", _Windows(peer.name, peer.predict),
                note=f"{peer_kernels} kernels, fitted on the training windows"),
+        Method(bands.name, "peer", bands,
+               note=f"{len(bands.edges) - 1} bands of the current over |F1|² and the whisk "
+                    "features, gradient boosting fitted on the training windows"),
         Method(kinetic.name, "classical", _Windows(kinetic.name, kinetic.predict),
                note="the kinetic signature (the hypothesis the thesis refuted)"),
-        *oracles,
+        *bounds,
     ]
     return Problem(
         "texture", "accuracy", "%", True, "s of signal", window_s, (e, i, t), score, "windows",

@@ -9,6 +9,7 @@ model config and run length (otherwise the run is replaced, and the pipeline say
 from __future__ import annotations
 
 import csv
+import fcntl
 import json
 import os
 import sys
@@ -42,21 +43,36 @@ class Stages:
     Args:
         echo: where a one-line note of each stage also goes as it begins (a slice in a lane
             of its own prints its log to a file: this is the terminal), or None.
+        bench_lock: a file that each ``bench`` stage holds locked while it runs (slices side by
+            side: their benches, each slice's largest memory and its timings, take turns;
+            the wait counts in the stage's time), or None.
     """
 
-    def __init__(self, echo: TextIO | None = None) -> None:
+    def __init__(self, echo: TextIO | None = None, bench_lock: Path | None = None) -> None:
         self.start = time.perf_counter()
         self.times: dict[str, dict[str, float]] = {}
         self._slice, self._stage, self._t0 = "", "", 0.0
         self.echo = echo
+        self.bench_lock = bench_lock
+        self._held: TextIO | None = None
 
     def begin(self, slice_: str, stage: str, command: str) -> None:
         """Close the running stage, open this one and print its stand-alone command."""
         self.end()
         self._slice, self._stage, self._t0 = slice_, stage, time.perf_counter()
         print(f"\n== {slice_} {stage}: {command}", flush=True)
+        self._note(f"{slice_}: {stage}")
+        if stage == "bench" and self.bench_lock is not None:
+            self._held = open(self.bench_lock, "a")  # noqa: SIM115 (closed in end())
+            try:
+                fcntl.flock(self._held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                self._note(f"{slice_}: bench waits for the other lane's bench")
+                fcntl.flock(self._held, fcntl.LOCK_EX)
+
+    def _note(self, text: str) -> None:
         if self.echo is not None:
-            print(f"{time.strftime('%H:%M:%S')} {slice_}: {stage}", file=self.echo, flush=True)
+            print(f"{time.strftime('%H:%M:%S')} {text}", file=self.echo, flush=True)
 
     def end(self) -> None:
         if self._stage:
@@ -64,6 +80,10 @@ class Stages:
             times = self.times.setdefault(self._slice, {})
             times[self._stage] = times.get(self._stage, 0.0) + spent  # generate: two datasets
             self._stage = ""
+        if self._held is not None:
+            fcntl.flock(self._held, fcntl.LOCK_UN)
+            self._held.close()
+            self._held = None
 
     def line(self, slice_: str) -> str:
         return ", ".join(f"{k} {duration(v)}" for k, v in self.times.get(slice_, {}).items())
@@ -575,19 +595,22 @@ LANES = 2
 """Slices of the main job run side by side, one thread each (see :func:`run_all`)."""
 LOGS = Path("runs/pipeline")
 """Where each slice run in a lane writes its log (``<task>.log``)."""
+BENCH_LOCK = "bench.lock"
+"""The file in :data:`LOGS` that the lanes' ``bench`` stages take turns on (:class:`Stages`):
+side by side, the texture and radial benches peaked at 3.1 GB together (27 Nov)."""
 PRELOAD = ["numpy", "scipy.signal", "sklearn.ensemble", "onnxruntime", "torch", "lightning",
            "wtml.training"]
 """Modules the slices' processes start with: imported once, by the fork server they are forked
 from (each slice imported them afresh, ~8 s, when it was spawned from a bare interpreter)."""
 
 
-def run_slice(task: str | Task, max_epochs: int | None = None, echo: TextIO | None = None
-              ) -> tuple[dict, dict[str, float]]:
+def run_slice(task: str | Task, max_epochs: int | None = None, echo: TextIO | None = None,
+              bench_lock: Path | None = None) -> tuple[dict, dict[str, float]]:
     """One slice of the main job (the ``pipeline`` part of ``task``, a registered task's name
-    or a :class:`wtml.tasks.Task`): its results and its stages' times (s); ``echo``:
-    :class:`Stages`'."""
+    or a :class:`wtml.tasks.Task`): its results and its stages' times (s); ``echo`` and
+    ``bench_lock``: :class:`Stages`'."""
     spec = TASKS[task] if isinstance(task, str) else task
-    stages = Stages(echo)
+    stages = Stages(echo, bench_lock)
     result = spec.load("pipeline")(stages, max_epochs=max_epochs)
     stages.end()
     return result, stages.times.get(spec.name, {})
@@ -631,7 +654,7 @@ def _lane_slice(spec: Task, max_epochs: int | None, threads: int, log: Path | No
         if log is None:
             return run_slice(spec, max_epochs)
         with _logged(log) as terminal:
-            return run_slice(spec, max_epochs, terminal)
+            return run_slice(spec, max_epochs, terminal, log.parent / BENCH_LOCK)
 
 
 def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LANES) -> str:
@@ -643,8 +666,9 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
     ends. With ``lanes`` > 1 (and as many cores), that many run side by side, the longest
     first (``Task.pipeline_s``), each on ``cores // lanes`` threads: most of a slice's work
     (the trainers' steps on small batches, the stepper, the benches' small calls) gains
-    little from a second thread; each writes its log to :data:`LOGS` ``/<task>.log``,
-    printed whole when it ends, and a line per stage as it goes. ``lanes`` 1: one after
+    little from a second thread. Their ``bench`` stages take turns (:data:`BENCH_LOCK`).
+    Each writes its log to :data:`LOGS` ``/<task>.log``, printed whole when it ends, and a
+    line per stage as it goes. ``lanes`` 1: one after
     another on every core, printing as they go.
 
     Raises:

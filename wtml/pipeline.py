@@ -542,6 +542,10 @@ def _texture_lines(s: dict, stages: Stages) -> list[str]:
         f"{100 * s['decoder_minus_peer']['difference']:.1f} points, 95 % interval "
         f"{span(s['decoder_minus_peer']['interval'], signed=True)}); thesis cues "
         f"{100 * cues['accuracy']:.1f} %",
+        *([f"  {bands['name']}: {100 * by[bands['name']]['accuracy']:.1f} % (target above it: "
+           f"{_met(bands['difference'] > 0)}, by {100 * bands['difference']:.1f} points, 95 % "
+           f"interval {span(bands['interval'], signed=True)})"]
+          if (bands := s.get("decoder_minus_bands")) else []),
         f"  kinetic signature {100 * kin['accuracy']:.1f} % (chance 20 %; target near chance: "
         f"{_met(kin['accuracy'] <= 0.3)})",
         f"  unseen FEPA grades, grain size RMS {inter['rms_pct']:.1f} % inside the trained "

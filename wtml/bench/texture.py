@@ -208,13 +208,17 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     graphs = {"decoder (ONNX)": _onnx(decoder), "thesis cues (ONNX)": _onnx(classical)}
     methods = dict(graphs)
     train = load_shards(data_dir, split["train"])
-    e_tr, i_tr, own_tr, _ = _cut(train, window_s, rate)
+    e_tr, i_tr, own_tr, t_tr = _cut(train, window_s, rate)
     _progress(f"fitting MiniRocket ({peer_kernels} kernels) on {len(e_tr)} training windows")
     t0 = time.perf_counter()
     peer = MiniRocketPeer(peer_kernels).fit(e_tr, i_tr, train["grade"][own_tr])
     peer_fit_s = time.perf_counter() - t0
-    del train, e_tr, i_tr
+    _progress(f"fitting the band-power peer on {len(e_tr)} training windows")
+    bands = BandPowerPeer(scene.calibration_hz, rate).fit(e_tr, i_tr, t_tr,
+                                                          train["grade"][own_tr])
+    del train, e_tr, i_tr, t_tr
     methods[peer.name] = peer.predict
+    methods[bands.name] = bands.predict
     kinetic = KineticSignature(features, sizes, rate)
     methods[kinetic.name] = kinetic.predict
 
@@ -236,8 +240,10 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
         if "in_domain" in pred:
             row["flagged"] = float(1 - np.mean(pred["in_domain"]))
         results.append(row)
-    gain = correct["decoder (ONNX)"] - correct[peer.name]
-    versus_peer = {"difference": float(gain.mean()), "interval": group_interval(gain, specimen)}
+    versus_peer, versus_bands = ({"name": name, "difference": float(gain.mean()),
+                                  "interval": group_interval(gain, specimen)}
+                                 for name in (peer.name, bands.name)
+                                 for gain in [correct["decoder (ONNX)"] - correct[name]])
     _progress("the oracles")
     oracle, grain_oracle = oracles(scene, oracle_draws)
     _progress("accuracy against window length")
@@ -261,6 +267,7 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
                "n_train_windows": len(own_tr), "peer_fit_s": peer_fit_s,
                "onnx_torch_max_diff": parity,
                "methods": results, "decoder_minus_peer": versus_peer,
+               "decoder_minus_bands": versus_bands,
                "oracle": oracle | {"confusion": oracle["confusion"].tolist()},
                "grain_oracle": grain_oracle | {"confusion": grain_oracle["confusion"].tolist()},
                "by_window": by_window, "unseen": unseen, "ablation": ablation,
@@ -428,9 +435,9 @@ def _report(s: dict) -> str:
               f"{o['n']} draws of the prior) | {_pct(o['accuracy'])} | - | - | - | - |",
               f"| every-grain oracle (also the spacing and impulse of every grain swept) "
               f"| {_pct(c['accuracy'])} | - | - | - | - |", "",
-              f"Decoder minus MiniRocket on the same windows: {100 * gain['difference']:+.1f} "
-              f"points (95 % interval {span(gain['interval'], signed=True)}, paired over the "
-              "specimens).", "",
+              *(f"Decoder minus {g['name']} on the same windows: {100 * g['difference']:+.1f} "
+                f"points (95 % interval {span(g['interval'], signed=True)}, paired over the "
+                "specimens)." for g in (gain, s.get("decoder_minus_bands")) if g), "",
               "The oracles know exactly what the friction carries under the scene's prior; "
               "the every-grain oracle also sees each grain the tip sweeps (peak to peak at "
               "10 V: " + ", ".join(f"{x:.2f}" for x in c["sweep_mm"]) + " mm), its spacing "

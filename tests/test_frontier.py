@@ -86,6 +86,22 @@ def test_a_quantisation_is_kept_only_faster_at_equal_accuracy():
     assert "not finite" in quantised_verdict(_problem(), _row("q", float("nan"), 40e-6), base)
 
 
+def test_a_side_by_side_timing_decides_the_quantisation():
+    """Timed side by side, the quantisation is faster only where three rounds in four were
+    (its own latency row, measured after the decoder's, is not what decides)."""
+    base = _row("d", 3.0, 50e-6)
+    slower_alone = _row("q", 3.1, 60e-6) | {"throughput": 1 / 60e-6}
+    paired = {"latency": (0.80, 0.78, 0.83), "batch": (1.0, 0.97, 1.02)}
+    said = quantised_verdict(_problem(), slower_alone | {"paired": paired}, base)
+    assert said.startswith("kept") and "side by side, time ×0.80 (0.78–0.83) at batch 1" in said
+    shaky = {"latency": (0.90, 0.70, 1.10), "batch": (1.0, 0.97, 1.02)}
+    assert "not faster" in quantised_verdict(_problem(), _row("q", 3.1, 40e-6) | {
+        "paired": shaky}, base)
+    slower_at_batch = {"latency": (0.80, 0.78, 0.83), "batch": (1.2, 1.1, 1.3)}
+    assert "not faster" in quantised_verdict(_problem(), _row("q", 3.1, 40e-6) | {
+        "paired": slower_at_batch}, base)
+
+
 @pytest.fixture(scope="module")
 def fluid_frontier(flow, tmp_path_factory):
     tmp, _ = flow

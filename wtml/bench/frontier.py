@@ -8,7 +8,8 @@ achievable) and an adapter that turns an ONNX graph of the task into a predictor
 adds the decoder variants (one export folder each, trained from their own configs by
 :mod:`wtml.bench.variants`) and, for every decoder, onnxruntime's own quantisations
 (:func:`quantise`): int8 dynamic, int8 static and float16, each kept as a method only where it
-is measured faster here at equal accuracy. Every method gets: the metric with its interval,
+is measured faster here, side by side with its decoder (:func:`wtml.bench.timing.paired_ratio`),
+at equal accuracy. Every method gets: the metric with its interval,
 p50 latency at batch 1 (per unit), throughput at a large batch, the ONNX file's size and the
 ONNX session's memory (peak RSS of a fresh process that opens it and runs the large batch,
 over that of the same process before; :func:`session_memory`).
@@ -37,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from wtml.bench.timing import latency_p50, throughput
+from wtml.bench.timing import latency_p50, paired_ratio, throughput
 
 BUDGETS_S = (10e-6, 100e-6, 1e-3, 10e-3)
 """The budgets of the report, seconds per unit (a sample, or a second of signal)."""
@@ -376,16 +377,29 @@ def quantised_verdict(problem: Problem, row: dict, base: dict, margin: float = 0
     """Why a quantisation ``row`` of decoder row ``base`` is kept or not: kept only where it
     is faster by more than ``margin`` at batch 1 or at the large batch, slower by no more
     than ``margin`` at the other, and its value lies within the decoder's interval (equal
-    accuracy at this test set's resolution) or beyond it on the better side."""
+    accuracy at this test set's resolution) or beyond it on the better side.
+
+    Where the row holds ``paired`` (its time over the decoder's, timed side by side:
+    :func:`wtml.bench.timing.paired_ratio`, ``{"latency": …, "batch": …}`` each (median,
+    25th, 75th percentile)), that decides: faster where three rounds in four were (the 75th
+    percentile below ``1 - margin``), not slower where the median is below ``1 + margin``.
+    Otherwise the rows' own latency and throughput, measured one after the other."""
     if not np.isfinite(row["value"]):
         return "dropped: its answers are not finite"
-    latency = row["latency_s"] / base["latency_s"]
-    rate = row["throughput"] / base["throughput"]
-    faster = ((latency < 1 - margin and rate > 1 - margin)
-              or (rate > 1 + margin and latency < 1 + margin))
+    if "paired" in row:
+        lat, big = row["paired"]["latency"], row["paired"]["batch"]
+        faster = ((lat[2] < 1 - margin and big[0] < 1 + margin)
+                  or (big[2] < 1 - margin and lat[0] < 1 + margin))
+        ratios = (f"side by side, time ×{lat[0]:.2f} ({lat[1]:.2f}–{lat[2]:.2f}) at batch 1, "
+                  f"×{big[0]:.2f} ({big[1]:.2f}–{big[2]:.2f}) at batch {problem.big_batch}")
+    else:
+        latency = row["latency_s"] / base["latency_s"]
+        rate = row["throughput"] / base["throughput"]
+        faster = ((latency < 1 - margin and rate > 1 - margin)
+                  or (rate > 1 + margin and latency < 1 + margin))
+        ratios = f"latency ×{latency:.2f}, throughput ×{rate:.2f}"
     equal = base["low"] <= row["value"] <= base["high"] or better(problem, row["value"],
                                                                    base["value"])
-    ratios = f"latency ×{latency:.2f}, throughput ×{rate:.2f}"
     if faster and equal:
         return f"kept: faster at equal accuracy ({ratios})"
     if not faster:
@@ -579,6 +593,8 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
         progress(f"{problem.task}: {m.name}")
         rows.append(measure(problem, m, threads=threads, latency_repeats=latency_repeats,
                             throughput_repeats=throughput_repeats, budget_s=budget_s))
+    one = tuple(x[:1] for x in problem.inputs)
+    big = big_inputs(problem.inputs, problem.big_batch)
     for variant, path in decoders.items():
         base = next(r for r in rows if r["name"] == f"decoder {variant} ONNX")
         predictor = next(m.predictor for m in methods if m.onnx == path)
@@ -594,6 +610,9 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
                 m = Method(label, "quantised", open_graph(made, problem.graph, threads), made)
                 row = measure(problem, m, threads=threads, latency_repeats=latency_repeats,
                               throughput_repeats=throughput_repeats, budget_s=budget_s)
+                row["paired"] = {
+                    "latency": paired_ratio(predictor, m.predictor, one, budget_s=budget_s),
+                    "batch": paired_ratio(predictor, m.predictor, big, budget_s=budget_s)}
             except Exception as err:  # a quantised graph onnxruntime cannot run on this CPU
                 rows.append(_unmeasured(label, "dropped: does not run here "
                                                f"({str(err).splitlines()[0][:100]})"))

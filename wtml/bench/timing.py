@@ -3,12 +3,14 @@
 Each measurement stops at its repeat count or once it has run ``budget_s`` seconds (at
 least one call), and its warm-up once it has run a third of that, so a slow method (the
 physics inversion takes ~7 s per call at batch 4096) does not hold up a benchmark; the median
-is robust to the count. Also :func:`duration`, the one way wtml prints a wall-clock time
+is robust to the count. Two methods compared side by side: :func:`paired_ratio`. Also
+:func:`duration`, the one way wtml prints a wall-clock time
 (training's epoch lines, the main job's stages)."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -40,6 +42,42 @@ def throughput(predictor, ze_batch, repeats: int, budget_s: float = 3.0) -> floa
     arguments, as for :func:`latency_p50`; median over the calls)."""
     n = len(ze_batch[0] if isinstance(ze_batch, tuple) else ze_batch)
     return n / _median_call(predictor, ze_batch, repeats, 1, budget_s)
+
+
+def paired_ratio(first, second, args, *, rounds: int = 9, calls: int = 10,
+                 budget_s: float = 3.0, clock: Callable[[], float] = time.perf_counter
+                 ) -> tuple[float, float, float]:
+    """How long ``second.predict(*args)`` takes over ``first.predict(*args)``, timed side by
+    side: in each round ``calls`` calls of one then ``calls`` of the other (the order
+    alternating between rounds), the ratio of their medians. A drift of the machine within a
+    round falls on both alike, where two measurements one after the other (as
+    :func:`latency_p50` of each) take it as a difference: on this shared 2-core machine those
+    verdicts disagreed between runs an hour apart. Stops after ``rounds`` rounds or once
+    ``budget_s`` seconds have run (at least 3 rounds). ``clock``: seconds, for a test.
+
+    Returns:
+        the median of the rounds' ratios and its 25th and 75th percentiles.
+    """
+    args = args if isinstance(args, tuple) else (args,)
+
+    def median_call(predictor) -> float:
+        times = []
+        for _ in range(calls):
+            t0 = clock()
+            predictor.predict(*args)
+            times.append(clock() - t0)
+        return float(np.median(times))
+
+    ratios: list[float] = []
+    start = clock()
+    while len(ratios) < rounds and (len(ratios) < 3 or clock() - start < budget_s):
+        if len(ratios) % 2:
+            b, a = median_call(second), median_call(first)
+        else:
+            a, b = median_call(first), median_call(second)
+        ratios.append(b / a)
+    low, mid, high = np.percentile(ratios, [25, 50, 75])
+    return float(mid), float(low), float(high)
 
 
 def duration(seconds: float) -> str:

@@ -379,3 +379,22 @@ def test_the_bayes_posterior_mean_is_the_least_squares_error():
     assert np.median(bayes.ess) > 50 and bayes.ess.min() > 5
     # the same draws on every call: the same answers
     assert np.array_equal(bayes.predict(data["ze"], data["ref"])["distance"], b)
+
+
+def test_the_main_jobs_sample_measurements_leave_the_export_as_its_manifest_lists_it(
+        radial_flow, tmp_path):
+    """``wtml pipeline`` writes its sample CSV and their devices' references beside the export:
+    every file the manifest lists still has its hash, and the references read."""
+    import shutil
+
+    from wtml.pipeline import write_sample_csv
+    from wtml.runtime.metadata import read_manifest, verified_bytes
+
+    export = tmp_path / "radial"
+    shutil.copytree(radial_flow / "export/radial", export)
+    refs = write_sample_csv(radial_flow / "data", export / "sample_input.csv")
+    assert refs == {"reference": export / "sample_input_reference.npz"}
+    for entry in read_manifest(export).files:
+        verified_bytes(export, entry)  # raises on a changed file
+    rows = predict_file(export, export / "sample_input.csv", **refs)
+    assert len(rows) == 3 and all(np.isfinite(r["distance_decoder (m)"]) for r in rows)

@@ -123,8 +123,9 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> dict[str, Path]:
     truth columns the task declares), and the reference their export needs beside it, as its
     ``MatrixTask`` (``wtml.tasks``' ``measurement`` part) names it: fluid their devices'
     calibrated T, ``calibration.npz`` (``--calibration``); radial their devices' free
-    references, ``sample_reference.npz`` (``--reference``). Returns ``{keyword: path}`` of that
-    reference, ``predict_file``'s keyword argument.
+    references, ``sample_input_reference.npz`` (``--reference``; not the export's own
+    ``sample_reference.npz``, which its manifest lists with its hash). Returns ``{keyword:
+    path}`` of that reference, ``predict_file``'s keyword argument.
 
     Raises:
         ValueError: a dataset of a task that reads recordings.

@@ -50,7 +50,8 @@ class MatrixTask:
         reference_text: what that reference is and how it is measured (the metadata's
             ``references``).
         reference_file: the name of the file of references ``wtml pipeline`` writes beside its
-            sample measurements (:func:`wtml.pipeline.write_sample_csv`).
+            sample measurements (:func:`wtml.pipeline.write_sample_csv`); none of the
+            export's own files (a manifest lists those with their hashes).
         reference_key: that file's array of them, ``(n, n_freq, *reference_shape)``.
         reference_array: the dataset's array they come from.
         truth: the sample measurements' truth columns: ``{dataset array: CSV column}``.

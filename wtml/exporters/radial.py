@@ -70,10 +70,15 @@ RADIAL = MatrixTask(
     reference_text="the free (untouched) whisker's Ze of this device at the model's "
                    "frequencies, measured when it is set up (ref_re, ref_im; wtml predict "
                    "--reference)",
-    reference_file="sample_reference.npz", reference_key="ze", reference_array="ref",
+    reference_file="sample_input_reference.npz", reference_key="ze", reference_array="ref",
     truth={"distance": "true_distance_m"}, n_ranges=8,
     classical=classical_graph, intervals=interval_specs)
 """The radial task's export and sample measurements (``wtml.tasks``' ``measurement`` part)."""
+
+
+SAMPLE_REFERENCE = "sample_reference.npz"
+"""The export's own reference file, listed in its manifest (``wtml pipeline``'s sample
+measurements bring theirs beside them: ``RADIAL.reference_file``)."""
 
 
 def export_radial(module, scene, out: Path) -> dict[str, Path]:
@@ -82,7 +87,7 @@ def export_radial(module, scene, out: Path) -> dict[str, Path]:
     device's free Ze, noise-free: ``frequency_hz`` ``(n_freq,)`` Hz, ``ze`` ``(n_freq,)``
     Ω) into ``out``; returns ``{kind: path}``."""
     paths = export_matrix(module, scene, out, RADIAL)
-    paths["sample reference"] = out / RADIAL.reference_file
+    paths["sample reference"] = out / SAMPLE_REFERENCE
     np.savez(paths["sample reference"], frequency_hz=scene.excitation.frequency_hz,
              ze=scene.free_ze())
     return paths

@@ -14,38 +14,44 @@ from collections.abc import Callable
 
 import numpy as np
 
+Clock = Callable[[], float]
+"""Seconds (``time.perf_counter``; a test drives its own)."""
 
-def _median_call(predictor, ze, repeats: int, warmup: int, budget_s: float) -> float:
+
+def _median_call(predictor, ze, repeats: int, warmup: int, budget_s: float,
+                 clock: Clock = time.perf_counter) -> float:
     args = ze if isinstance(ze, tuple) else (ze,)
-    start = time.perf_counter()
+    start = clock()
     for _ in range(warmup):
         predictor.predict(*args)
-        if time.perf_counter() - start > budget_s / 3:
+        if clock() - start > budget_s / 3:
             break
     times: list[float] = []
-    start = time.perf_counter()
-    while len(times) < repeats and (not times or time.perf_counter() - start < budget_s):
-        t0 = time.perf_counter()
+    start = clock()
+    while len(times) < repeats and (not times or clock() - start < budget_s):
+        t0 = clock()
         predictor.predict(*args)
-        times.append(time.perf_counter() - t0)
+        times.append(clock() - t0)
     return float(np.median(times))
 
 
-def latency_p50(predictor, ze_one, repeats: int, budget_s: float = 3.0) -> float:
+def latency_p50(predictor, ze_one, repeats: int, budget_s: float = 3.0,
+                clock: Clock = time.perf_counter) -> float:
     """Median seconds of one ``predict`` call at batch 1 (after 20 warm-up calls);
     ``ze_one`` an array, or a tuple of the predictor's arguments (e.g. ``(ze, ref)``)."""
-    return _median_call(predictor, ze_one, repeats, 20, budget_s)
+    return _median_call(predictor, ze_one, repeats, 20, budget_s, clock)
 
 
-def throughput(predictor, ze_batch, repeats: int, budget_s: float = 3.0) -> float:
+def throughput(predictor, ze_batch, repeats: int, budget_s: float = 3.0,
+               clock: Clock = time.perf_counter) -> float:
     """Samples per second at the batch size of ``ze_batch`` (an array or a tuple of
     arguments, as for :func:`latency_p50`; median over the calls)."""
     n = len(ze_batch[0] if isinstance(ze_batch, tuple) else ze_batch)
-    return n / _median_call(predictor, ze_batch, repeats, 1, budget_s)
+    return n / _median_call(predictor, ze_batch, repeats, 1, budget_s, clock)
 
 
 def paired_ratio(first, second, args, *, rounds: int = 9, calls: int = 10,
-                 budget_s: float = 3.0, clock: Callable[[], float] = time.perf_counter
+                 budget_s: float = 3.0, clock: Clock = time.perf_counter
                  ) -> tuple[float, float, float]:
     """How long ``second.predict(*args)`` takes over ``first.predict(*args)``, timed side by
     side: in each round ``calls`` calls of one then ``calls`` of the other (the order
@@ -53,7 +59,7 @@ def paired_ratio(first, second, args, *, rounds: int = 9, calls: int = 10,
     round falls on both alike, where two measurements one after the other (as
     :func:`latency_p50` of each) take it as a difference: on this shared 2-core machine those
     verdicts disagreed between runs an hour apart. Stops after ``rounds`` rounds or once
-    ``budget_s`` seconds have run (at least 3 rounds). ``clock``: seconds, for a test.
+    ``budget_s`` seconds have run (at least 3 rounds).
 
     Returns:
         the median of the rounds' ratios and its 25th and 75th percentiles.

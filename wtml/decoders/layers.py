@@ -33,7 +33,13 @@ class ZmFromZe(nn.Module):
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, t_re: torch.Tensor,
                 t_im: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        (a11, b11), (a12, b12), (a21, b21), (a22, b22) = t_elements(t_re, t_im)
+        return self.from_elements(ze_re, ze_im, t_elements(t_re, t_im))
+
+    @staticmethod
+    def from_elements(ze_re: torch.Tensor, ze_im: torch.Tensor, elements: tuple[tuple, ...]
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The same from T's elements already split (:func:`t_elements`)."""
+        (a11, b11), (a12, b12), (a21, b21), (a22, b22) = elements
         n_re = a22 * ze_re - b22 * ze_im - a12  # t22 Ze - t12
         n_im = a22 * ze_im + b22 * ze_re - b12
         d_re = a11 - (a21 * ze_re - b21 * ze_im)  # t11 - t21 Ze
@@ -96,7 +102,7 @@ class SignedLogZm(nn.Module):
         self.register_buffer("z_scale", torch.tensor(float(z_scale)))
 
     @staticmethod
-    def device(t_re: torch.Tensor, t_im: torch.Tensor) -> torch.Tensor:
+    def device(elements: tuple[tuple, ...]) -> torch.Tensor:
         """The lumped device as T shows it (physics.md §3: ``t11 = 1/φ``, ``t12 = Zt/φ`` with
         the sphere's mass in Zt, ``t21 = jω C0 (1 - j tanδ)/φ``), elements of T as they are
         (the gate whitens them; over a few % of spread they are near linear in the
@@ -104,18 +110,20 @@ class SignedLogZm(nn.Module):
         (damping; mass against stiffness), Im t12 at the last (stiffness against mass), Re
         and Im t21 at the middle one (C0 tanδ and C0), ``(batch, N_DEVICE)``. Only elements
         that the spread moves: one that is zero in every training record (Im t11) would flag
-        any measured T."""
-        last, mid = 4 * (t_re.shape[1] - 1), 4 * (t_re.shape[1] // 2)  # flat offsets
-        flat = torch.cat([t_re.flatten(1), t_im.flatten(1)], -1)
-        n = t_re.shape[1] * 4  # where the imaginary parts begin
-        at = torch.tensor([0, 1, mid + 2, n + 1, n + last + 1, n + mid + 2])
-        return flat.index_select(1, at)
+        any measured T. ``elements``: :func:`t_elements`' (columns of the parts it splits
+        anyway: a Gather of a few columns of the flat T, or a concat of its two parts, cost
+        onnxruntime as much as an MLP layer)."""
+        (a11, _), (a12, b12), (a21, b21), _ = elements
+        mid = a11.shape[1] // 2
+        n = a11.shape[1]
+        return torch.cat([a11[:, :1], a12[:, :1], a21[:, mid:mid + 1], b12[:, :1],
+                          b12[:, n - 1:], b21[:, mid:mid + 1]], -1)
 
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, t_re: torch.Tensor,
                 t_im: torch.Tensor) -> torch.Tensor:
-        x = torch.cat(self.zm(ze_re, ze_im, t_re, t_im), -1) / self.z_scale
-        return torch.cat([torch.sign(x) * torch.log1p(torch.abs(x)), self.device(t_re, t_im)],
-                         -1)
+        elements = t_elements(t_re, t_im)
+        x = torch.cat(self.zm.from_elements(ze_re, ze_im, elements), -1) / self.z_scale
+        return torch.cat([torch.sign(x) * torch.log1p(torch.abs(x)), self.device(elements)], -1)
 
 
 class StandardPolynomial(nn.Module):

@@ -18,6 +18,7 @@ from wtml.bench.frontier import (
     pareto,
     quantised_verdict,
     session_memory,
+    side_by_side,
     speed_verdict,
 )
 from wtml.data import load_shards
@@ -102,6 +103,43 @@ def test_a_side_by_side_timing_decides_the_quantisation():
         "paired": slower_at_batch}, base)
 
 
+class _Ticking:
+    """A predictor that advances a shared clock by a cost per row and a fixed cost per call
+    (stands in for a method whose time the test knows)."""
+
+    def __init__(self, clock: list[float], per_call: float, per_row: float) -> None:
+        self.clock, self.per_call, self.per_row = clock, per_call, per_row
+
+    def predict(self, x):
+        self.clock[0] += self.per_call + self.per_row * len(x)
+        return {}
+
+
+def test_every_row_is_timed_side_by_side_with_the_default_decoder():
+    """Each timed row gets its time over the default decoder's from alternating rounds; a
+    quantisation of it keeps its verdict's pairing; a method whose throughput was its pass
+    over the set is paired at batch 1 only; a bound is not timed."""
+    now = [0.0]
+    predictors = {"decoder default ONNX": _Ticking(now, 50e-6, 1e-6),
+                  "classical": _Ticking(now, 25e-6, 0.5e-6),
+                  "Bayes": _Ticking(now, 4e-3, 4e-3)}
+    rows = [_row("decoder default ONNX", 3.0, 51e-6), _row("classical", 30.0, 26e-6),
+            _row("Bayes", 2.4, 8e-3) | {"whole_pass": True}, _row("bound", 2.0, None),
+            _row("decoder default float16 ONNX", 3.0, 40e-6, "quantised") | {
+                "paired": {"latency": (0.9, 0.8, 1.0), "batch": (1.0, 0.9, 1.1)}}]
+    for r in rows:
+        r["note"] = ""
+    side_by_side(_problem(), rows, predictors, "decoder default ONNX", 1.0,
+                 progress=lambda text: None, clock=lambda: now[0])
+    by = {r["name"]: r.get("side_by_side") for r in rows}
+    assert by["decoder default ONNX"]["latency"] == (1.0, 1.0, 1.0)
+    assert by["classical"]["latency"][0] == pytest.approx(25.5 / 51)
+    assert by["classical"]["batch"][0] == pytest.approx((25e-6 + 4e-6) / (50e-6 + 8e-6))
+    assert by["Bayes"]["latency"][0] == pytest.approx(8e-3 / 51e-6)
+    assert by["Bayes"]["batch"] is None and by["bound"] is None
+    assert by["decoder default float16 ONNX"]["latency"] == (0.9, 0.8, 1.0)
+
+
 @pytest.fixture(scope="module")
 def fluid_frontier(flow, tmp_path_factory):
     tmp, _ = flow
@@ -136,6 +174,12 @@ def test_the_fluid_frontier_measures_every_method_like_the_others(fluid_frontier
     assert result["pareto"] and all(name in rows for name in result["pareto"])
     table = "\n".join(result["lines"])
     assert "| budget per sample |" in table and "decoder default ONNX" in table
+    # every method with a cost is timed beside the decoder; the decoder is the unit
+    timed = [r for r in rows.values() if r["latency_s"] is not None]
+    assert decoder["side_by_side"]["latency"] == (1.0, 1.0, 1.0)
+    assert all(r["side_by_side"]["latency"][1] <= r["side_by_side"]["latency"][0]
+               <= r["side_by_side"]["latency"][2] for r in timed)
+    assert "time, side by side (batch 1; batch" in table
 
 
 def test_quantisation_keeps_the_metadata_and_leaves_the_gate_in_float32(fluid_frontier):

@@ -354,6 +354,7 @@ def measure(problem: Problem, method: Method, *, threads: int, latency_repeats: 
     if rate * budget_s < problem.big_batch:  # a slow method: its pass over the whole set
         row["note"] = "; ".join(x for x in (method.note, "throughput: its pass over the set")
                                 if x)
+        row["whole_pass"] = True
     else:
         rate = throughput(method.predictor, big, throughput_repeats, budget_s)
     row |= {"value": value, "low": low, "high": high, "detail": "".join(detail),
@@ -366,6 +367,46 @@ def measure(problem: Problem, method: Method, *, threads: int, latency_repeats: 
         row["size_bytes"] = Path(method.onnx).stat().st_size
         row["memory_bytes"] = session_memory(method.onnx, problem.graph, big, threads)
     return row
+
+
+def side_by_side(problem: Problem, rows: list[dict], predictors: dict[str, Any],
+                 reference: str, budget_s: float,
+                 progress: Callable[[str], None] = print, clock=time.perf_counter) -> None:
+    """Every timed row's time over the ``reference`` row's (a decoder), timed side by side
+    (:func:`wtml.bench.timing.paired_ratio`) at batch 1 and at the large batch, into
+    ``row["side_by_side"] = {"latency": (median, q25, q75), "batch": … or None}``: the
+    ratios hold where the rows' own latencies, one after the other, take this machine's
+    drift as a difference. A quantisation of the reference reuses its verdict's timing; a
+    method too slow for the large batch in the budget (its throughput is its pass over the
+    set) is paired at batch 1 only. Each round's calls are as many as fit ``budget_s``
+    (one to ten). ``clock``: seconds (a test drives its own)."""
+    base = next((r for r in rows if r["name"] == reference), None)
+    if base is None or base["latency_s"] is None:
+        return
+    one = tuple(x[:1] for x in problem.inputs)
+    big = big_inputs(problem.inputs, problem.big_batch)
+    first = predictors[reference]
+    per_call = {"latency": base["latency_s"] * problem.per_row,
+                "batch": problem.big_batch * problem.per_row / base["throughput"]}
+    prefix = reference.removesuffix(" ONNX") + " "
+    for row in rows:
+        if row["name"] == reference:
+            row["side_by_side"] = {"latency": (1.0, 1.0, 1.0), "batch": (1.0, 1.0, 1.0)}
+            continue
+        if "paired" in row and row["name"].startswith(prefix):
+            row["side_by_side"] = row["paired"]
+            continue
+        if row["latency_s"] is None or row["name"] not in predictors:
+            continue
+        progress(f"{problem.task}: {row['name']} beside {reference}")
+        own = {"latency": row["latency_s"] * problem.per_row,
+               "batch": problem.big_batch * problem.per_row / row["throughput"]}
+        slow = row.get("whole_pass", False)
+        row["side_by_side"] = {
+            kind: None if kind == "batch" and slow else paired_ratio(
+                first, predictors[row["name"]], args, budget_s=budget_s, clock=clock,
+                calls=int(np.clip(budget_s / (6 * (own[kind] + per_call[kind])), 1, 10)))
+            for kind, args in (("latency", one), ("batch", big))}
 
 
 def better(problem: Problem, a: float, b: float) -> bool:
@@ -501,6 +542,21 @@ def _bytes(n: int | None) -> str:
     return f"{n / 1024:.0f} KiB" if n < 2**20 else f"{n / 2**20:.1f} MiB"
 
 
+def _ratios(paired: dict | None) -> str:
+    """``×0.52 (0.50–0.55); ×0.81 (0.78–0.85)`` from a row's ``side_by_side``."""
+    if paired is None:
+        return ""
+    return "; ".join("" if paired[k] is None else
+                     f"×{paired[k][0]:.2f} ({paired[k][1]:.2f}–{paired[k][2]:.2f})"
+                     for k in ("latency", "batch"))
+
+
+def _reference(rows: list[dict]) -> str:
+    """The name of the row the side-by-side times are over (``"reference"`` if none)."""
+    return next((r["name"] for r in rows if (r.get("side_by_side") or {}).get("latency")
+                 == (1.0, 1.0, 1.0)), "reference")
+
+
 def _budget(seconds: float) -> str:
     return f"{1e6 * seconds:.0f} µs" if seconds < 1e-3 else f"{1e3 * seconds:.0f} ms"
 
@@ -513,9 +569,13 @@ def report_lines(problem: Problem, result: dict) -> list[str]:
              f"throughput: {problem.per}s per second at a batch of {problem.big_batch}; "
              f"{result['threads']} threads (torch and onnxruntime); memory: the ONNX session's "
              "peak RSS over a fresh process's, running that batch.", "",
+             f"Side by side: each row's time over the {_reference(rows)}'s, timed in "
+             "alternating rounds (median, quartiles), at batch 1 and at the large batch: the "
+             "ratios hold where this machine's speed drifts between rows.", "",
              f"| method | kind | {problem.metric} [95 % interval] | p50 latency / {problem.per} "
-             f"| throughput ({problem.per}s/s) | size | session memory | flagged | note |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             f"| throughput ({problem.per}s/s) | time, side by side (batch 1; batch "
+             f"{problem.big_batch}) | size | session memory | flagged | note |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     front = set(result["pareto"])
     for r in rows:
         name = f"**{r['name']}**" if r["name"] in front else r["name"]
@@ -525,7 +585,7 @@ def report_lines(problem: Problem, result: dict) -> list[str]:
             f"| {name} | {r['kind']} | {r['value']:.3g} [{r['low']:.3g}, {r['high']:.3g}] | "
             f"{_time(r['latency_s'])} | "
             f"{'' if r['throughput'] is None else format(r['throughput'], '.3g')} | "
-            f"{_bytes(r['size_bytes'])} | {_bytes(r['memory_bytes'])} | {flagged} | {note} |")
+            f"{_ratios(r.get('side_by_side'))} | {_bytes(r['size_bytes'])} | {_bytes(r['memory_bytes'])} | {flagged} | {note} |")
     lines += ["", "Bold: the Pareto front (no other method both faster and more accurate).",
               "", f"| budget per {problem.per} | most accurate method within it | "
               f"{problem.metric} | its p50 latency |", "|---|---|---|---|"]
@@ -595,6 +655,7 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
                             throughput_repeats=throughput_repeats, budget_s=budget_s))
     one = tuple(x[:1] for x in problem.inputs)
     big = big_inputs(problem.inputs, problem.big_batch)
+    quantised: dict[str, Any] = {}
     for variant, path in decoders.items():
         base = next(r for r in rows if r["name"] == f"decoder {variant} ONNX")
         predictor = next(m.predictor for m in methods if m.onnx == path)
@@ -613,11 +674,17 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
                 row["paired"] = {
                     "latency": paired_ratio(predictor, m.predictor, one, budget_s=budget_s),
                     "batch": paired_ratio(predictor, m.predictor, big, budget_s=budget_s)}
+                quantised[label] = m.predictor
             except Exception as err:  # a quantised graph onnxruntime cannot run on this CPU
                 rows.append(_unmeasured(label, "dropped: does not run here "
                                                f"({str(err).splitlines()[0][:100]})"))
                 continue
             rows.append(row | {"verdict": quantised_verdict(problem, row, base)})
+    if decoders:
+        reference = "default" if "default" in decoders else next(iter(decoders))
+        predictors = {m.name: m.predictor for m in methods + problem.methods} | quantised
+        side_by_side(problem, rows, predictors, f"decoder {reference} ONNX", budget_s,
+                     progress)
     result = {"task": problem.task, "threads": threads, "rows": rows}
     result["pareto"] = pareto(problem, usable(rows))
     result["budgets"] = budget_rows(problem, rows)

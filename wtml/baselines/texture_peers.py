@@ -28,6 +28,7 @@ from scipy.signal import welch
 from wtml.cores import available_cores
 from wtml.decoders.texture import WhiskFeatures
 from wtml.physics.twoport import flat_parts
+from wtml.runtime.predict import RUN_BYTES
 
 
 class MiniRocketPeer:
@@ -96,12 +97,18 @@ class KineticSignature:
     @torch.no_grad()
     def speed(self, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> np.ndarray:
         """RMS tip speed ``|V|/√2`` (m/s) at the fundamental, ``(n,)``, through each window's
-        calibrated T ``t`` (complex ``(n, K, 2, 2)``)."""
+        calibrated T ``t`` (complex ``(n, K, 2, 2)``); :data:`~wtml.runtime.predict.RUN_BYTES`
+        of windows at a time (the fit's intermediates are several times the windows)."""
         t_re, t_im = flat_parts(t)
-        _, (_, _, v_re, v_im, _, _), _ = self.features.cues(
-            torch.tensor(e, dtype=torch.float32), torch.tensor(i, dtype=torch.float32),
-            torch.tensor(t_re), torch.tensor(t_im))
-        return np.hypot(v_re.double().numpy(), v_im.double().numpy()) / np.sqrt(2)
+        step = max(1, RUN_BYTES // (8 * e.shape[1]))
+        v = []
+        for k in range(0, len(e), step):
+            _, (_, _, v_re, v_im, _, _), _ = self.features.cues(
+                torch.tensor(e[k:k + step], dtype=torch.float32),
+                torch.tensor(i[k:k + step], dtype=torch.float32),
+                torch.tensor(t_re[k:k + step]), torch.tensor(t_im[k:k + step]))
+            v.append(np.hypot(v_re.double().numpy(), v_im.double().numpy()))
+        return np.concatenate(v) / np.sqrt(2)
 
     def predict(self, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
         peak, v = self.peaks(i), self.speed(e, i, t)

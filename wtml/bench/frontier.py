@@ -585,7 +585,8 @@ def report_lines(problem: Problem, result: dict) -> list[str]:
             f"| {name} | {r['kind']} | {r['value']:.3g} [{r['low']:.3g}, {r['high']:.3g}] | "
             f"{_time(r['latency_s'])} | "
             f"{'' if r['throughput'] is None else format(r['throughput'], '.3g')} | "
-            f"{_ratios(r.get('side_by_side'))} | {_bytes(r['size_bytes'])} | {_bytes(r['memory_bytes'])} | {flagged} | {note} |")
+            f"{_ratios(r.get('side_by_side'))} | {_bytes(r['size_bytes'])} | "
+            f"{_bytes(r['memory_bytes'])} | {flagged} | {note} |")
     lines += ["", "Bold: the Pareto front (no other method both faster and more accurate).",
               "", f"| budget per {problem.per} | most accurate method within it | "
               f"{problem.metric} | its p50 latency |", "|---|---|---|---|"]

@@ -51,7 +51,7 @@ from wtml.decoders.checkpoint import load_decoder
 from wtml.decoders.domain import Gated
 from wtml.decoders.texture import WhiskFeatures
 from wtml.physics.twoport import flat_parts
-from wtml.runtime.predict import load_export
+from wtml.runtime.predict import RUN_BYTES, load_export
 from wtml.runtime.texture import pool, run_windows, windows
 from wtml.scenes.texture import (
     FEPA_GRADES,
@@ -182,6 +182,30 @@ def _cut(data: dict, seconds: float, rate: float) -> tuple[np.ndarray, ...]:
     return cut[0], cut[1], owner, data["t"][owner]
 
 
+def _training_windows(data_dir, split: dict, window_s: float, rate: float
+                      ) -> tuple[np.ndarray, ...]:
+    """The training shards' whole windows: e, i ``(n, window)``, their records' calibrated
+    T ``(n, K, 2, 2)`` and grades ``(n,)`` (the records themselves are let go: the windows
+    are a copy)."""
+    train = load_shards(data_dir, split["train"])
+    e, i, owner, t = _cut(train, window_s, rate)
+    return e, i, t, train["grade"][owner]
+
+
+def _peers(scene, e: np.ndarray, i: np.ndarray, t: np.ndarray, grade: np.ndarray,
+           kernels: int) -> tuple[MiniRocketPeer, BandPowerPeer, float]:
+    """The peers fitted on training windows (:func:`_training_windows`): MiniRocket with
+    ``kernels`` kernels, the band-power peer, and MiniRocket's fitting time (s)."""
+    _progress(f"fitting MiniRocket ({kernels} kernels) on {len(e)} training windows")
+    start = time.perf_counter()
+    peer = MiniRocketPeer(kernels).fit(e, i, grade)
+    fit_s = time.perf_counter() - start
+    _progress(f"fitting the band-power peer on {len(e)} training windows")
+    bands = BandPowerPeer(scene.calibration_hz, scene.acquisition.sample_rate_hz).fit(
+        e, i, t, grade)
+    return peer, bands, fit_s
+
+
 def _grain_errors(pred: np.ndarray, true: np.ndarray) -> dict[str, float]:
     return {"rmse_um": float(np.sqrt(np.mean((pred - true) ** 2)) * 1e6),
             "rms_pct": float(100 * np.sqrt(np.mean((pred / true - 1) ** 2)))}
@@ -207,16 +231,10 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     features = WhiskFeatures(scene.calibration_hz, rate)
     graphs = {"decoder (ONNX)": _onnx(decoder), "thesis cues (ONNX)": _onnx(classical)}
     methods = dict(graphs)
-    train = load_shards(data_dir, split["train"])
-    e_tr, i_tr, own_tr, t_tr = _cut(train, window_s, rate)
-    _progress(f"fitting MiniRocket ({peer_kernels} kernels) on {len(e_tr)} training windows")
-    t0 = time.perf_counter()
-    peer = MiniRocketPeer(peer_kernels).fit(e_tr, i_tr, train["grade"][own_tr])
-    peer_fit_s = time.perf_counter() - t0
-    _progress(f"fitting the band-power peer on {len(e_tr)} training windows")
-    bands = BandPowerPeer(scene.calibration_hz, rate).fit(e_tr, i_tr, t_tr,
-                                                          train["grade"][own_tr])
-    del train, e_tr, i_tr, t_tr
+    e_tr, i_tr, t_tr, grade_tr = _training_windows(data_dir, split, window_s, rate)
+    peer, bands, peer_fit_s = _peers(scene, e_tr, i_tr, t_tr, grade_tr, peer_kernels)
+    n_train_windows = len(e_tr)
+    del e_tr, i_tr, t_tr
     methods[peer.name] = peer.predict
     methods[bands.name] = bands.predict
     kinetic = KineticSignature(features, sizes, rate)
@@ -264,7 +282,7 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     summary = {"task": "texture", "n_test_records": len(test["grade"]),
                "n_test_specimens": len(np.unique(specimen)),
                "n_test_windows": len(truth), "window_s": window_s,
-               "n_train_windows": len(own_tr), "peer_fit_s": peer_fit_s,
+               "n_train_windows": n_train_windows, "peer_fit_s": peer_fit_s,
                "onnx_torch_max_diff": parity,
                "methods": results, "decoder_minus_peer": versus_peer,
                "decoder_minus_bands": versus_bands,
@@ -294,12 +312,17 @@ def _robustness(test: dict, owner: np.ndarray, correct: np.ndarray) -> dict:
 
 
 def _torch(graph):
+    """The torch graph on windows, :data:`~wtml.runtime.predict.RUN_BYTES` of input at a time
+    (as the ONNX runtime batches: at once, 80 one-second windows' intermediates took 0.5 GB)."""
     @torch.no_grad()
     def run(e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
-        grain, _, prob, inside, _ = graph(torch.tensor(e), torch.tensor(i),
-                                          *(torch.tensor(x) for x in flat_parts(t)))
+        step = max(1, RUN_BYTES // (8 * e.shape[1]))
+        parts = [graph(torch.tensor(e[k:k + step]), torch.tensor(i[k:k + step]),
+                       *(torch.tensor(x) for x in flat_parts(t[k:k + step])))
+                 for k in range(0, len(e), step)]
+        grain, prob, inside = (torch.cat([p[j] for p in parts]) for j in (0, 2, 3))
         return {"grade": prob.argmax(1).numpy(), "grain": grain.double().numpy(),
-                "in_domain": inside.numpy()}
+                "in_domain": inside.numpy(), "probabilities": prob.double().numpy()}
     return run
 
 
@@ -324,15 +347,9 @@ def _by_window(test: dict, graph, onnx_model, window_s: float, rate: float
                          "latency_s": latency_p50(_Timed(run), _Batch(e[:1], i[:1], t[:1]), 30),
                          **_grain_errors(pred["grain"], test["grain_m"][owner])})
     e, i, _, t = _cut(test, window_s, rate)
-    diff = np.abs(_probabilities(graph, e, i, t)
+    diff = np.abs(_torch(graph)(e, i, t)["probabilities"]
                   - run_windows(onnx_model, e, i, t)["probabilities"]).max()
     return rows, float(diff)
-
-
-@torch.no_grad()
-def _probabilities(graph, e: np.ndarray, i: np.ndarray, t: np.ndarray) -> np.ndarray:
-    return graph(torch.tensor(e), torch.tensor(i),
-                 *(torch.tensor(x) for x in flat_parts(t)))[2].double().numpy()
 
 
 def _pooled(model, window_s: float, rate: float):
@@ -392,7 +409,9 @@ def _ablation(scene, methods: dict, window_s: float, n: int) -> list[dict]:
     variants = (("both cues", {}), ("asperities only", {"mean_friction": False}),
                 ("mean friction only", {"asperities": False}))
     for label, kwargs in variants:
-        data = scene.simulate(n, np.random.default_rng([scene.seed, 2**20 + 3]), **kwargs)
+        # 16 records stepped at a time: the oversampled run's arrays grow with the batch
+        data = scene.simulate(n, np.random.default_rng([scene.seed, 2**20 + 3]), batch=16,
+                              **kwargs)
         e, i, owner, t = _cut(data, window_s, scene.acquisition.sample_rate_hz)
         row = {"variant": label}
         for name, run in methods.items():
@@ -619,18 +638,13 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
     window_s = json.loads(load_export(model_dir)[0].metadata["window_s"])
     e, i, owner, t = _cut(test, window_s, rate)
     truth, specimen = test["grade"][owner], test["specimen"][owner]
-    train = load_shards(data_dir, split["train"])
-    e_tr, i_tr, own_tr, t_tr = _cut(train, window_s, rate)
-    _progress(f"fitting MiniRocket ({peer_kernels} kernels) on {len(e_tr)} training windows")
-    peer = MiniRocketPeer(peer_kernels).fit(e_tr, i_tr, train["grade"][own_tr])
+    e_tr, i_tr, t_tr, grade_tr = _training_windows(data_dir, split, window_s, rate)
+    peer, bands, _ = _peers(scene, e_tr, i_tr, t_tr, grade_tr, peer_kernels)
     kinetic = KineticSignature(WhiskFeatures(scene.calibration_hz, rate),
                                np.array(list(THESIS_GRADES.values())) * 1e-6, rate)
-    _progress(f"fitting the band-power peer on {len(e_tr)} training windows")
-    bands = BandPowerPeer(scene.calibration_hz, rate).fit(e_tr, i_tr, t_tr,
-                                                          train["grade"][own_tr])
     pick = np.random.default_rng(0).permutation(len(e_tr))[:256]
     calibration = (e_tr[pick], i_tr[pick], t_tr[pick])
-    del train, e_tr, i_tr
+    del e_tr, i_tr, t_tr
 
     def score(pred: dict) -> tuple[float, float, float, str]:
         correct = (pred["grade"] == truth).astype(float)

@@ -10,7 +10,7 @@ import pytest
 from scipy.signal import resample_poly
 
 from wtml.baselines.texture_peers import BANDS_PER_OCTAVE, BandPowerPeer, band_edges
-from wtml.bench.texture_rate import PAIRED, check_paired
+from wtml.bench.texture_rate import PAIRED, check_paired, frontier_lines
 from wtml.runtime.texture import windows
 from wtml.scenes import load_scene
 
@@ -119,3 +119,28 @@ def test_the_study_refuses_scenes_that_differ_in_more_than_the_acquisition():
     low = load_scene("configs/scenes/texture.yaml")
     with pytest.raises(ValueError, match="reach_m"):
         check_paired(low, replace(low, reach_m=4e-3))
+
+
+def test_the_rate_study_is_an_axis_of_the_texture_frontier(tmp_path):
+    """A study's summary becomes the frontier's rate table: each method's accuracy as the
+    study measured it, each rate's features timed here (the lowest rate the unit, side by
+    side), the paired differences; without a study, one line saying how to make it."""
+    assert "wtml bench texture-rate" in frontier_lines(tmp_path / "none.json")[0]
+    methods = [{"name": "51.2 kS/s", "rate_hz": RATES[0], "top_hz": 25600.0,
+                "accuracy": 0.89, "interval": [0.86, 0.92]},
+               {"name": "204.8 kS/s", "rate_hz": RATES[1], "top_hz": 102400.0,
+                "accuracy": 0.894, "interval": [0.87, 0.92]}]
+    summary = {"scenes": ["configs/scenes/texture.yaml", "configs/scenes/texture_pxi.yaml"],
+               "rates_hz": list(RATES), "window_s": 0.25, "train_specimens": 640,
+               "test_specimens": 200, "methods": methods,
+               "differences": [{"name": "204.8 kS/s minus 51.2 kS/s", "difference": 0.004,
+                                "interval": [-0.01, 0.016]}]}
+    path = tmp_path / "summary.json"
+    path.write_text(__import__("json").dumps(summary))
+    lines = frontier_lines(path, records=1)
+    rows = [line for line in lines if line.startswith("| 51.2") or line.startswith("| 204.8")]
+    assert len(rows) == 3  # two rates and one paired difference
+    assert "| 89.0 [86.0, 92.0] |" in rows[0] and "×1.00 (1.00–1.00)" in rows[0]
+    assert "| 102.4 | 89.4 [87.0, 92.0] |" in rows[1]
+    ratio = float(rows[1].split("×")[1].split()[0])
+    assert ratio > 0 and "| +0.4 [-1.0 to +1.6] |" in rows[2]

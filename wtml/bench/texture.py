@@ -623,13 +623,18 @@ class _Windows:
 
 
 def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: int = 2,
-                     peer_kernels: int = 10000, oracle_draws: int = 100_000) -> Problem:
+                     peer_kernels: int = 10000, oracle_draws: int = 100_000,
+                     rate_study: str | Path = "runs/texture/rate/summary.json") -> Problem:
     """The texture task for :mod:`wtml.bench.frontier`: accuracy (%) on the test shard's
     windows of the exported window length (its specimens never seen in training; the
     interval by resampling specimens), costs per second of signal. The thesis's cues
     (``model_dir``'s classical graph), MiniRocket and the band-power peer (both fitted here on
     the training shards' windows), the kinetic signature, and the amplitude and every-grain
-    oracles (the best achievable from what they know; :func:`amplitude_oracle`), as rows."""
+    oracles (the best achievable from what they know; :func:`amplitude_oracle`), as rows;
+    and the sampling rate as an axis, from the ``wtml bench texture-rate`` study at
+    ``rate_study`` (:func:`wtml.bench.texture_rate.frontier_lines`)."""
+    from wtml.bench.texture_rate import frontier_lines
+
     scene = dataset_scene(data_dir)
     rate = scene.acquisition.sample_rate_hz
     split = split_shards(read_manifest(data_dir)["n_shards"], 1, 1)
@@ -679,6 +684,6 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
     ]
     return Problem(
         "texture", "accuracy", "%", True, "s of signal", window_s, (e, i, t), score, "windows",
-        64, calibration, methods,
+        64, calibration, methods, notes=frontier_lines(rate_study),
         data=f"`{data_dir}` test shard {split['test']}: {len(truth)} windows of {window_s:g} s "
              f"from {len(np.unique(specimen))} specimens never seen in training")

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from tests.conftest import TEXTURE_SMALL, TEXTURE_SPREAD
-from wtml.decoders.texture import CalibratedT, WhiskFeatures, cholesky_solve
+from wtml.decoders.texture import BandPowers, CalibratedT, WhiskFeatures, cholesky_solve
 from wtml.fidelity import format_texture, texture_fidelity
 from wtml.physics.twoport import flat_parts
 from wtml.scenes import load_scene
@@ -71,6 +71,80 @@ def test_features_recover_a_tone_and_are_the_same_for_any_window_start(scene):
                   flat_parts(scene.calibrated_t(scene.transducer())))
     f = feats(x, y, t_re, t_im).numpy()
     np.testing.assert_allclose(f[0, :11], f[1, :11], atol=2e-3)
+
+
+def test_band_powers_put_a_tone_in_its_band_and_white_noise_across_all(scene):
+    """A 5 kHz tone of amplitude 3 at an odd window length (frames left over at its end):
+    A²/2 in all, at least 95 % of it in the band that holds 5 kHz (the Hann frame's main lobe
+    spills into the next band for the rest); unit white noise: the bands' share of the
+    Nyquist band, each band's power proportional to its width to 8 %."""
+    rate = scene.acquisition.sample_rate_hz
+    bands = BandPowers(rate, 1024)
+    assert bands.n_bands == 38 and abs(bands.edges[0] - 951.4) < 0.1
+    t = np.arange(5000) / rate
+    tone = bands(torch.tensor(3 * np.sin(2 * np.pi * 5003.0 * t + 0.4)[None],
+                              dtype=torch.float32))[0].numpy()
+    k = np.searchsorted(bands.edges, 5003.0) - 1
+    assert tone.sum() == pytest.approx(4.5, rel=1e-3)
+    assert tone[k] > 0.95 * 4.5 and np.argmax(tone) == k
+    noise = bands(torch.tensor(np.random.default_rng(0).standard_normal((200, 5000)),
+                               dtype=torch.float32)).numpy().mean(0)
+    share = np.diff(bands.edges) / (rate / 2)
+    np.testing.assert_allclose(noise, share, rtol=0.08)
+    with pytest.raises(ValueError, match="shorter than a frame"):
+        bands(torch.zeros(1, 1000))
+    with pytest.raises(ValueError, match="even"):
+        BandPowers(rate, 1023)
+
+
+def test_band_features_are_the_residuals_power_over_the_force(scene):
+    """The decoder's band columns are ln(band power / |F|²): scaling e and i together (a
+    stronger drive of the same linear device: the force and the asperities' current scale
+    alike) leaves them as they were, and scaling the broadband part of i alone by c moves
+    each by 2 ln c, while the whisk features stay put. Without ``band_frame`` the columns
+    are the whisk features alone."""
+    rate = scene.acquisition.sample_rate_hz
+    n = 12800
+    t = np.arange(n) / rate
+    w = 2 * np.pi * 35.7
+    rng = np.random.default_rng(1)
+    e = 9 * np.sin(w * t + 0.3)
+    tone = 2e-5 * np.cos(w * t + 1.0) + 1e-6 * np.cos(3 * w * t + 0.2)
+    broad = 1e-7 * rng.standard_normal(n)
+    t_re, t_im = (torch.tensor(np.stack([p] * 3)) for p in
+                  flat_parts(scene.calibrated_t(scene.transducer())))
+    feats = WhiskFeatures(scene.calibration_hz, rate, 1024)
+    assert feats.n_features == WhiskFeatures.N_FEATURES + 38
+    x = feats(torch.tensor(np.stack([e, 2 * e, e]), dtype=torch.float32),
+              torch.tensor(np.stack([tone + broad, 2 * (tone + broad), tone + 3 * broad]),
+                           dtype=torch.float32), t_re, t_im).double().numpy()
+    cut = WhiskFeatures.N_FEATURES
+    np.testing.assert_allclose(x[1, cut:], x[0, cut:], atol=1e-3)
+    np.testing.assert_allclose(x[2, cut:] - x[0, cut:], 2 * np.log(3), atol=0.02)
+    np.testing.assert_allclose(x[2, :7], x[0, :7], atol=1e-3)
+    plain = WhiskFeatures(scene.calibration_hz, rate)
+    assert plain.n_features == cut
+    np.testing.assert_allclose(plain(torch.tensor(e[None], dtype=torch.float32),
+                                     torch.tensor((tone + broad)[None], dtype=torch.float32),
+                                     t_re[:1], t_im[:1]).double().numpy()[0],
+                               x[0, :cut], atol=1e-6)
+
+
+def test_band_powers_export_to_onnx_as_torch_computes_them(scene, tmp_path):
+    """The band block alone through the dynamo exporter (dynamic batch) and onnxruntime, at a
+    window length whose frames do not tile it: the torch powers to 1e-5 of the largest."""
+    import onnxruntime as ort
+
+    bands = BandPowers(scene.acquisition.sample_rate_hz, 1024).eval()
+    x = torch.tensor(np.random.default_rng(2).standard_normal((3, 5000)), dtype=torch.float32)
+    path = tmp_path / "bands.onnx"
+    torch.onnx.export(bands, (x[:2],), str(path), input_names=["x"], output_names=["p"],
+                      dynamo=True, external_data=False,
+                      dynamic_shapes=({0: torch.export.Dim("batch", min=1)},), verbose=False)
+    got = ort.InferenceSession(str(path)).run(None, {"x": x.numpy()})[0]
+    want = bands(x).numpy()
+    assert got.shape == want.shape == (3, 38)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5 * want.max())
 
 
 def test_scene_reproduces_table_4_10_and_figures_4_28_to_4_31(scene):

@@ -389,3 +389,24 @@ def test_a_texture_export_with_edited_metadata_is_one_line(texture_export, scene
     edit_metadata(folder, "classical.onnx", **change)
     one_line(capsys, ["predict", "--model", str(folder), "--input", str(path),
                       "--calibration", str(cal)], "classical.onnx: " + needle)
+
+
+def test_a_checkpoint_keeps_its_band_frame_and_one_from_before_has_none():
+    """The net's shape carries its band frame (samples), so a checkpoint is rebuilt as it was
+    trained; one saved before the band powers existed (no frame in its shape) is rebuilt
+    without them, whatever the decoder's default."""
+    from wtml.decoders.texture import TextureDecoder
+    from wtml.schema import to_dict
+
+    scene = to_dict(load_scene("configs/scenes/texture.yaml"))
+    old = TextureDecoder()
+    old.scene = scene
+    old.build_from_checkpoint({"window": 12800})
+    assert old.net.features.bands is None
+    assert old.net.features.n_features == WhiskFeatures.N_FEATURES
+    assert old.net_shape() == {"window": 12800, "band_frame": None}
+    new = TextureDecoder(band_frame_s=None)
+    new.scene = scene
+    new.build_from_checkpoint({"window": 12800, "band_frame": 512})
+    assert new.net.features.bands.frame == 512
+    assert new.net_shape() == {"window": 12800, "band_frame": 512}

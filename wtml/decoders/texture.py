@@ -443,14 +443,20 @@ class TextureDecoder(DecoderModule):
                 t_re.repeat_interleave(per, 0), t_im.repeat_interleave(per, 0))
 
     def net_shape(self) -> dict:
-        return {"window": self._n}
+        bands = self.net.features.bands
+        return {"window": self._n, "band_frame": None if bands is None else bands.frame}
 
     def build_from_checkpoint(self, shape: dict) -> None:
+        """The net's shape as trained: its window and its band frame (samples; a checkpoint
+        from before the band powers has none, and is rebuilt without them)."""
         from wtml.scenes import scene_from_dict
 
         scene = scene_from_dict(self.scene)
         self._n = int(shape["window"])
-        feats = self.feature_layer(scene)
+        frame = shape.get("band_frame")
+        if frame is None:
+            self.hparams.band_frame_s = None
+        feats = WhiskFeatures(scene.calibration_hz, scene.acquisition.sample_rate_hz, frame)
         self.net = TextureNet(feats, torch.ones(2, feats.n_features), list(self.hparams.hidden))
 
     def loss(self, batch) -> torch.Tensor:

@@ -10,7 +10,8 @@ import pytest
 from scipy.signal import resample_poly
 
 from wtml.baselines.texture_peers import BandPowerPeer
-from wtml.bench.texture_rate import PAIRED, check_paired, frontier_lines
+from wtml.bench.rate_axis import frontier_lines
+from wtml.bench.texture_rate import PAIRED, check_paired
 from wtml.decoders.texture import BANDS_PER_OCTAVE, band_edges
 from wtml.runtime.texture import windows
 from wtml.scenes import load_scene

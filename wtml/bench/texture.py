@@ -33,6 +33,8 @@ import torch
 
 from wtml.baselines.texture_peers import BandPowerPeer, KineticSignature, MiniRocketPeer
 from wtml.bench.frontier import Method, Problem, open_graph
+from wtml.bench.rate_axis import SUMMARY as RATE_SUMMARY
+from wtml.bench.rate_axis import frontier_lines
 from wtml.bench.resampling import group_interval
 from wtml.bench.texture_transfer import (
     DEVICE_TARGET,
@@ -624,7 +626,7 @@ class _Windows:
 
 def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: int = 2,
                      peer_kernels: int = 10000, oracle_draws: int = 100_000,
-                     rate_study: str | Path = "runs/texture/rate/summary.json") -> Problem:
+                     rate_study: str | Path = RATE_SUMMARY) -> Problem:
     """The texture task for :mod:`wtml.bench.frontier`: accuracy (%) on the test shard's
     windows of the exported window length (its specimens never seen in training; the
     interval by resampling specimens), costs per second of signal. The thesis's cues
@@ -632,9 +634,7 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
     the training shards' windows), the kinetic signature, and the amplitude and every-grain
     oracles (the best achievable from what they know; :func:`amplitude_oracle`), as rows;
     and the sampling rate as an axis, from the ``wtml bench texture-rate`` study at
-    ``rate_study`` (:func:`wtml.bench.texture_rate.frontier_lines`)."""
-    from wtml.bench.texture_rate import frontier_lines
-
+    ``rate_study`` (:func:`wtml.bench.rate_axis.frontier_lines`)."""
     scene = dataset_scene(data_dir)
     rate = scene.acquisition.sample_rate_hz
     split = split_shards(read_manifest(data_dir)["n_shards"], 1, 1)

@@ -28,7 +28,7 @@ from scipy.signal import welch
 from wtml.cores import available_cores
 from wtml.decoders.texture import WhiskFeatures, band_edges
 from wtml.physics.twoport import flat_parts
-from wtml.runtime.predict import RUN_BYTES
+from wtml.runtime.predict import rows_per_run
 
 
 class MiniRocketPeer:
@@ -100,7 +100,7 @@ class KineticSignature:
         calibrated T ``t`` (complex ``(n, K, 2, 2)``); :data:`~wtml.runtime.predict.RUN_BYTES`
         of windows at a time (the fit's intermediates are several times the windows)."""
         t_re, t_im = flat_parts(t)
-        step = max(1, RUN_BYTES // (8 * e.shape[1]))
+        step = rows_per_run(8 * e.shape[1])
         v = []
         for k in range(0, len(e), step):
             _, (_, _, v_re, v_im, _, _), _ = self.features.cues(

@@ -551,12 +551,6 @@ def _ratios(paired: dict | None) -> str:
                      for k in ("latency", "batch"))
 
 
-def _reference(rows: list[dict]) -> str:
-    """The name of the row the side-by-side times are over (``"reference"`` if none)."""
-    return next((r["name"] for r in rows if (r.get("side_by_side") or {}).get("latency")
-                 == (1.0, 1.0, 1.0)), "reference")
-
-
 def _budget(seconds: float) -> str:
     return f"{1e6 * seconds:.0f} µs" if seconds < 1e-3 else f"{1e3 * seconds:.0f} ms"
 
@@ -569,9 +563,9 @@ def report_lines(problem: Problem, result: dict) -> list[str]:
              f"throughput: {problem.per}s per second at a batch of {problem.big_batch}; "
              f"{result['threads']} threads (torch and onnxruntime); memory: the ONNX session's "
              "peak RSS over a fresh process's, running that batch.", "",
-             f"Side by side: each row's time over the {_reference(rows)}'s, timed in "
-             "alternating rounds (median, quartiles), at batch 1 and at the large batch: the "
-             "ratios hold where this machine's speed drifts between rows.", "",
+             f"Side by side: each row's time over the {result['reference'] or 'reference'}'s, "
+             "timed in alternating rounds (median, quartiles), at batch 1 and at the large "
+             "batch: the ratios hold where this machine's speed drifts between rows.", "",
              f"| method | kind | {problem.metric} [95 % interval] | p50 latency / {problem.per} "
              f"| throughput ({problem.per}s/s) | time, side by side (batch 1; batch "
              f"{problem.big_batch}) | size | session memory | flagged | note |",
@@ -641,8 +635,9 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
              progress: Callable[[str], None] = print) -> dict:
     """Measure every method of ``problem`` and every decoder variant (``{variant: its ONNX
     decoder graph}``) with its quantisations; write ``out/<task>.png`` and return
-    ``{"task", "threads", "rows", "budgets", "pareto", "lines"}``. ``budget_s``: the most
-    seconds one latency or throughput measurement runs (:mod:`wtml.bench.timing`)."""
+    ``{"task", "threads", "rows", "reference", "budgets", "pareto", "lines"}`` (``reference``:
+    the row the side-by-side times are over). ``budget_s``: the most seconds one latency or
+    throughput measurement runs (:mod:`wtml.bench.timing`)."""
     out.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("OMP_NUM_THREADS", str(threads))
     methods: list[Method] = []
@@ -681,12 +676,12 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
                                                f"({str(err).splitlines()[0][:100]})"))
                 continue
             rows.append(row | {"verdict": quantised_verdict(problem, row, base)})
+    result = {"task": problem.task, "threads": threads, "rows": rows, "reference": None}
     if decoders:
-        reference = "default" if "default" in decoders else next(iter(decoders))
+        variant = "default" if "default" in decoders else next(iter(decoders))
+        result["reference"] = f"decoder {variant} ONNX"
         predictors = {m.name: m.predictor for m in methods + problem.methods} | quantised
-        side_by_side(problem, rows, predictors, f"decoder {reference} ONNX", budget_s,
-                     progress)
-    result = {"task": problem.task, "threads": threads, "rows": rows}
+        side_by_side(problem, rows, predictors, result["reference"], budget_s, progress)
     result["pareto"] = pareto(problem, usable(rows))
     result["budgets"] = budget_rows(problem, rows)
     result["lines"] = report_lines(problem, result)

@@ -53,7 +53,7 @@ from wtml.decoders.checkpoint import load_decoder
 from wtml.decoders.domain import Gated
 from wtml.decoders.texture import WhiskFeatures
 from wtml.physics.twoport import flat_parts
-from wtml.runtime.predict import RUN_BYTES, load_export
+from wtml.runtime.predict import load_export, rows_per_run
 from wtml.runtime.texture import pool, run_windows, windows
 from wtml.scenes.texture import (
     FEPA_GRADES,
@@ -318,7 +318,7 @@ def _torch(graph):
     (as the ONNX runtime batches: at once, 80 one-second windows' intermediates took 0.5 GB)."""
     @torch.no_grad()
     def run(e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
-        step = max(1, RUN_BYTES // (8 * e.shape[1]))
+        step = rows_per_run(8 * e.shape[1])
         parts = [graph(torch.tensor(e[k:k + step]), torch.tensor(i[k:k + step]),
                        *(torch.tensor(x) for x in flat_parts(t[k:k + step])))
                  for k in range(0, len(e), step)]

@@ -104,6 +104,12 @@ INPUT_FORMATS = INPUT_FORMATS.format(ceiling=nbytes_text(MEMORY_CEILING),
                                      cal=nbytes_text(CALIBRATION_MAX_BYTES))
 
 
+def rows_per_run(row_bytes: int) -> int:
+    """How many rows of ``row_bytes`` input each make one call's :data:`RUN_BYTES` (at least
+    one): the batch of every chunked pass over windows or measurements."""
+    return max(1, RUN_BYTES // max(1, row_bytes))
+
+
 class OnnxModel:
     """An exported wtml model (decoder or classical path) behind the predict interface:
     ``predict(ze) -> {output name: (n,) array, "in_domain": (n,) bool,
@@ -166,7 +172,7 @@ class OnnxModel:
             raise InputError(f"{self.name}: every input needs the same number of rows (at "
                              f"least one), got {[a.shape for a in arrays]}")
         per_row = sum(a[:1].size * 4 for a in arrays) or 1
-        step = max(1, RUN_BYTES // per_row)
+        step = rows_per_run(per_row)
         parts = []
         for k in range(0, n, step):
             feed = {name: np.ascontiguousarray(a[k:k + step], np.float32)

@@ -19,7 +19,7 @@ import numpy as np
 
 from wtml.physics.twoport import flat_parts
 from wtml.runtime.instruments import RecordingProfile
-from wtml.runtime.predict import RUN_BYTES, impossible, load_export, read_calibration
+from wtml.runtime.predict import impossible, load_export, read_calibration, rows_per_run
 from wtml.runtime.recordings import read_record
 
 
@@ -95,7 +95,7 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
     x = read_record(input_path, meta.sample_rate_hz, window, at_least=True,
                     profile=profile)
     t = read_calibration(calibration, freq, x.shape[1], "texture")
-    batch = max(1, RUN_BYTES // (8 * window))
+    batch = rows_per_run(8 * window)
     names = list(meta.classes)
     rows = []
     for label, model in (("decoder", decoder), ("classical", classical)):

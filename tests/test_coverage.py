@@ -147,8 +147,7 @@ def test_a_recalibrated_graph_gives_the_same_sigmas_and_probabilities_in_onnx_an
     assert graph.outputs == (*names, "value_sigma")
     gated = Gated(graph, DomainGate(ZeParts(), 6), (1, 2, 4)).eval()  # every input inside
     path = tmp_path / "toy.onnx"
-    export_graph(gated, 3, path, {"outputs": json.dumps(list(graph.outputs))}, ("x", "y"),
-                 optimize=False)
+    export_graph(gated, 3, path, {"outputs": json.dumps(list(graph.outputs))}, ("x", "y"))
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     got = session.run(None, {"x": x, "y": y})
     with torch.no_grad():

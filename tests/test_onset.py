@@ -14,7 +14,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tests.conftest import ONSET_SMALL, ROOT
-from wtml.decoders.onset import TOUCH_LOOKBACK
+from wtml.decoders.onset import TOUCH_LOOKBACK, asinh
 from wtml.exporters.onset import calibration_file, record_inputs, thesis_pipeline
 from wtml.physics.spread import DeviceSpread
 from wtml.runtime.contacts import Timing, contacts_from, intervals
@@ -41,6 +41,19 @@ def scene(spread_scene):
 def tensors(rec: dict) -> list[torch.Tensor]:
     """A graph's inputs (e, i and the records' calibration) as tensors."""
     return [torch.tensor(x) for x in record_inputs(rec)]
+
+
+@given(st.floats(allow_nan=False, allow_infinity=False, width=32))
+def test_the_exported_asinh_is_torchs(x):
+    """The decoder's asinh (log and sqrt, which the exporter has) against torch's, float32,
+    over the whole float32 range: near 0, and beyond where x² overflows (clipped at 1e18)."""
+    t = torch.tensor([x], dtype=torch.float32)
+    want = torch.asinh(t.clamp(-1e18, 1e18))
+    assert torch.allclose(asinh(t), want, rtol=1e-6, atol=1.2e-7)
+    t.requires_grad_(True)
+    asinh(t).backward()
+    assert torch.allclose(t.grad, 1 / torch.sqrt(1 + t.detach().double() ** 2).float()
+                          if abs(x) < 1e18 else torch.zeros(1), rtol=1e-5)
 
 
 def test_intervals_merge_touches_on_successive_probe_peaks():

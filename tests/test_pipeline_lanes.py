@@ -88,7 +88,7 @@ def test_two_lanes_run_two_slices_side_by_side_on_one_thread_each(lanes, capfd):
     for name in ("first", "second"):
         log = (folder / "logs" / f"{name}.log").read_text()
         assert f"{name} says hello" in log and log in out  # kept, and printed whole
-    assert "2 slices in 2 lanes of 1 thread(s), longest first (first, second)" in out
+    assert "2 slices in 2 lanes of 1 thread(s), in the order that ends first (first, second)" in out
     assert os.environ.get("WTML_THREADS") is None  # this process's threads untouched
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from wtml.bench.timing import duration
 from wtml.cores import THREADS_ENV, available_cores
+from wtml.lanes import lane_order
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.schema import read_yaml
 from wtml.tasks import TASKS, Task
@@ -668,13 +669,13 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
 
     One slice runs in this process. More than one run each in a process of its own (forked
     from a server that imported :data:`PRELOAD` once), which returns all its memory when it
-    ends. With ``lanes`` > 1 (and as many cores), that many run side by side, the longest
-    first (``Task.pipeline_s``), each on ``cores // lanes`` threads: most of a slice's work
-    (the trainers' steps on small batches, the stepper, the benches' small calls) gains
-    little from a second thread. Their ``bench`` stages take turns (:data:`BENCH_LOCK`).
-    Each writes its log to :data:`LOGS` ``/<task>.log``, printed whole when it ends, and a
-    line per stage as it goes. ``lanes`` 1: one after
-    another on every core, printing as they go.
+    ends. With ``lanes`` > 1 (and as many cores), that many run side by side, in the order
+    predicted to end first (:func:`wtml.lanes.lane_order`), each on ``cores // lanes``
+    threads: most of a slice's work (the trainers' steps on small batches, the stepper, the
+    benches' small calls) gains little from a second thread. Their ``bench`` stages take
+    turns (:data:`BENCH_LOCK`). Each writes its log to :data:`LOGS` ``/<task>.log``, printed
+    whole when it ends, and a line per stage as it goes. ``lanes`` 1: one after another on
+    every core, printing as they go.
 
     Raises:
         ValueError: ``lanes`` < 1.
@@ -693,11 +694,12 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
         threads = max(1, available_cores() // lanes)
         context = get_context("forkserver")
         context.set_forkserver_preload(PRELOAD)
-        order = sorted(names, key=lambda n: -TASKS[n].pipeline_s)
+        order = lane_order({n: TASKS[n].pipeline_s for n in names},
+                           {n: TASKS[n].bench_s for n in names}, lanes)
         if lanes > 1:
-            print(f"{len(names)} slices in {lanes} lanes of {threads} thread(s), longest first "
-                  f"({', '.join(order)}); each slice's log: {LOGS}/<slice>.log, printed when "
-                  "it ends", flush=True)
+            print(f"{len(names)} slices in {lanes} lanes of {threads} thread(s), in the order "
+                  f"that ends first ({', '.join(order)}); each slice's log: {LOGS}/<slice>.log, "
+                  "printed when it ends", flush=True)
         with ProcessPoolExecutor(lanes, mp_context=context, max_tasks_per_child=1) as pool:
             running = {pool.submit(_lane_slice, TASKS[name], max_epochs, threads,
                                    LOGS / f"{name}.log" if lanes > 1 else None): name

@@ -39,8 +39,10 @@ class Task:
         measurement: a task that reads measurements: what its export and ``wtml pipeline``'s
             sample measurements are made of (a :class:`wtml.exporters.matrix.MatrixTask`);
             ``""`` for one that reads recordings.
-        pipeline_s: its stage of the main job's wall-clock seconds, measured (27 Nov, 2 cores,
-            two threads): the main job's lanes start the longest first.
+        pipeline_s: its slice of the main job's wall-clock seconds on one thread, its bench
+            included and no wait for another lane's bench (measured: the main job's summary).
+        bench_s: of those, its ``bench`` stage's (the slice's last). The main job's lanes
+            start the slices in the order these predict ends first (:mod:`wtml.lanes`).
     """
 
     name: str
@@ -55,6 +57,7 @@ class Task:
     evaluate: str = ""
     measurement: str = ""
     pipeline_s: float = 60.0
+    bench_s: float = 0.0
 
     def load(self, part: str) -> Any:
         """The object a part names (``"scene"``, ``"decoder"``, ``"export"``, ``"rows"``,

@@ -108,6 +108,18 @@ fundamental is nearly a parabola over a frame, so one frame hardly tells it from
 and shrinks each line by ``HUM_RIDGE / (n + HUM_RIDGE)`` after n frames."""
 
 
+def asinh(x: torch.Tensor) -> torch.Tensor:
+    """``asinh(x)`` as ``log(|x| + sqrt(x² + 1))`` with x's sign (the TorchScript exporter has
+    no Asinh; its slope at 0 is 1, as asinh's): within 1e-7 of it near 0, to float32's
+    relative precision beyond, and |x| taken as at most 1e18 (asinh 42.1; x² would overflow
+    float32 past 1.8e19)."""
+    def positive(a: torch.Tensor) -> torch.Tensor:
+        a = a.clamp(0.0, 1e18)  # each side's slope passes at 0 (abs would stop it)
+        return torch.log(a + torch.sqrt(a * a + 1.0))
+
+    return torch.where(x < 0, -positive(-x), positive(x))
+
+
 class MainsLines(nn.Module):
     """The mains lines' (hum's) share of each probe frame's fit, estimated causally.
 
@@ -454,7 +466,7 @@ class OnsetNet(nn.Module):
         first touch's step is ~1e3 zm_step)."""
         x = ((f - self.mean) / self.std).clamp(-FRAME_CLIP, FRAME_CLIP)
         du = step[..., :1] / self.std[0] * 10.0
-        return torch.cat([x, du, torch.asinh(step[..., 1:] / self.zm_step)], -1).transpose(1, 2)
+        return torch.cat([x, du, asinh(step[..., 1:] / self.zm_step)], -1).transpose(1, 2)
 
     def outputs(self, h: torch.Tensor, f: torch.Tensor, step: torch.Tensor,
                 per_volt: torch.Tensor) -> dict[str, torch.Tensor]:

@@ -109,8 +109,8 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
     export_graph(decoder, window, paths["decoder"],
                  meta | {"kind": "decoder", "label": "decoder",
                          "uncertainty": metadata(uncertainty)},
-                 TEXTURE_INPUTS, widths, optimize=False)
+                 TEXTURE_INPUTS, widths)
     export_graph(Gated(classical, module.gate.inputs_only()).eval(), window, paths["classical"],
             meta | {"kind": "classical", "label": "thesis cues (|F|, |V|, Zm)"}, TEXTURE_INPUTS,
-            widths, optimize=False)
+            widths)
     return paths

@@ -42,3 +42,8 @@ def test_the_chosen_order_ends_no_later_than_any_other():
 def test_equal_orders_keep_longest_first():
     work = {"a": 10.0, "b": 20.0}
     assert lane_order(work, {"a": 0.0, "b": 0.0}, 1) == ["b", "a"]
+    # on one lane every order ends at the sum; in tenths of a second, sums in different
+    # orders differ in the last bit
+    work = {"a": 0.7, "b": 0.6, "c": 0.3, "d": 0.1}
+    bench = {"a": 0.1, "b": 0.2, "c": 0.1, "d": 0.1}
+    assert lane_order(work, bench, 1) == ["a", "b", "c", "d"]

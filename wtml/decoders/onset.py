@@ -109,13 +109,18 @@ and shrinks each line by ``HUM_RIDGE / (n + HUM_RIDGE)`` after n frames."""
 
 
 def asinh(x: torch.Tensor) -> torch.Tensor:
-    """``asinh(x)`` as ``log(|x| + sqrt(x² + 1))`` with x's sign (the TorchScript exporter has
-    no Asinh; its slope at 0 is 1, as asinh's): within 1e-7 of it near 0, to float32's
-    relative precision beyond, and |x| taken as at most 1e18 (asinh 42.1; x² would overflow
+    """``asinh(x)`` from ops the TorchScript exporter has (it has no Asinh): with x's sign,
+    of ``a = |x|``, its series to a⁹ below 0.1 (truncation 2e-13) and
+    ``log(a + sqrt(a² + 1))`` above, within 1.2e-7 of torch's asinh in float32; the slope at
+    0 is 1, as asinh's, and |x| is taken as at most 1e18 (asinh 42.1; x² would overflow
     float32 past 1.8e19)."""
     def positive(a: torch.Tensor) -> torch.Tensor:
         a = a.clamp(0.0, 1e18)  # each side's slope passes at 0 (abs would stop it)
-        return torch.log(a + torch.sqrt(a * a + 1.0))
+        s = a.clamp(max=0.1)  # the branch not taken stays finite, and so do their slopes
+        s2 = s * s
+        series = s * (1.0 - s2 * (1.0 / 6.0 - s2 * (3.0 / 40.0 - s2 * (15.0 / 336.0
+                                                                      - s2 * 105.0 / 3456.0))))
+        return torch.where(a < 0.1, series, torch.log(a + torch.sqrt(a * a + 1.0)))
 
     return torch.where(x < 0, -positive(-x), positive(x))
 

@@ -18,6 +18,12 @@ from wtml.runtime.metadata import GATE_OUTPUTS, INPUTS
 
 OPSET = 18
 """The ONNX opset of every exported graph."""
+FROZEN = tuple(f"Converting a tensor to a Python {kind}"
+               for kind in ("integer", "index", "float", "complex", "number", "list")
+               ) + ("Iterating over a tensor",)
+"""The tracer's warnings that :func:`export_graph` refuses: what they name is fixed in the
+graph as the value it had in the trace. A boolean is not among them: it is a branch taken
+while tracing, as the band powers' checks of a window's fixed width are."""
 
 
 def export_graph(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str],
@@ -31,28 +37,67 @@ def export_graph(module: nn.Module, n_freq: int, path: Path, metadata: dict[str,
     but keeps: it traces the main job's graphs in 0.1-1 s each where the torch.export-based
     one took 3-15 s and 0.95 GB (36 s for the onset task's three, 20 s for texture's two),
     for graphs that run as fast in onnxruntime (batch 1 and 4096, side by side: within 5 %).
-    Every graph's batch is dynamic (no shape is read from it but through ``x.shape``), which
-    the parity tests check at batches other than the traced one."""
+    Tracing fixes whatever Python reads of the batch but ``x.shape``: a tensor turned into a
+    Python number or iterated over during the trace is refused (:data:`FROZEN`), and the
+    graph is run here at batch 3 and at batch 1 on each of those rows (:func:`check_batch`);
+    the parity tests compare it with torch at other batches.
+
+    Raises:
+        ValueError: ``module`` turns a tensor into a Python number while traced, or the
+            graph's answers depend on the batch's size.
+    """
     example = tuple(torch.ones(2, *np.atleast_1d(w).tolist())
                     for w in (widths or (n_freq,) * len(inputs)))
     names = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
-    with warnings.catch_warnings():
-        # "You are using the legacy TorchScript-based ONNX export" and its helpers' notices
-        for notice in ("You are using the legacy TorchScript-based ONNX export",
-                       "The feature will be removed"):
-            warnings.filterwarnings("ignore", message=notice, category=DeprecationWarning)
-        # buffers' lengths and constants built in forward are traced as constants, as meant
-        warnings.filterwarnings("ignore", category=torch.jit.TracerWarning)
-        # strided slices (the onset decoder's frames) are left to onnxruntime to fold
-        warnings.filterwarnings("ignore", message="Constant folding - Only steps=1")
+    with warnings.catch_warnings(record=True) as heard:
+        # the exporter's notices ("You are using the legacy TorchScript-based ONNX export"),
+        # its constant folding's, and the tracer's: buffers' lengths, checks of a window's
+        # width and constants built in forward are traced as constants, as meant
+        warnings.simplefilter("always")
         torch.onnx.export(module.eval(), example, str(path), input_names=list(inputs),
                           output_names=names, dynamo=False, opset_version=OPSET,
                           dynamic_axes={name: {0: "batch"} for name in (*inputs, *names)})
+    frozen = [w for w in heard if issubclass(w.category, torch.jit.TracerWarning)
+              and str(w.message).startswith(FROZEN)]
+    if frozen:
+        w = frozen[0]
+        raise ValueError(f"{path.name}: {w.filename}:{w.lineno} turns a tensor into a Python "
+                         "number or iterates over it while traced, which would fix it in the "
+                         f"graph (the batch's size, or data): {str(w.message).split('.')[0]}")
     model = onnx.load(str(path))
     for key, value in metadata.items():
         model.metadata_props.add(key=key, value=value)
     onnx.checker.check_model(model, full_check=True)
     onnx.save(model, str(path))
+    check_batch(path, tuple(x[:1] for x in example))
+
+
+def check_batch(path: Path, row: tuple[torch.Tensor, ...]) -> None:
+    """Run the graph at ``path`` (onnxruntime) on three rows (``row``, each input's one row,
+    scaled by 1, 1.1 and 1.2) at once and one row at a time: every output has the three
+    rows, each its row's own answer (to 1e-4 of the output's largest; NaN where NaN).
+
+    Raises:
+        ValueError: an output's batch is not 3, or its rows differ.
+    """
+    import onnxruntime as ort
+
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    names = [i.name for i in session.get_inputs()]
+    rows = [tuple(x.numpy().astype(np.float32) * (1 + 0.1 * k) for x in row) for k in range(3)]
+    batch = session.run(None, {n: np.concatenate([r[j] for r in rows])
+                               for j, n in enumerate(names)})
+    single = [session.run(None, dict(zip(names, r, strict=True))) for r in rows]
+    for k, out in enumerate(session.get_outputs()):
+        got = batch[k].astype(np.float64)
+        want = np.concatenate([s[k] for s in single]).astype(np.float64)
+        if got.shape != want.shape:
+            raise ValueError(f"{path.name}: output {out.name} has {got.shape[0]} rows for a "
+                             "batch of 3: the export fixed the batch's size")
+        scale = float(np.abs(want[np.isfinite(want)]).max(initial=0.0))
+        if not np.allclose(got, want, rtol=1e-4, atol=1e-4 * scale, equal_nan=True):
+            raise ValueError(f"{path.name}: output {out.name} differs between a batch of 3 "
+                             "and its rows one by one: the export fixed the batch's size")
 
 
 @torch.no_grad()

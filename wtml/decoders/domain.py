@@ -25,6 +25,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from wtml.runtime.predict import rows_per_run
+
 QUANTILE = 0.999
 """The training data's score quantile that sets the threshold (0.1 % of training inputs
 score above 1)."""
@@ -121,7 +123,10 @@ class DomainGate(nn.Module):
         the covariance holds that much independent noise on each feature."""
         if not 0.5 <= quantile < 1:
             raise ValueError(f"quantile must be in [0.5, 1), got {quantile}")
-        chunks = [tuple(x[s:s + 65536] for x in inputs) for s in range(0, len(inputs[0]), 65536)]
+        # rows of a few MB at a time: the texture gate's 1280 windows of 12800 samples at once
+        # took its features' frames to 0.65 GB more than the rest of training
+        rows = rows_per_run(sum(x[:1].numel() * x.element_size() for x in inputs))
+        chunks = [tuple(x[s:s + rows] for x in inputs) for s in range(0, len(inputs[0]), rows)]
         x = torch.cat([self.features(*chunk) for chunk in chunks]).double()
         size = x.abs().amax(0)
         mean, scale = x.mean(0), torch.maximum(x.std(0), RESOLUTION * size).clamp_min(1e-30)

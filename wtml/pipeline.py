@@ -520,7 +520,7 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
 
 
 def _texture_lines(s: dict, stages: Stages) -> list[str]:
-    from wtml.bench.texture import span
+    from wtml.bench.resampling import span
 
     by = {m["name"]: m for m in s["methods"]}
     dec, cues = by["decoder (ONNX)"], by["thesis cues (ONNX)"]

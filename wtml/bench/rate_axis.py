@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from wtml.baselines.texture_peers import BandPowerPeer
+from wtml.bench.resampling import span
 from wtml.bench.timing import latency_p50, paired_ratio
 from wtml.runtime.texture import windows
 from wtml.scenes import load_scene
@@ -78,6 +79,6 @@ def frontier_lines(summary_path: str | Path = SUMMARY, *, records: int = 2) -> l
                      f"×{ratio[0]:.2f} ({ratio[1]:.2f}–{ratio[2]:.2f}) |")
     lines += ["", "| paired difference | points [95 % interval] |", "|---|---|"]
     for d in s["differences"]:
-        lo, hi = (100 * x for x in d["interval"])
-        lines.append(f"| {d['name']} | {100 * d['difference']:+.1f} [{lo:+.1f} to {hi:+.1f}] |")
+        lines.append(f"| {d['name']} | {100 * d['difference']:+.1f} "
+                     f"[{span(d['interval'], signed=True)}] |")
     return lines + [""]

@@ -63,3 +63,9 @@ def statistic_interval(values, statistic, *, level: float = 0.95, draws: int = 1
                             for k in np.diff(np.r_[0:draws:chunk, draws])])
     low, high = np.quantile(stats, [(1 - level) / 2, (1 + level) / 2])
     return float(low), float(high)
+
+
+def span(interval, signed: bool = False) -> str:
+    """``(low, high)`` fractions as percentages (points where ``signed``)."""
+    low, high = (100 * x for x in interval)
+    return f"{low:+.1f} to {high:+.1f}" if signed else f"{low:.1f}–{high:.1f} %"

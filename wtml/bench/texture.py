@@ -35,7 +35,7 @@ from wtml.baselines.texture_peers import BandPowerPeer, KineticSignature, MiniRo
 from wtml.bench.frontier import Method, Problem, open_graph
 from wtml.bench.rate_axis import SUMMARY as RATE_SUMMARY
 from wtml.bench.rate_axis import frontier_lines
-from wtml.bench.resampling import group_interval
+from wtml.bench.resampling import group_interval, span
 from wtml.bench.texture_transfer import (
     DEVICE_TARGET,
     device_table,
@@ -425,12 +425,6 @@ def _ablation(scene, methods: dict, window_s: float, n: int) -> list[dict]:
 
 def _pct(x: float) -> str:
     return f"{100 * x:.1f} %"
-
-
-def span(interval, signed: bool = False) -> str:
-    """``(low, high)`` fractions as percentages (points where ``signed``)."""
-    low, high = (100 * x for x in interval)
-    return f"{low:+.1f} to {high:+.1f}" if signed else f"{low:.1f}–{high:.1f} %"
 
 
 def _report(s: dict) -> str:

@@ -32,8 +32,8 @@ import numpy as np
 
 from wtml.baselines.texture_peers import BandPowerPeer
 from wtml.bench.rate_axis import STUDY_TAG
-from wtml.bench.resampling import group_interval
-from wtml.bench.texture import confusion, oracles, span
+from wtml.bench.resampling import group_interval, span
+from wtml.bench.texture import confusion, oracles
 from wtml.runtime.texture import windows
 from wtml.scenes import load_scene
 from wtml.scenes.texture import THESIS_GRADES, TextureScene

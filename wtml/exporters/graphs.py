@@ -23,7 +23,12 @@ FROZEN = tuple(f"Converting a tensor to a Python {kind}"
                ) + ("Iterating over a tensor",)
 """The tracer's warnings that :func:`export_graph` refuses: what they name is fixed in the
 graph as the value it had in the trace. A boolean is not among them: it is a branch taken
-while tracing, as the band powers' checks of a window's fixed width are."""
+while tracing, as the band powers' checks of a window's fixed width are. The tracer's other
+warnings (buffers' lengths, constants built in forward: traced as constants, as meant) are
+let go."""
+QUIET = ("You are using the legacy TorchScript-based ONNX export",
+         "The feature will be removed", "Constant folding - Only steps=1")
+"""The exporter's own notices, let go; any other warning from the export is passed on."""
 
 
 def export_graph(module: nn.Module, n_freq: int, path: Path, metadata: dict[str, str],
@@ -50,20 +55,18 @@ def export_graph(module: nn.Module, n_freq: int, path: Path, metadata: dict[str,
                     for w in (widths or (n_freq,) * len(inputs)))
     names = json.loads(metadata["outputs"]) + list(GATE_OUTPUTS)
     with warnings.catch_warnings(record=True) as heard:
-        # the exporter's notices ("You are using the legacy TorchScript-based ONNX export"),
-        # its constant folding's, and the tracer's: buffers' lengths, checks of a window's
-        # width and constants built in forward are traced as constants, as meant
         warnings.simplefilter("always")
         torch.onnx.export(module.eval(), example, str(path), input_names=list(inputs),
                           output_names=names, dynamo=False, opset_version=OPSET,
                           dynamic_axes={name: {0: "batch"} for name in (*inputs, *names)})
-    frozen = [w for w in heard if issubclass(w.category, torch.jit.TracerWarning)
-              and str(w.message).startswith(FROZEN)]
-    if frozen:
-        w = frozen[0]
-        raise ValueError(f"{path.name}: {w.filename}:{w.lineno} turns a tensor into a Python "
-                         "number or iterates over it while traced, which would fix it in the "
-                         f"graph (the batch's size, or data): {str(w.message).split('.')[0]}")
+    for w in heard:
+        text = str(w.message)
+        if issubclass(w.category, torch.jit.TracerWarning) and text.startswith(FROZEN):
+            raise ValueError(f"{path.name}: {w.filename}:{w.lineno} turns a tensor into a "
+                             "Python number or iterates over it while traced, which would fix "
+                             f"it in the graph (the batch's size, or data): {text.split('.')[0]}")
+        if not (issubclass(w.category, torch.jit.TracerWarning) or text.startswith(QUIET)):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     model = onnx.load(str(path))
     for key, value in metadata.items():
         model.metadata_props.add(key=key, value=value)

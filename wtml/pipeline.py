@@ -24,6 +24,7 @@ import numpy as np
 from wtml.bench.timing import duration
 from wtml.cores import THREADS_ENV, available_cores
 from wtml.lanes import lane_order
+from wtml.memory import release_memory
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.schema import read_yaml
 from wtml.tasks import TASKS, Task
@@ -58,8 +59,11 @@ class Stages:
         self._held: TextIO | None = None
 
     def begin(self, slice_: str, stage: str, command: str) -> None:
-        """Close the running stage, open this one and print its stand-alone command."""
+        """Close the running stage, hand the memory it freed back to the system
+        (:func:`wtml.memory.release_memory`), open this one and print its stand-alone
+        command."""
         self.end()
+        release_memory()
         self._slice, self._stage, self._t0 = slice_, stage, time.perf_counter()
         print(f"\n== {slice_} {stage}: {command}", flush=True)
         self._note(f"{slice_}: {stage}")

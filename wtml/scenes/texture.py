@@ -456,7 +456,7 @@ class TextureScene:
                 "bristle_stiffness": stiffness,
                 "bristle_damping": spec["bristle_damping"][which]}
 
-    def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 64,
+    def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 8,
                  asperities: bool = True, mean_friction: bool = True,
                  nominal: bool = False) -> dict[str, np.ndarray]:
         """``n`` records spread evenly over this shard's specimens.
@@ -468,7 +468,10 @@ class TextureScene:
 
         Returns ``e``, ``i`` (see the module docstring), ``t`` (each record's device's
         calibrated T at :attr:`calibration_hz`, complex ``(n, K, 2, 2)``), the labels and the
-        nuisance drawn."""
+        nuisance drawn. ``batch`` records are stepped at a time (every draw is made before,
+        so the records do not depend on it): the oversampled run's arrays take ~8 MB a
+        record, and 8 at a time steps as fast as 64 (40 records: 3.0 s against 3.5 s, peak
+        memory +175 MB against +330 MB, one thread)."""
         spec = self.specimens(rng)
         if nominal:
             spec["mu"] = self.mu(spec["grain_um"], spec["law"])

@@ -2,9 +2,9 @@
 
 Subcommands: ``walkthrough`` (the thesis's calibration), ``presets``, ``fidelity``, ``generate``,
 ``evaluate``, ``export``, ``predict``, ``stream`` (an onset export on a live acquisition),
-``bench fluid|radial|onset|texture|texture-rate|device|runtime``, ``device``, ``calibrate`` and
-``pipeline`` (all of them in a row). Bad input ends a command with one line on stderr and
-exit code 2.
+``bench fluid|radial|onset|texture|texture-rate|texture-scale|device|runtime``, ``device``,
+``calibrate`` and ``pipeline`` (all of them in a row). Bad input ends a command with one line
+on stderr and exit code 2.
 Training runs through LightningCLI: ``python train.py fit --config configs/fluid.yaml``.
 """
 
@@ -489,6 +489,77 @@ def _texture_rate_parser(be_sub) -> None:
     br.set_defaults(func=_bench_texture_rate)
 
 
+# ---------------------------------------------- wtml bench texture-scale (issue 25 §3)
+
+
+def _bench_texture_scale(args: argparse.Namespace) -> int:
+    from wtml.bench.texture_scale import run_scale
+
+    given = {key: getattr(args, key) for key in ("scene", "sizes", "test_specimens",
+                                                 "recipes")
+             if getattr(args, key) is not None}  # None: run_scale's defaults
+    print(run_scale(args.out, workers=args.workers, work=args.work,
+                    deadline_s=args.deadline_s, epochs=args.epochs,
+                    oracle_draws=args.oracle_draws, **given))
+    return 0
+
+
+def _sizes(text: str) -> list[int]:
+    """An argparse ``type``: comma-separated whole numbers in [1, 10**7], ascending."""
+    try:
+        sizes = [int(part) for part in text.split(",")]
+    except ValueError:
+        sizes = []
+    if not sizes or sizes != sorted(set(sizes)) or not 1 <= sizes[0] <= sizes[-1] <= 10**7:
+        raise argparse.ArgumentTypeError(f"expects distinct whole numbers in [1, 1e7], "
+                                         f"ascending, separated by commas, got {text[:80]!r}")
+    return sizes
+
+
+def _texture_scale_parser(be_sub) -> None:
+    """``wtml bench texture-scale``'s options (the study's own defaults where None: the
+    parser imports no training stack)."""
+    bs = be_sub.add_parser("texture-scale", help="texture accuracy against training-set "
+                           "size: the decoders' recipes and the band-power peer",
+                           formatter_class=_Help,
+                           description="Generates nested training sets and a held-out set "
+                                       "of the texture scene (worker processes; complete "
+                                       "shards are kept, so a second run resumes), trains "
+                                       "each decoder recipe (on CUDA where there is one) and "
+                                       "the band-power peer at every size and scores them "
+                                       "on every whole window of the held-out specimens: "
+                                       "accuracy with its interval over the specimens, "
+                                       "P320/P280 confusion, paired differences (each "
+                                       "decoder minus the peer, each size minus the "
+                                       "smallest) and the oracles.")
+    bs.add_argument("--scene", default=None, help="the texture scene both sets are drawn "
+                    "from, only its name, seed, samples and shards changed (default: "
+                    "configs/scenes/texture.yaml)")
+    bs.add_argument("--sizes", type=_sizes, default=None,
+                    help="training specimens of each row, comma-separated, whole shards (40 "
+                         "specimens each in the shipped scene; default: 640,2560,5120,10240)")
+    bs.add_argument("--test-specimens", type=_number(1, 10**7, int), default=None,
+                    help="held-out specimens, whole shards (default: 480)")
+    bs.add_argument("--recipes", nargs="+", default=None,
+                    help="the decoders' training configs, of one feature layer (the same "
+                         "window_s and band_frame_s; default: configs/texture.yaml "
+                         "configs/variants/texture_full.yaml)")
+    bs.add_argument("--epochs", type=_number(1, 10**6, int), default=None,
+                    help="every recipe's epochs (default: each config's max_epochs)")
+    bs.add_argument("--workers", type=_number(1, 1024, int), default=None,
+                    help="generation processes (default: the available cores)")
+    bs.add_argument("--work", default="datasets/texture_scale",
+                    help="the shards and the peer's features (kept for the next run)")
+    bs.add_argument("--deadline-s", type=_number(1e-3, 1e7), default=None,
+                    help="seconds from the start: a row estimated to end after them is "
+                         "skipped, and none begins after them (default: none)")
+    bs.add_argument("--oracle-draws", type=_number(100, 10**7, int), default=100_000,
+                    help="draws of each oracle's prior")
+    bs.add_argument("--out", default="runs/texture/scale",
+                    help="report.md, summary.json and scale.png go here")
+    bs.set_defaults(func=_bench_texture_scale)
+
+
 # ------------------------------------------------------------------------------------------
 
 
@@ -952,6 +1023,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fresh records per row of the device-spread table")
     bt.set_defaults(func=_bench_texture)
     _texture_rate_parser(be_sub)
+    _texture_scale_parser(be_sub)
     _coverage_parser(be_sub)
 
     ba = be_sub.add_parser("all", help="every task's speed-accuracy frontier, one report",

@@ -51,6 +51,20 @@ def _progress(text: str) -> None:
     print(f"bench texture-rate: {text}", file=sys.stderr, flush=True)
 
 
+def grade_scores(pred: np.ndarray, grade: np.ndarray, specimen: np.ndarray) -> dict:
+    """How well predicted grades ``pred`` ``(n_windows,)`` name the true ``grade``:
+    ``accuracy``, its 95 % ``interval`` (bootstrap over the windows' ``specimen``:
+    :func:`~wtml.bench.resampling.group_interval`), the ``confusion`` ``(5, 5)`` (rows true)
+    and :data:`PAIR`'s two confusions (``p320_as_p280``, ``p280_as_p320``: of each one's
+    windows)."""
+    correct = (np.asarray(pred) == np.asarray(grade)).astype(float)
+    conf = confusion(grade, pred, len(THESIS_GRADES))
+    a, b = (list(THESIS_GRADES).index(p) for p in PAIR)
+    return {"accuracy": float(correct.mean()), "interval": group_interval(correct, specimen),
+            "confusion": conf.tolist(), "p320_as_p280": float(conf[a, b] / conf[a].sum()),
+            "p280_as_p320": float(conf[b, a] / conf[b].sum())}
+
+
 def _scene(path: str, per_grade: int, record_s: float | None) -> TextureScene:
     scene = load_scene(path)
     if not isinstance(scene, TextureScene) or scene.grades != "thesis":
@@ -157,8 +171,6 @@ def run_rate(out: str | Path = "runs/texture/rate", *, scenes: tuple[str, str] =
     train = paired_features(pair, peers, train_specimens, (low.seed, STUDY_TAG, 0), window_s)
     _progress(f"held-out set: {test_specimens} paired specimens")
     test = paired_features(pair, peers, test_specimens, (low.seed, STUDY_TAG, 1), window_s)
-    names = list(THESIS_GRADES)
-    a, b = names.index(PAIR[0]), names.index(PAIR[1])
     rows, correct = [], {}
     for name, (label, peer) in peers.items():
         t0 = time.perf_counter()
@@ -166,15 +178,9 @@ def run_rate(out: str | Path = "runs/texture/rate", *, scenes: tuple[str, str] =
         fit_s = time.perf_counter() - t0
         pred = peer.predict_features(test["features"][name])["grade"]
         correct[name] = (pred == test["grade"]).astype(float)
-        conf = confusion(test["grade"], pred, len(names))
         rows.append({"name": name, "scene": label, "rate_hz": peer.rate,
                      "bands": len(peer.edges) - 1, "top_hz": float(peer.edges[-1]),
-                     "accuracy": float(correct[name].mean()),
-                     "interval": group_interval(correct[name], test["specimen"]),
-                     "confusion": conf.tolist(),
-                     "p320_as_p280": float(conf[a, b] / conf[a].sum()),
-                     "p280_as_p320": float(conf[b, a] / conf[b].sum()),
-                     "fit_s": fit_s})
+                     **grade_scores(pred, test["grade"], test["specimen"]), "fit_s": fit_s})
         _progress(f"{name}: {100 * rows[-1]['accuracy']:.1f} %")
     restricted = list(peers)[2]
     differences = []

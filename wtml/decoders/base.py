@@ -183,9 +183,17 @@ class DecoderModule(L.LightningModule, ABC):
     def test_step(self, batch, batch_idx):
         self._step(batch, "test")
 
-    def configure_optimizers(self):
+    def one_cycle(self, total_steps: int) -> tuple[torch.optim.Optimizer,
+                                                   torch.optim.lr_scheduler.LRScheduler]:
+        """AdamW over the module's parameters (``lr``, ``weight_decay``) and its one-cycle
+        schedule of ``total_steps`` steps, peaking at ``lr``: every decoder's recipe (also
+        run outside Lightning, by ``wtml bench texture-scale``)."""
         opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr,
                                 weight_decay=self.hparams.weight_decay)
-        sched = torch.optim.lr_scheduler.OneCycleLR(
-            opt, max_lr=self.hparams.lr, total_steps=self.trainer.estimated_stepping_batches)
+        sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=self.hparams.lr,
+                                                    total_steps=total_steps)
+        return opt, sched
+
+    def configure_optimizers(self):
+        opt, sched = self.one_cycle(self.trainer.estimated_stepping_batches)
         return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}

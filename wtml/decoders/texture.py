@@ -319,6 +319,18 @@ class WhiskFeatures(nn.Module):
                             x[:, 6] * cls.Z_REF], 1)
 
 
+def crop(e: torch.Tensor, i: torch.Tensor, start: torch.Tensor, n: int,
+         rows: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Windows ``(m, n)`` of records ``e``, ``i`` ``(records, length)``: window k holds the
+    ``n`` samples of record ``rows[k]`` from sample ``start[k]`` on (``start``, ``rows``
+    ``(m,)``; ``rows`` None: record k). Only the windows are copied, not their records."""
+    start = start.to(e.device)
+    rows = (torch.arange(len(start), device=e.device) if rows is None
+            else rows.to(e.device))
+    idx = (rows * e.shape[1] + start)[:, None] + torch.arange(n, device=e.device)
+    return e.reshape(-1)[idx], i.reshape(-1)[idx]
+
+
 class TextureNet(nn.Module):
     """Features -> standardised MLP -> (grain m, log std, probabilities ``(batch, 5)``)."""
 
@@ -427,6 +439,13 @@ class TextureDecoder(DecoderModule):
             x = torch.cat([feats(e[s:s + 64, :self._n], i[s:s + 64, :self._n],
                                  t_re[s:s + 64], t_im[s:s + 64])
                            for s in range(0, len(e), 64)])
+        return self.net_on(feats, x, targets)
+
+    def net_on(self, feats: WhiskFeatures, x: torch.Tensor, targets: torch.Tensor
+               ) -> TextureNet:
+        """A new net on feature layer ``feats``, standardised over ``x`` ``(n, n_features)``
+        (the features of the first window of every training record), its ln-grain prior
+        from the targets ``(n, 2)`` (grade, grain m); its weights drawn from torch's RNG."""
         scale = torch.stack([x.mean(0), x.std(0).clamp_min(1e-6)])
         net = TextureNet(feats, scale, list(self.hparams.hidden))
         logd = torch.log(targets[:, 1])
@@ -460,15 +479,21 @@ class TextureDecoder(DecoderModule):
         self.net = TextureNet(feats, torch.ones(2, feats.n_features), list(self.hparams.hidden))
 
     def loss(self, batch) -> torch.Tensor:
+        """Training: a random window of every record (uniform start, from torch's RNG);
+        otherwise its first window."""
         e, i, t_re, t_im, targets = batch
         n = self._n
         if self.training and e.shape[1] > n:
-            start = torch.randint(0, e.shape[1] - n + 1, (len(e),))
-            idx = start[:, None] + torch.arange(n)
-            e, i = e.gather(1, idx), i.gather(1, idx)
+            e, i = crop(e, i, torch.randint(0, e.shape[1] - n + 1, (len(e),)), n)
         else:
             e, i = e[:, :n], i[:, :n]
-        logits, mu, log_sd = self.net.heads(self.net.features(e, i, t_re, t_im))
+        return self.feature_loss(self.net.features(e, i, t_re, t_im), targets)
+
+    def feature_loss(self, x: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
+        """The loss of the windows' features ``x`` ``(batch, n_features)`` against their
+        targets ``(batch, 2)`` (grade, grain m): the grade's cross-entropy plus
+        ``grain_weight`` times the Gaussian NLL of ln grain."""
+        logits, mu, log_sd = self.net.heads(x)
         ce = fn.cross_entropy(logits, targets[:, 0].long())
         z = (torch.log(targets[:, 1]) - mu) / torch.exp(log_sd)
         nll = (0.5 * z**2 + log_sd).mean()

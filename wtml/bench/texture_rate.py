@@ -216,8 +216,26 @@ def run_rate(out: str | Path = "runs/texture/rate", *, scenes: tuple[str, str] =
     return report
 
 
-def _pct(x: float) -> str:
+def pct(x: float) -> str:
+    """A fraction as a percentage with one decimal."""
     return f"{100 * x:.1f} %"
+
+
+def pair_confusions(confusion) -> tuple[str, str]:
+    """How often :data:`PAIR`'s first grade is read as its second and the reverse, as text,
+    from a confusion ``(5, 5)`` (rows the true grade)."""
+    conf = np.asarray(confusion, float)
+    a, b = (list(THESIS_GRADES).index(p) for p in PAIR)
+    return pct(conf[a, b] / conf[a].sum()), pct(conf[b, a] / conf[b].sum())
+
+
+def difference_lines(differences: list[dict]) -> list[str]:
+    """The paired differences' table (each ``name``, ``difference`` and its ``interval``,
+    fractions), with its heading."""
+    return ["", "Paired differences (the same held-out windows):", "",
+            "| difference | points | 95 % interval |", "|---|---|---|"] + [
+        f"| {d['name']} | {100 * d['difference']:+.1f} | {span(d['interval'], signed=True)} |"
+        for d in differences]
 
 
 def _report(s: dict) -> str:
@@ -233,21 +251,15 @@ def _report(s: dict) -> str:
              f"| {PAIR[1]} as {PAIR[0]} |", "|---|---|---|---|---|---|---|"]
     for r in s["methods"]:
         lines.append(f"| band powers, {r['name']} | {r['bands']} | {r['top_hz'] / 1e3:.1f} | "
-                     f"{_pct(r['accuracy'])} | {span(r['interval'])} | "
-                     f"{_pct(r['p320_as_p280'])} | {_pct(r['p280_as_p320'])} |")
+                     f"{pct(r['accuracy'])} | {span(r['interval'])} | "
+                     f"{pct(r['p320_as_p280'])} | {pct(r['p280_as_p320'])} |")
     for label, x in (("amplitude oracle", o), ("every-grain oracle", g)):
-        conf = np.array(x["confusion"])
-        a, b = (list(THESIS_GRADES).index(p) for p in PAIR)
         lines.append(f"| {label} ({x['n']} draws of the prior; no rate) | - | - | "
-                     f"{_pct(x['accuracy'])} | - | {_pct(conf[a, b] / conf[a].sum())} | "
-                     f"{_pct(conf[b, a] / conf[b].sum())} |")
-    lines += ["", "Paired differences (the same held-out windows):", "",
-              "| difference | points | 95 % interval |", "|---|---|---|"]
-    for d in s["differences"]:
-        lines.append(f"| {d['name']} | {100 * d['difference']:+.1f} | "
-                     f"{span(d['interval'], signed=True)} |")
+                     f"{pct(x['accuracy'])} | - | " + " | ".join(pair_confusions(
+                         x["confusion"])) + " |")
+    lines += difference_lines(s["differences"])
     lo, hi = closed["interval"]
-    lines += ["", f"Of the oracles' gap ({_pct(o['accuracy'])} → {_pct(g['accuracy'])}), the "
+    lines += ["", f"Of the oracles' gap ({pct(o['accuracy'])} → {pct(g['accuracy'])}), the "
               f"faster rate closes {100 * closed['fraction']:+.0f} % (95 % interval "
               f"{100 * lo:+.0f} to {100 * hi:+.0f} %).", "",
               "| scene | oversample | record (s) + lead-in (s) | records | simulation (s) | "

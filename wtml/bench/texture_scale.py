@@ -54,7 +54,13 @@ import torch
 from wtml.baselines.texture_peers import BandPowerPeer
 from wtml.bench.resampling import group_interval, span
 from wtml.bench.texture import oracles
-from wtml.bench.texture_rate import PAIR, grade_scores
+from wtml.bench.texture_rate import (
+    PAIR,
+    difference_lines,
+    grade_scores,
+    pair_confusions,
+    pct,
+)
 from wtml.cores import THREADS_ENV, available_cores
 from wtml.data.datamodule import EpochBatches, check_tensors, task_tensors
 from wtml.data.shards import (
@@ -69,7 +75,7 @@ from wtml.decoders.texture import TextureDecoder, WhiskFeatures, crop
 from wtml.files import read_npz
 from wtml.runtime.texture import windows
 from wtml.scenes import config_hash, load_scene, scene_from_dict
-from wtml.scenes.texture import THESIS_GRADES, TextureScene
+from wtml.scenes.texture import TextureScene
 from wtml.schema import read_yaml, to_dict
 
 SCENE = "configs/scenes/texture.yaml"
@@ -634,10 +640,6 @@ def run_scale(out: str | Path = "runs/texture/scale", *, scene: str | Path = SCE
     return report
 
 
-def _pct(x: float) -> str:
-    return f"{100 * x:.1f} %"
-
-
 def _report(s: dict) -> str:
     plan, o, g, m = s["plan"], s["oracle"], s["grain_oracle"], s["machine"]
     recipes = "; ".join(f"`{r['path']}` ({r['model'].get('hidden')}, batch {r['batch']}, "
@@ -661,20 +663,14 @@ def _report(s: dict) -> str:
                    else f"{r['train_windows']} windows")
         steps = r["steps"] if r["kind"] == "decoder" else f"{r['iterations']} it."
         lines.append(f"| {r['method']} | {r['specimens']} | {trained} | {steps} | "
-                     f"{_pct(r['accuracy'])} | {span(r['interval'])} | "
-                     f"{_pct(r['p320_as_p280'])} | {_pct(r['p280_as_p320'])} | "
+                     f"{pct(r['accuracy'])} | {span(r['interval'])} | "
+                     f"{pct(r['p320_as_p280'])} | {pct(r['p280_as_p320'])} | "
                      f"{r['fit_s']:.1f} |")
     for label, x in (("amplitude oracle", o), ("every-grain oracle", g)):
-        conf = np.array(x["confusion"])
-        a, b = (list(THESIS_GRADES).index(p) for p in PAIR)
         lines.append(f"| {label} ({x['n']} draws of the prior) | - | - | - | "
-                     f"{_pct(x['accuracy'])} | - | {_pct(conf[a, b] / conf[a].sum())} | "
-                     f"{_pct(conf[b, a] / conf[b].sum())} | - |")
-    lines += ["", "Paired differences (the same held-out windows):", "",
-              "| difference | points | 95 % interval |", "|---|---|---|"]
-    for d in s["differences"]:
-        lines.append(f"| {d['name']} | {100 * d['difference']:+.1f} | "
-                     f"{span(d['interval'], signed=True)} |")
+                     f"{pct(x['accuracy'])} | - | " + " | ".join(pair_confusions(
+                         x["confusion"])) + " | - |")
+    lines += difference_lines(s["differences"])
     gen = s["generation"]
     per = gen["seconds_per_shard"]
     lines += ["", f"Generation: {gen['made']} shards made"

@@ -25,3 +25,19 @@ def test_release_returns_freed_heap():
     after = _rss_mb()
     assert before - after > 100, (before, after)
     assert all(float(k[0]) == 1.0 for k in kept)
+
+
+def test_fork_server_freezes_what_it_imported():
+    """The fork server's last import moves every object it holds out of the collector's reach
+    (so the lanes do not copy their pages); it is the last module the server preloads."""
+    import subprocess
+    import sys
+
+    from wtml.pipeline import PRELOAD
+
+    assert PRELOAD[-1] == "wtml.fork_server"
+    code = ("import gc, numpy; assert gc.get_freeze_count() == 0; import wtml.fork_server; "
+            "print(gc.get_freeze_count())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert int(out.stdout) > 10_000

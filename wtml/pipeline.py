@@ -609,9 +609,10 @@ BENCH_LOCK = "bench.lock"
 """The file in :data:`LOGS` that the lanes' ``bench`` stages take turns on (:class:`Stages`):
 side by side, the texture and radial benches peaked at 3.1 GB together (27 Nov)."""
 PRELOAD = ["numpy", "scipy.signal", "sklearn.ensemble", "onnxruntime", "torch", "lightning",
-           "wtml.training"]
+           "wtml.training", "wtml.fork_server"]
 """Modules the slices' processes start with: imported once, by the fork server they are forked
-from (each slice imported them afresh, ~8 s, when it was spawned from a bare interpreter)."""
+from (each slice imported them afresh, ~8 s, when it was spawned from a bare interpreter);
+the last freezes them (:mod:`wtml.fork_server`)."""
 
 
 def run_slice(task: str | Task, max_epochs: int | None = None, echo: TextIO | None = None,

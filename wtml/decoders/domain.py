@@ -123,19 +123,27 @@ class DomainGate(nn.Module):
         the covariance holds that much independent noise on each feature."""
         if not 0.5 <= quantile < 1:
             raise ValueError(f"quantile must be in [0.5, 1), got {quantile}")
-        # rows of a few MB at a time: the texture gate's 1280 windows of 12800 samples at once
-        # took its features' frames to 0.65 GB more than the rest of training
-        rows = rows_per_run(sum(x[:1].numel() * x.element_size() for x in inputs))
+        # rows of a few MB at a time, of the inputs and of their features in float64 (the
+        # larger): the texture gate's 1280 windows of 12800 samples at once took its features'
+        # frames to 0.65 GB more than the rest of training; float64 copies of all of
+        # radial_spread's 180000 rows of 80 features, its training's start 0.36 GB
+        rows = rows_per_run(max(sum(x[:1].numel() * x.element_size() for x in inputs),
+                                8 * len(self.mean)))
         chunks = [tuple(x[s:s + rows] for x in inputs) for s in range(0, len(inputs[0]), rows)]
-        x = torch.cat([self.features(*chunk) for chunk in chunks]).double()
-        size = x.abs().amax(0)
-        mean, scale = x.mean(0), torch.maximum(x.std(0), RESOLUTION * size).clamp_min(1e-30)
+        x = torch.cat([self.features(*chunk) for chunk in chunks])  # as computed: float32
+        parts = x.split(rows)
+        n = len(x)
+        size = x.abs().amax(0).double()
+        mean = sum(part.double().sum(0) for part in parts) / n
+        std = (sum(((part.double() - mean) ** 2).sum(0) for part in parts) / (n - 1)).sqrt()
+        scale = torch.maximum(std, RESOLUTION * size).clamp_min(1e-30)
         # rounding at RESOLUTION is independent noise on each feature: the covariance holds
         # it, so no direction is whitened finer than float32 resolves
-        cov = torch.cov(((x - mean) / scale).T) + torch.diag((RESOLUTION * size / scale) ** 2)
+        cov = (sum(z.T @ z for z in ((part.double() - mean) / scale for part in parts)) / (n - 1)
+               + torch.diag((RESOLUTION * size / scale) ** 2))
         lam, vec = torch.linalg.eigh(cov)
         whiten = (vec / lam.clamp_min(floor * float(lam.max())).sqrt()) / scale[:, None]
-        low, high = x.min(0).values, x.max(0).values
+        low, high = x.min(0).values.double(), x.max(0).values.double()
         # 5 % of each feature's span, at least what float32 resolves
         margin = torch.maximum((high - low) / 20, RESOLUTION * size).clamp_min(1e-30)
         self.box_a.copy_((1 / margin).float())

@@ -59,10 +59,17 @@ def grade_scores(pred: np.ndarray, grade: np.ndarray, specimen: np.ndarray) -> d
     windows)."""
     correct = (np.asarray(pred) == np.asarray(grade)).astype(float)
     conf = confusion(grade, pred, len(THESIS_GRADES))
-    a, b = (list(THESIS_GRADES).index(p) for p in PAIR)
+    first, second = pair_rates(conf)
     return {"accuracy": float(correct.mean()), "interval": group_interval(correct, specimen),
-            "confusion": conf.tolist(), "p320_as_p280": float(conf[a, b] / conf[a].sum()),
-            "p280_as_p320": float(conf[b, a] / conf[b].sum())}
+            "confusion": conf.tolist(), "p320_as_p280": first, "p280_as_p320": second}
+
+
+def pair_rates(confusion) -> tuple[float, float]:
+    """How often :data:`PAIR`'s first grade is read as its second, and the reverse (each of
+    that grade's windows), from a confusion ``(5, 5)`` (rows the true grade)."""
+    conf = np.asarray(confusion, float)
+    a, b = (list(THESIS_GRADES).index(p) for p in PAIR)
+    return float(conf[a, b] / conf[a].sum()), float(conf[b, a] / conf[b].sum())
 
 
 def _scene(path: str, per_grade: int, record_s: float | None) -> TextureScene:
@@ -221,14 +228,6 @@ def pct(x: float) -> str:
     return f"{100 * x:.1f} %"
 
 
-def pair_confusions(confusion) -> tuple[str, str]:
-    """How often :data:`PAIR`'s first grade is read as its second and the reverse, as text,
-    from a confusion ``(5, 5)`` (rows the true grade)."""
-    conf = np.asarray(confusion, float)
-    a, b = (list(THESIS_GRADES).index(p) for p in PAIR)
-    return pct(conf[a, b] / conf[a].sum()), pct(conf[b, a] / conf[b].sum())
-
-
 def difference_lines(differences: list[dict]) -> list[str]:
     """The paired differences' table (each ``name``, ``difference`` and its ``interval``,
     fractions), with its heading."""
@@ -255,8 +254,8 @@ def _report(s: dict) -> str:
                      f"{pct(r['p320_as_p280'])} | {pct(r['p280_as_p320'])} |")
     for label, x in (("amplitude oracle", o), ("every-grain oracle", g)):
         lines.append(f"| {label} ({x['n']} draws of the prior; no rate) | - | - | "
-                     f"{pct(x['accuracy'])} | - | " + " | ".join(pair_confusions(
-                         x["confusion"])) + " |")
+                     f"{pct(x['accuracy'])} | - | " + " | ".join(map(pct, pair_rates(
+                         x["confusion"]))) + " |")
     lines += difference_lines(s["differences"])
     lo, hi = closed["interval"]
     lines += ["", f"Of the oracles' gap ({pct(o['accuracy'])} → {pct(g['accuracy'])}), the "

@@ -58,7 +58,7 @@ from wtml.bench.texture_rate import (
     PAIR,
     difference_lines,
     grade_scores,
-    pair_confusions,
+    pair_rates,
     pct,
 )
 from wtml.cores import THREADS_ENV, available_cores
@@ -668,8 +668,8 @@ def _report(s: dict) -> str:
                      f"{r['fit_s']:.1f} |")
     for label, x in (("amplitude oracle", o), ("every-grain oracle", g)):
         lines.append(f"| {label} ({x['n']} draws of the prior) | - | - | - | "
-                     f"{pct(x['accuracy'])} | - | " + " | ".join(pair_confusions(
-                         x["confusion"])) + " | - |")
+                     f"{pct(x['accuracy'])} | - | " + " | ".join(map(pct, pair_rates(
+                         x["confusion"]))) + " | - |")
     lines += difference_lines(s["differences"])
     gen = s["generation"]
     per = gen["seconds_per_shard"]

@@ -96,6 +96,24 @@ def test_minirocket_separates_two_textures_of_different_roughness():
     assert np.all(np.isnan(out["grain"]))
 
 
+def test_minirocket_fit_stacked_is_fit_without_the_copy():
+    """The bench's path (windows stacked once in float32, scaled in place) fits the same peer
+    as :meth:`MiniRocketPeer.fit` on e and i, and refuses float64 (it would copy after all)."""
+    rng = np.random.default_rng(1)
+    n, length = 24, 256
+    grade = np.arange(n) % 2
+    e = rng.standard_normal((n, length))
+    i = 1e-6 * rng.standard_normal((n, length)) * np.where(grade[:, None] == 1, 3.0, 1.0)
+    x = np.stack([e, i], 1).astype(np.float32)
+    stacked = MiniRocketPeer(n_kernels=200).fit_stacked(x, grade)
+    plain = MiniRocketPeer(n_kernels=200).fit(e, i, grade)
+    np.testing.assert_array_equal(stacked.scale, plain.scale)
+    np.testing.assert_allclose(x.std(axis=(0, 2)), 1.0, rtol=1e-5)  # consumed: scaled in place
+    np.testing.assert_array_equal(stacked.predict(e, i)["grade"], plain.predict(e, i)["grade"])
+    with pytest.raises(TypeError, match="float32"):
+        MiniRocketPeer(n_kernels=200).fit_stacked(x.astype(np.float64), grade)
+
+
 def test_fidelity_figure_5_22_is_a_line_through_the_origin():
     """The thesis's pipeline on 15 wall positions: measured against actual location is the
     identity line up to the 1 % calibration error and the probe's peaks (thesis R² 0.9981)."""

@@ -178,35 +178,53 @@ def _onnx(model):
     return run
 
 
-def _cut(data: dict, seconds: float, rate: float) -> tuple[np.ndarray, ...]:
-    """Whole windows of ``seconds``: e, i ``(n_windows, window)``, each one's record and its
-    record's calibrated T ``(n_windows, K, 2, 2)``."""
-    cut, owner = windows(np.stack([data["e"], data["i"]]), int(round(seconds * rate)))
+def _cut(data: dict, seconds: float, rate: float, dtype=np.float64) -> tuple[np.ndarray, ...]:
+    """Whole windows of ``seconds``: e, i ``(n_windows, window)`` (a copy, of ``dtype``), each
+    one's record and its record's calibrated T ``(n_windows, K, 2, 2)``."""
+    cut, owner = windows(np.stack([data["e"], data["i"]], dtype=dtype),
+                         int(round(seconds * rate)))
     return cut[0], cut[1], owner, data["t"][owner]
 
 
 def _training_windows(data_dir, split: dict, window_s: float, rate: float
                       ) -> tuple[np.ndarray, ...]:
-    """The training shards' whole windows: e, i ``(n, window)``, their records' calibrated
-    T ``(n, K, 2, 2)`` and grades ``(n,)`` (the records themselves are let go: the windows
-    are a copy)."""
-    train = load_shards(data_dir, split["train"])
-    e, i, owner, t = _cut(train, window_s, rate)
-    return e, i, t, train["grade"][owner]
+    """The training shards' whole windows as MiniRocket reads them, ``(n, 2, window)``
+    float32 (e then i: the precision MiniRocket and the whisk features compute in; the main
+    job's 1280 windows take 131 MB), their records' calibrated T ``(n, K, 2, 2)`` and grades
+    ``(n,)``. Read a shard at a time: at most one shard's float64 records beside them."""
+    window = int(round(window_s * rate))
+    records = {s["index"]: s["count"] for s in read_manifest(data_dir)["shards"]}
+    total = sum(records[k] for k in split["train"])
+    x = t = grade = None
+    row = 0
+    for k in split["train"]:
+        shard = load_shards(data_dir, [k])
+        cut, owner = windows(np.stack([shard["e"], shard["i"]]), window)
+        if x is None:
+            n = total * (len(owner) // records[k])
+            x = np.empty((n, 2, window), np.float32)
+            t = np.empty((n, *shard["t"].shape[1:]), shard["t"].dtype)
+            grade = np.empty(n, shard["grade"].dtype)
+        rows = slice(row, row + len(owner))
+        x[rows] = cut.transpose(1, 0, 2)
+        t[rows], grade[rows] = shard["t"][owner], shard["grade"][owner]
+        row += len(owner)
+    return x, t, grade
 
 
-def _peers(scene, e: np.ndarray, i: np.ndarray, t: np.ndarray, grade: np.ndarray,
-           kernels: int) -> tuple[MiniRocketPeer, BandPowerPeer, float]:
-    """The peers fitted on training windows (:func:`_training_windows`): MiniRocket with
-    ``kernels`` kernels, the band-power peer, and MiniRocket's fitting time (s)."""
-    _progress(f"fitting MiniRocket ({kernels} kernels) on {len(e)} training windows")
+def _peers(scene, x: np.ndarray, t: np.ndarray, grade: np.ndarray, kernels: int
+           ) -> tuple[MiniRocketPeer, BandPowerPeer, float]:
+    """The peers fitted on training windows ``x`` (:func:`_training_windows`, consumed:
+    MiniRocket scales them in place): the band-power peer, MiniRocket with ``kernels``
+    kernels, and MiniRocket's fitting time (s)."""
+    _progress(f"fitting the band-power peer on {len(x)} training windows")
+    bands = BandPowerPeer(scene.calibration_hz, scene.acquisition.sample_rate_hz).fit(
+        x[:, 0], x[:, 1], t, grade)
+    _progress(f"fitting MiniRocket ({kernels} kernels) on {len(x)} training windows")
     start = time.perf_counter()
-    peer = MiniRocketPeer(kernels).fit(e, i, grade)
+    peer = MiniRocketPeer(kernels).fit_stacked(x, grade)
     fit_s = time.perf_counter() - start
     release_memory()  # the fit's transforms and ridge: ~0.4 GB freed but kept by the heap
-    _progress(f"fitting the band-power peer on {len(e)} training windows")
-    bands = BandPowerPeer(scene.calibration_hz, scene.acquisition.sample_rate_hz).fit(
-        e, i, t, grade)
     return peer, bands, fit_s
 
 
@@ -235,10 +253,10 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     features = WhiskFeatures(scene.calibration_hz, rate)
     graphs = {"decoder (ONNX)": _onnx(decoder), "thesis cues (ONNX)": _onnx(classical)}
     methods = dict(graphs)
-    e_tr, i_tr, t_tr, grade_tr = _training_windows(data_dir, split, window_s, rate)
-    peer, bands, peer_fit_s = _peers(scene, e_tr, i_tr, t_tr, grade_tr, peer_kernels)
-    n_train_windows = len(e_tr)
-    del e_tr, i_tr, t_tr
+    x_tr, t_tr, grade_tr = _training_windows(data_dir, split, window_s, rate)
+    peer, bands, peer_fit_s = _peers(scene, x_tr, t_tr, grade_tr, peer_kernels)
+    n_train_windows = len(x_tr)
+    del x_tr, t_tr
     methods[peer.name] = peer.predict
     methods[bands.name] = bands.predict
     kinetic = KineticSignature(features, sizes, rate)
@@ -637,13 +655,13 @@ def frontier_problem(data_dir: str | Path, model_dir: str | Path, *, threads: in
     window_s = json.loads(load_export(model_dir)[0].metadata["window_s"])
     e, i, owner, t = _cut(test, window_s, rate)
     truth, specimen = test["grade"][owner], test["specimen"][owner]
-    e_tr, i_tr, t_tr, grade_tr = _training_windows(data_dir, split, window_s, rate)
-    peer, bands, _ = _peers(scene, e_tr, i_tr, t_tr, grade_tr, peer_kernels)
+    x_tr, t_tr, grade_tr = _training_windows(data_dir, split, window_s, rate)
+    pick = np.random.default_rng(0).permutation(len(x_tr))[:256]
+    calibration = (x_tr[pick, 0], x_tr[pick, 1], t_tr[pick])  # copies: _peers consumes x_tr
+    peer, bands, _ = _peers(scene, x_tr, t_tr, grade_tr, peer_kernels)
     kinetic = KineticSignature(WhiskFeatures(scene.calibration_hz, rate),
                                np.array(list(THESIS_GRADES.values())) * 1e-6, rate)
-    pick = np.random.default_rng(0).permutation(len(e_tr))[:256]
-    calibration = (e_tr[pick], i_tr[pick], t_tr[pick])
-    del e_tr, i_tr, t_tr
+    del x_tr, t_tr
 
     def score(pred: dict) -> tuple[float, float, float, str]:
         correct = (pred["grade"] == truth).astype(float)

@@ -24,13 +24,13 @@ from wtml.runtime.recordings import read_record
 
 
 def windows(x: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
-    """Cut ``(2, n_records, n)`` records into whole windows: ``(2, n_windows, window)`` and
-    each window's record index."""
+    """Cut ``(c, n_records, n)`` records (c channels: e and i, or one of them) into whole
+    windows: ``(c, n_windows, window)`` and each window's record index."""
     per = x.shape[2] // window
     if per < 1:
         raise ValueError(f"records of {x.shape[2]} samples are shorter than the model's window "
                          f"({window} samples)")
-    cut = x[:, :, :per * window].reshape(2, x.shape[1] * per, window)
+    cut = x[:, :, :per * window].reshape(len(x), x.shape[1] * per, window)
     return cut, np.repeat(np.arange(x.shape[1]), per)
 
 

@@ -1,5 +1,6 @@
 """``wtml bench texture-scale`` (issue 25 §3): the nested shard plan, the recipes, the fast
-training's loss against the decoder's own, and a tiny run end to end, resumed."""
+training's loss against the decoder's own, a tiny run end to end, resumed, and its MiniRocket
+rows against MiniRocket fitted directly."""
 
 from __future__ import annotations
 
@@ -7,10 +8,13 @@ import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
 
+from wtml.baselines.texture_peers import MiniRocketPeer
+from wtml.bench.texture_rate import grade_scores
 from wtml.bench.texture_scale import (
     features_at,
     plan_shards,
@@ -125,6 +129,9 @@ def test_bad_options_are_refused_before_any_work(tmp_path, capsys):
     work = tmp_path / "work"
     for kwargs, needle in (({"workers": 0}, "--workers"), ({"deadline_s": -1.0}, "--deadline-s"),
                            ({"oracle_draws": 5}, "--oracle-draws"),
+                           ({"minirocket_kernels": 10}, "--minirocket-kernels"),
+                           ({"minirocket_sizes": [80]}, r"--minirocket-sizes: .* each one of "
+                                                        r"--sizes \(40\), got \[80\]"),
                            ({"recipes": []}, "--recipes: at least one"),
                            ({"recipes": [RECIPES[0], str(other)]},
                             "--recipes: .*band_frame_s .* share one feature layer")):
@@ -135,7 +142,9 @@ def test_bad_options_are_refused_before_any_work(tmp_path, capsys):
                          (["--sizes", "80,40"], "ascending"),
                          (["--test-specimens", "0"], "argument --test-specimens"),
                          (["--workers", "0"], "argument --workers"),
-                         (["--deadline-s", "-5"], "argument --deadline-s")):
+                         (["--deadline-s", "-5"], "argument --deadline-s"),
+                         (["--minirocket-sizes", "x"], "argument --minirocket-sizes"),
+                         (["--minirocket-kernels", "83"], "argument --minirocket-kernels")):
         with pytest.raises(SystemExit) as done:
             main(["bench", "texture-scale", *argv])
         err = capsys.readouterr().err.strip()
@@ -228,3 +237,56 @@ def test_a_second_run_keeps_the_complete_shards_and_gives_the_same_answers(tiny)
     late = json.loads((one.parent / "late" / "summary.json").read_text())
     assert {r["status"] for r in late["rows"]} == {"skipped: the deadline had passed"}
     assert late["differences"] == [] and report.count("skipped: the deadline") == 6
+
+
+def _windows(folder: Path, shards: int, n: int) -> tuple[np.ndarray, ...]:
+    """Every whole window of n samples of the first shards in folder, record by record: e, i
+    (m, n), grade and specimen (m,)."""
+    data = load_shards(folder, list(range(shards)))
+    per = data["e"].shape[1] // n
+    e, i = (data[key][:, :per * n].reshape(-1, n) for key in ("e", "i"))
+    return e, i, *(np.repeat(data[key], per) for key in ("grade", "specimen"))
+
+
+def test_the_minirocket_rows_are_minirocket_fitted_on_the_same_windows(tiny):
+    """--minirocket-sizes 10 on the tiny plan: one MiniRocket row, at 10 specimens, whose
+    scores are those of MiniRocketPeer fitted directly on every whole window of the first two
+    training shards and scored on every held-out window; the decoder minus MiniRocket there
+    and nowhere else; the decoder's rows as without MiniRocket."""
+    scene, work, one, _, _ = tiny
+    out = one.parent / "minirocket"
+    report = run_scale(out, scene=scene, sizes=SIZES, test_specimens=10, recipes=RECIPES[:1],
+                       workers=1, work=work, epochs=2, oracle_draws=500,
+                       minirocket_sizes=[10], minirocket_kernels=84)
+    s = json.loads((out / "summary.json").read_text())
+    decoder = "texture ([64, 64], batch 32)"
+    assert [(r["method"], r["specimens"]) for r in s["rows"]] == [
+        ("band-power peer", 5), (decoder, 5), ("band-power peer", 10), ("MiniRocket", 10),
+        (decoder, 10)]
+    assert s["minirocket"] == {"sizes": [10], "kernels": 84}
+    row = s["rows"][3]
+    assert (row["kind"], row["status"], row["kernels"], row["train_windows"]) == (
+        "minirocket", "done", 84, 40)
+    assert row["fit_s"] > 0 and row["predict_s"] > 0
+    folders = {p.name.split("-")[0]: p for p in work.iterdir() if "peer" not in p.name}
+    n = read_recipe(RECIPES[0]).decoder().window(load_scene(scene))
+    e, i, grade, _ = _windows(folders["train"], 2, n)
+    te, ti, test_grade, test_specimen = _windows(folders["test"], 2, n)
+    pred = MiniRocketPeer(84).fit(e, i, grade).predict(te, ti)["grade"]
+    want = grade_scores(pred, test_grade, test_specimen)
+    for key in ("accuracy", "interval", "confusion", "p320_as_p280", "p280_as_p320"):
+        assert row[key] == (list(want[key]) if key == "interval" else want[key]), key
+    first = json.loads((one / "summary.json").read_text())
+    for a, b in zip([r for r in first["rows"] if r["method"] == decoder],
+                    [r for r in s["rows"] if r["method"] == decoder], strict=True):
+        assert (a["accuracy"], a["confusion"]) == (b["accuracy"], b["confusion"])
+    diffs = {d["name"]: d for d in s["differences"]}
+    assert [name for name in diffs if "MiniRocket" in name] == [
+        f"{decoder} minus MiniRocket, 10 specimens"]
+    d = diffs[f"{decoder} minus MiniRocket, 10 specimens"]
+    assert d["difference"] == pytest.approx(s["rows"][4]["accuracy"] - row["accuracy"])
+    assert d["interval"][0] <= d["difference"] <= d["interval"][1]
+    for needle in ("| MiniRocket | 10 | 40 windows | 84 kernels |",
+                   f"| {decoder} minus MiniRocket, 10 specimens |",
+                   "MiniRocket: aeon's MiniRocketClassifier (`MiniRocketPeer`, 84 kernels)"):
+        assert needle in report, needle

@@ -496,7 +496,8 @@ def _bench_texture_scale(args: argparse.Namespace) -> int:
     from wtml.bench.texture_scale import run_scale
 
     given = {key: getattr(args, key) for key in ("scene", "sizes", "test_specimens",
-                                                 "recipes")
+                                                 "recipes", "minirocket_sizes",
+                                                 "minirocket_kernels")
              if getattr(args, key) is not None}  # None: run_scale's defaults
     print(run_scale(args.out, workers=args.workers, work=args.work,
                     deadline_s=args.deadline_s, epochs=args.epochs,
@@ -531,7 +532,8 @@ def _texture_scale_parser(be_sub) -> None:
                                        "accuracy with its interval over the specimens, "
                                        "P320/P280 confusion, paired differences (each "
                                        "decoder minus the peer, each size minus the "
-                                       "smallest) and the oracles.")
+                                       "smallest) and the oracles; optionally MiniRocket "
+                                       "at some of the sizes (--minirocket-sizes).")
     bs.add_argument("--scene", default=None, help="the texture scene both sets are drawn "
                     "from, only its name, seed, samples and shards changed (default: "
                     "configs/scenes/texture.yaml)")
@@ -546,6 +548,12 @@ def _texture_scale_parser(be_sub) -> None:
                          "configs/variants/texture_full.yaml)")
     bs.add_argument("--epochs", type=_number(1, 10**6, int), default=None,
                     help="every recipe's epochs (default: each config's max_epochs)")
+    bs.add_argument("--minirocket-sizes", type=_sizes, default=None,
+                    help="sizes, each one of --sizes, comma-separated, at which MiniRocket "
+                         "is fitted too on every whole training window (default: none; on "
+                         "CPU ~1 min per 1280 windows per core, several GB at 20480 windows)")
+    bs.add_argument("--minirocket-kernels", type=_number(84, 10**6, int), default=None,
+                    help="MiniRocket's kernels (default: 10000, as wtml bench texture)")
     bs.add_argument("--workers", type=_number(1, 1024, int), default=None,
                     help="generation processes (default: the available cores)")
     bs.add_argument("--work", default="datasets/texture_scale",

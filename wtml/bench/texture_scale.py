@@ -25,14 +25,22 @@ the loss :meth:`~wtml.decoders.texture.TextureDecoder.feature_loss`, AdamW under
 one-cycle schedule (:meth:`~wtml.decoders.base.DecoderModule.one_cycle`). Left out: the
 validation split and the domain gate, which change no weight. The peer
 (:class:`~wtml.baselines.texture_peers.BandPowerPeer`, as shipped) trains on every whole
-window of the same records.
+window of the same records. Optionally (``minirocket_sizes``, none by default: it costs far
+more than the rest on CPU), MiniRocket
+(:class:`~wtml.baselines.texture_peers.MiniRocketPeer`, as shipped: aeon's
+MiniRocketClassifier, :data:`MINIROCKET_KERNELS` kernels as ``wtml bench texture`` fits it)
+trains on every whole window of the same records at those sizes. aeon's classifier transforms
+all its training windows at once (it takes no precomputed features), so its peak memory grows
+with the size: the windows, their float32 stack and aeon's float32 copy (2.1 GB each at 20480
+windows of 2 × 12800 samples) and the features (0.8 GB at 10000 kernels).
 
 Scores: every whole window (the recipes' ``window_s``) of every held-out record: accuracy,
 its 95 % interval (bootstrap over the held-out specimens), P320/P280 confusion
 (:func:`~wtml.bench.texture_rate.grade_scores`); paired differences on the same windows
-(each decoder minus the peer at each size; each size minus the smallest, per method); the
-amplitude and every-grain oracles (:func:`wtml.bench.texture.oracles`). Writes
-``report.md``, ``summary.json`` and ``scale.png``.
+(each decoder minus the peer and minus MiniRocket at each size; each size minus the
+smallest, per method); the amplitude and every-grain oracles
+(:func:`wtml.bench.texture.oracles`). Writes ``report.md``, ``summary.json`` and
+``scale.png``.
 """
 
 from __future__ import annotations
@@ -51,7 +59,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from wtml.baselines.texture_peers import BandPowerPeer
+from wtml.baselines.texture_peers import BandPowerPeer, MiniRocketPeer
 from wtml.bench.resampling import group_interval, span
 from wtml.bench.texture import oracles
 from wtml.bench.texture_rate import (
@@ -89,6 +97,10 @@ CROP_SEED = 20251128
 """The training crops' seed: shard k's come from ``SeedSequence([CROP_SEED, k])``."""
 PEER = "band-power peer"
 """The peer's rows' label."""
+MINIROCKET = "MiniRocket"
+"""MiniRocket's rows' label."""
+MINIROCKET_KERNELS = 10000
+"""MiniRocket's kernels (``wtml bench texture --peer-kernels``'s default, aeon's)."""
 CHUNK = {"cuda": 4096, "cpu": 256}
 """Windows per call of the feature layer on each device (4096 windows of 0.25 s at 51.2 kS/s:
 210 MB each of e and i)."""
@@ -406,10 +418,10 @@ def train_recipe(recipe: Recipe, layer: WhiskFeatures, first: torch.Tensor,
 
 def paired_differences(rows: list[dict], preds: dict, grade: np.ndarray, specimen: np.ndarray
                        ) -> list[dict]:
-    """Accuracy differences on the same held-out windows: each decoder minus the peer at its
-    size, each size minus the smallest (per method), where both rows ran. ``preds``:
-    ``(method, size)`` -> predicted grades ``(n_windows,)``; ``grade``, ``specimen`` the
-    windows'. Each: ``name``, ``difference`` (a fraction) and its 95 % ``interval``
+    """Accuracy differences on the same held-out windows: each decoder minus the peer and
+    minus MiniRocket at its size, each size minus the smallest (per method), where both rows
+    ran. ``preds``: ``(method, size)`` -> predicted grades ``(n_windows,)``; ``grade``,
+    ``specimen`` the windows'. Each: ``name``, ``difference`` (a fraction) and its 95 % ``interval``
     (bootstrap over specimens)."""
     out = []
     smallest = min(r["specimens"] for r in rows)
@@ -417,6 +429,8 @@ def paired_differences(rows: list[dict], preds: dict, grade: np.ndarray, specime
         key = (row["method"], row["specimens"])
         pairs = [(f"{row['method']} minus the peer, {row['specimens']} specimens",
                   (PEER, row["specimens"]), row["kind"] == "decoder"),
+                 (f"{row['method']} minus {MINIROCKET}, {row['specimens']} specimens",
+                  (MINIROCKET, row["specimens"]), row["kind"] == "decoder"),
                  (f"{row['method']}, {row['specimens']} minus {smallest} specimens",
                   (row["method"], smallest), row["specimens"] != smallest)]
         for name, other, wanted in pairs:
@@ -433,7 +447,8 @@ class _Study:
     timings that estimate what a row costs, the clock against the deadline."""
 
     def __init__(self, sets: dict, scene: TextureScene, plan: Plan, recipes: list[Recipe],
-                 n: int, deadline_s: float | None, start: float) -> None:
+                 n: int, deadline_s: float | None, start: float,
+                 kernels: int = MINIROCKET_KERNELS) -> None:
         self.sets, self.scene, self.plan, self.n = sets, scene, plan, n
         self.deadline = None if deadline_s is None else start + deadline_s
         self.device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -444,6 +459,8 @@ class _Study:
         self.shard_s: float | None = None  # seconds to ingest a training shard
         self.step_s: dict[str, float] = {}  # recipe path -> seconds per step
         self.peer_s: float | None = None  # peer fit seconds per training window
+        self.kernels = kernels  # MiniRocket's
+        self.minirocket_s: tuple[float, float] | None = None  # fit s per window, predict s
         self.test = self._test()
 
     def _tensors(self, folder: str, k: int) -> tuple[tuple[torch.Tensor, ...], dict]:
@@ -478,6 +495,28 @@ class _Study:
         _progress(f"held-out set: {len(test['grade'])} windows of "
                   f"{len(np.unique(test['specimen']))} specimens on {self.device}")
         return test
+
+    def _windows(self, split: str, shards: int) -> tuple[np.ndarray, ...]:
+        """Every whole window of the first ``shards`` shards of ``split``: e, i ``(m, n)``
+        float32 (filled shard by shard: one copy), grade and specimen ``(m,)``, in
+        :func:`wtml.runtime.texture.windows`'s order (the peer's features')."""
+        folder = Path(self.sets[split]["folder"])
+        e = i = None
+        grade, specimen = [], []
+        at = 0
+        for k in range(shards):
+            data = read_npz(folder / shard_name(k), what="dataset shard",
+                            max_bytes=SHARD_MAX_BYTES)
+            (we, wi), owner = windows(np.stack([data["e"], data["i"]]), self.n)
+            if e is None:
+                e, i = (np.empty((shards * len(owner), self.n), np.float32) for _ in "ei")
+            e[at:at + len(owner)], i[at:at + len(owner)] = we, wi
+            at += len(owner)
+            grade.append(data["grade"][owner])
+            specimen.append(data["specimen"][owner])
+        if at != len(e):
+            raise RuntimeError(f"{folder}: shards of unequal windows")
+        return e, i, np.concatenate(grade), np.concatenate(specimen)
 
     def left(self) -> float:
         return math.inf if self.deadline is None else self.deadline - time.perf_counter()
@@ -559,12 +598,45 @@ class _Study:
                 "status": "done"}
         return row | grade_scores(pred, self.test["grade"], self.test["specimen"]), pred
 
+    def minirocket_row(self, size: int, shards: int) -> tuple[dict, np.ndarray]:
+        """MiniRocket at one size: its row and its held-out predictions."""
+        row = {"method": MINIROCKET, "kind": "minirocket", "specimens": size,
+               "shards": shards, "kernels": self.kernels}
+        per_shard = len(self.test["grade"]) / self.plan.test_shards  # windows, as training's
+        estimate = None
+        if self.minirocket_s is not None:
+            estimate = self.minirocket_s[0] * per_shard * shards + self.minirocket_s[1]
+        why = self.skip(estimate)
+        if why:
+            return row | {"status": why}, None
+        e, i, grade, _ = self._windows("train", shards)
+        trained = len(grade)
+        _progress(f"{MINIROCKET}, {size} specimens: fitting {self.kernels} kernels on "
+                  f"{trained} windows")
+        t0 = time.perf_counter()
+        peer = MiniRocketPeer(self.kernels).fit(e, i, grade)
+        fit_s = time.perf_counter() - t0
+        del e, i
+        e, i, grade, specimen = self._windows("test", self.plan.test_shards)
+        if not (np.array_equal(grade, self.test["grade"])
+                and np.array_equal(specimen, self.test["specimen"])):
+            raise RuntimeError(f"{self.sets['test']['folder']}: MiniRocket's windows are not "
+                               "the decoders'")
+        t0 = time.perf_counter()
+        pred = peer.predict(e, i)["grade"]
+        predict_s = time.perf_counter() - t0
+        self.minirocket_s = (fit_s / trained, predict_s)
+        row |= {"train_windows": trained, "fit_s": fit_s,
+                "predict_s": predict_s, "status": "done"}
+        return row | grade_scores(pred, self.test["grade"], self.test["specimen"]), pred
+
 
 def run_scale(out: str | Path = "runs/texture/scale", *, scene: str | Path = SCENE,
               sizes=SIZES, test_specimens: int = TEST_SPECIMENS, recipes=RECIPES,
               workers: int | None = None, work: str | Path = "datasets/texture_scale",
               deadline_s: float | None = None, epochs: int | None = None,
-              oracle_draws: int = 100_000) -> str:
+              oracle_draws: int = 100_000, minirocket_sizes=(),
+              minirocket_kernels: int = MINIROCKET_KERNELS) -> str:
     """The study (module docstring); returns the markdown report (also ``out/report.md``).
 
     Args:
@@ -580,6 +652,9 @@ def run_scale(out: str | Path = "runs/texture/scale", *, scene: str | Path = SCE
             to end after them is skipped (None: none).
         epochs: every recipe's epochs instead of its ``max_epochs`` (None: the configs').
         oracle_draws: draws of each oracle's prior.
+        minirocket_sizes: the sizes (each one of ``sizes``) at which MiniRocket is fitted
+            too (none: no MiniRocket rows).
+        minirocket_kernels: MiniRocket's kernels.
 
     Raises:
         ValueError: an option out of range (named), recipes of different feature layers.
@@ -587,13 +662,19 @@ def run_scale(out: str | Path = "runs/texture/scale", *, scene: str | Path = SCE
     start = time.perf_counter()
     workers = available_cores() if workers is None else workers
     for option, value, low, high in (("--workers", workers, 1, 1024),
-                                     ("--oracle-draws", oracle_draws, 100, 10**7)):
+                                     ("--oracle-draws", oracle_draws, 100, 10**7),
+                                     ("--minirocket-kernels", minirocket_kernels, 84, 10**6)):
         if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
             raise ValueError(f"{option}: a whole number in [{low}, {high}], got {value!r}")
     if deadline_s is not None and not 0 < deadline_s <= 10**7:
         raise ValueError(f"--deadline-s: a number of seconds in (0, 1e7], got {deadline_s!r}")
     base = load_scene(scene)
     plan = plan_shards(base, sizes, test_specimens)
+    minirocket_sizes = list(minirocket_sizes)
+    if minirocket_sizes != sorted(set(minirocket_sizes)) or not set(minirocket_sizes) <= set(
+            plan.sizes):
+        raise ValueError(f"--minirocket-sizes: distinct sizes in ascending order, each one of "
+                         f"--sizes ({', '.join(map(str, plan.sizes))}), got {minirocket_sizes}")
     cooks = read_recipes(recipes, epochs)
     n = cooks[0].decoder().window(base)
     scenes = split_scenes(base, plan)
@@ -601,11 +682,13 @@ def run_scale(out: str | Path = "runs/texture/scale", *, scene: str | Path = SCE
               f"held-out set: {plan.test_shards}, in {work}")
     gen = make_sets(scenes, Path(work), n, workers)
     gen_s = time.perf_counter() - start
-    study = _Study(gen["sets"], scenes["train"], plan, cooks, n, deadline_s, start)
+    study = _Study(gen["sets"], scenes["train"], plan, cooks, n, deadline_s, start,
+                   minirocket_kernels)
     rows, preds = [], {}
     for size, shards in plan.sizes.items():
-        for method in [None, *cooks]:
-            row, pred = (study.peer_row(size, shards) if method is None
+        for method in [PEER, *[MINIROCKET] * (size in minirocket_sizes), *cooks]:
+            row, pred = (study.peer_row(size, shards) if method == PEER
+                         else study.minirocket_row(size, shards) if method == MINIROCKET
                          else study.decoder_row(method, size, shards))
             rows.append(row)
             if pred is not None:
@@ -622,7 +705,8 @@ def run_scale(out: str | Path = "runs/texture/scale", *, scene: str | Path = SCE
         "plan": dataclasses.asdict(plan), "window_s": n / base.acquisition.sample_rate_hz,
         "test_windows": len(test["grade"]),
         "test_specimens": int(len(np.unique(test["specimen"]))),
-        "recipes": [dataclasses.asdict(r) for r in cooks], "rows": rows,
+        "recipes": [dataclasses.asdict(r) for r in cooks],
+        "minirocket": {"sizes": minirocket_sizes, "kernels": minirocket_kernels}, "rows": rows,
         "differences": differences,
         "oracle": amplitude | {"confusion": amplitude["confusion"].tolist()},
         "grain_oracle": grain | {"confusion": grain["confusion"].tolist()},
@@ -642,6 +726,7 @@ def run_scale(out: str | Path = "runs/texture/scale", *, scene: str | Path = SCE
 
 def _report(s: dict) -> str:
     plan, o, g, m = s["plan"], s["oracle"], s["grain_oracle"], s["machine"]
+    mr = s.get("minirocket") or {"sizes": []}
     recipes = "; ".join(f"`{r['path']}` ({r['model'].get('hidden')}, batch {r['batch']}, "
                         f"{r['epochs']} epochs, lr {r['model'].get('lr', 3e-3):g})"
                         for r in s["recipes"])
@@ -650,8 +735,11 @@ def _report(s: dict) -> str:
              f"({plan['records']} records) of `{s['scene']}` (its seed); held out: "
              f"{s['test_specimens']} specimens (the seed + 1), every whole window of "
              f"{s['window_s']:g} s ({s['test_windows']} windows). Decoders: {recipes}, "
-             "one random crop of every record per epoch. Intervals: 95 %, bootstrap over "
-             "the held-out specimens.", "",
+             "one random crop of every record per epoch. "
+             + (f"{MINIROCKET}: aeon's MiniRocketClassifier (`MiniRocketPeer`, "
+                f"{mr['kernels']} kernels) on every whole window of the training records; its "
+                "fit includes transforming them. " if mr["sizes"] else "")
+             + "Intervals: 95 %, bootstrap over the held-out specimens.", "",
              f"| method | specimens | trained on | steps | accuracy | 95 % interval | "
              f"{PAIR[0]} as {PAIR[1]} | {PAIR[1]} as {PAIR[0]} | fit (s) |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -661,7 +749,8 @@ def _report(s: dict) -> str:
             continue
         trained = (f"{r['train_records']} records" if r["kind"] == "decoder"
                    else f"{r['train_windows']} windows")
-        steps = r["steps"] if r["kind"] == "decoder" else f"{r['iterations']} it."
+        steps = (r["steps"] if r["kind"] == "decoder" else f"{r['iterations']} it."
+                 if r["kind"] == "peer" else f"{r['kernels']} kernels")
         lines.append(f"| {r['method']} | {r['specimens']} | {trained} | {steps} | "
                      f"{pct(r['accuracy'])} | {span(r['interval'])} | "
                      f"{pct(r['p320_as_p280'])} | {pct(r['p280_as_p320'])} | "
@@ -671,6 +760,11 @@ def _report(s: dict) -> str:
                      f"{pct(x['accuracy'])} | - | " + " | ".join(map(pct, pair_rates(
                          x["confusion"]))) + " | - |")
     lines += difference_lines(s["differences"])
+    predict = [f"{r['predict_s']:.0f} s at {r['specimens']}" for r in s["rows"]
+               if r["kind"] == "minirocket" and "predict_s" in r]
+    if predict:
+        lines += ["", f"{MINIROCKET}'s predictions on the held-out windows (their transform) "
+                  f"took {', '.join(predict)} specimens."]
     gen = s["generation"]
     per = gen["seconds_per_shard"]
     lines += ["", f"Generation: {gen['made']} shards made"
@@ -699,7 +793,8 @@ def _plot(s: dict, out: Path) -> None:
         x = np.array([r["specimens"] for r in done]) * 1.04 ** (k - (len(methods) - 1) / 2)
         acc = np.array([100 * r["accuracy"] for r in done])
         low, high = (np.array([100 * r["interval"][j] for r in done]) for j in (0, 1))
-        ax.errorbar(x, acc, yerr=[acc - low, high - acc], fmt="o-", capsize=3, label=method)
+        ax.errorbar(x, acc, yerr=np.stack([acc - low, high - acc]), fmt="o-", capsize=3,
+                    label=method)  # (2, n): a list of 1-element arrays warns in matplotlib
     ax.axhline(100 * s["oracle"]["accuracy"], color="k", ls=":", label="amplitude oracle")
     ax.axhline(100 * s["grain_oracle"]["accuracy"], color="k", ls="--",
                label="every-grain oracle")

@@ -31,8 +31,10 @@ more than the rest on CPU), MiniRocket
 MiniRocketClassifier, :data:`MINIROCKET_KERNELS` kernels as ``wtml bench texture`` fits it)
 trains on every whole window of the same records at those sizes. aeon's classifier transforms
 all its training windows at once (it takes no precomputed features), so its peak memory grows
-with the size: the windows, their float32 stack and aeon's float32 copy (2.1 GB each at 20480
-windows of 2 × 12800 samples) and the features (0.8 GB at 10000 kernels).
+with the size: the windows, their float32 stack and aeon's float32 copy (1.05 GB each per
+10240 windows of 2 × 12800 samples), the features (0.4 GB per 10240 windows at 10000
+kernels) and the ridge's SVD once the windows outnumber the features (measured on one CPU
+core: 8.1 GB peak RSS and a 1490 s fit at 10240 windows, 284 s at 5120).
 
 Scores: every whole window (the recipes' ``window_s``) of every held-out record: accuracy,
 its 95 % interval (bootstrap over the held-out specimens), P320/P280 confusion

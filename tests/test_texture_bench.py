@@ -5,10 +5,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+import torch
 
 from wtml.baselines.texture_peers import KineticSignature, MiniRocketPeer
-from wtml.bench.texture import amplitude_oracle, confusion
-from wtml.decoders.texture import WhiskFeatures
+from wtml.bench.texture import _cut, _torch, amplitude_oracle, confusion
+from wtml.decoders.texture import BandPowers, WhiskFeatures
 from wtml.scenes import load_scene
 from wtml.scenes.texture import THESIS_GRADES, TextureScene
 
@@ -112,6 +113,32 @@ def test_minirocket_fit_stacked_is_fit_without_the_copy():
     np.testing.assert_array_equal(stacked.predict(e, i)["grade"], plain.predict(e, i)["grade"])
     with pytest.raises(TypeError, match="float32"):
         MiniRocketPeer(n_kernels=200).fit_stacked(x.astype(np.float64), grade)
+
+
+def test_bench_windows_keep_the_records_dtype_and_the_torch_graph_gets_float32():
+    """The bench's windows are a copy in the records' dtype (float32 from shards: 24 bytes
+    a sample fewer than float64), and its torch pass feeds the float32 graph float32 whatever
+    the windows' dtype (float64 windows of fresh records met a float32 DFT matmul: the main
+    job's texture bench failed on it)."""
+    rng = np.random.default_rng(2)
+    t = np.tile(np.eye(2, dtype=complex), (3, 1, 1, 1))
+    records = {"e": rng.standard_normal((3, 1024)).astype(np.float32),
+               "i": rng.standard_normal((3, 1024)).astype(np.float32), "t": t}
+    e, i, owner, t_cut = _cut(records, 256 / RATE, RATE)
+    assert e.dtype == i.dtype == np.float32 and e.shape == (12, 256)
+    np.testing.assert_array_equal(owner, np.repeat(np.arange(3), 4))
+    np.testing.assert_array_equal(e[5], records["e"][1, 256:512])
+    bands = BandPowers(RATE, 64)
+
+    def graph(e, i, t_re, t_im):  # a float32 module, with the decoder's outputs' layout
+        power = bands(e)
+        n = len(e)
+        return power[:, 0], power[:, 0], torch.softmax(power[:, :5], 1), torch.ones(n, dtype=bool)
+
+    for windows in (e, e.astype(np.float64)):
+        out = _torch(graph)(windows, i, t_cut)
+        expected = bands(torch.tensor(e)).numpy()[:, 0]
+        np.testing.assert_allclose(out["grain"], expected, rtol=1e-6)
 
 
 def test_fidelity_figure_5_22_is_a_line_through_the_origin():

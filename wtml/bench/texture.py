@@ -178,11 +178,11 @@ def _onnx(model):
     return run
 
 
-def _cut(data: dict, seconds: float, rate: float, dtype=np.float64) -> tuple[np.ndarray, ...]:
-    """Whole windows of ``seconds``: e, i ``(n_windows, window)`` (a copy, of ``dtype``), each
-    one's record and its record's calibrated T ``(n_windows, K, 2, 2)``."""
-    cut, owner = windows(np.stack([data["e"], data["i"]], dtype=dtype),
-                         int(round(seconds * rate)))
+def _cut(data: dict, seconds: float, rate: float) -> tuple[np.ndarray, ...]:
+    """Whole windows of ``seconds``: e, i ``(n_windows, window)`` (a copy, of the records'
+    dtype: float32 from shards), each one's record and its record's calibrated T
+    ``(n_windows, K, 2, 2)``."""
+    cut, owner = windows(np.stack([data["e"], data["i"]]), int(round(seconds * rate)))
     return cut[0], cut[1], owner, data["t"][owner]
 
 
@@ -335,12 +335,13 @@ def _robustness(test: dict, owner: np.ndarray, correct: np.ndarray) -> dict:
 
 def _torch(graph):
     """The torch graph on windows, :data:`~wtml.runtime.predict.RUN_BYTES` of input at a time
-    (as the ONNX runtime batches: at once, 80 one-second windows' intermediates took 0.5 GB)."""
+    (as the ONNX runtime batches: at once, 80 one-second windows' intermediates took 0.5 GB),
+    in float32 as the graph computes, whatever the windows' dtype."""
     @torch.no_grad()
     def run(e: np.ndarray, i: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
         step = rows_per_run(8 * e.shape[1])
-        parts = [graph(torch.tensor(e[k:k + step]), torch.tensor(i[k:k + step]),
-                       *(torch.tensor(x) for x in flat_parts(t[k:k + step])))
+        parts = [graph(*(torch.tensor(x, dtype=torch.float32) for x in
+                         (e[k:k + step], i[k:k + step], *flat_parts(t[k:k + step]))))
                  for k in range(0, len(e), step)]
         grain, prob, inside = (torch.cat([p[j] for p in parts]) for j in (0, 2, 3))
         return {"grade": prob.argmax(1).numpy(), "grain": grain.double().numpy(),

@@ -181,7 +181,7 @@ def texture_export(tmp_path_factory):
                  ["-m", "wtml.cli", "export", "--checkpoint",
                   str(run / "checkpoints/last.ckpt"), "--out", str(model)]):
         subprocess.run([sys.executable, *args], check=True, capture_output=True, cwd=ROOT)
-    return {"run": run, "model": model}
+    return {"data": data, "run": run, "model": model}
 
 
 W_H = 2 * np.pi * 420.0

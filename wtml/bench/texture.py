@@ -51,6 +51,7 @@ from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.checkpoint import load_decoder
 from wtml.decoders.domain import Gated
+from wtml.decoders.recalibration import Recalibrated
 from wtml.decoders.texture import WhiskFeatures
 from wtml.memory import release_memory
 from wtml.physics.twoport import flat_parts
@@ -287,9 +288,8 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
     _progress("the oracles")
     oracle, grain_oracle = oracles(scene, oracle_draws)
     _progress("accuracy against window length")
-    module = load_decoder(checkpoint)
-    graph = Gated(module.net, module.gate, (1,)).eval()
-    by_window, parity = _by_window(test, graph, decoder, window_s, rate)
+    by_window, parity = _by_window(test, export_in_torch(checkpoint, decoder), decoder,
+                                   window_s, rate)
     _progress("unseen FEPA grades")
     fepa = load_shards(fepa_dir, list(range(read_manifest(fepa_dir)["n_shards"])))
     unseen = _unseen(fepa, graphs | {kinetic.name: kinetic.predict}, window_s, rate)
@@ -347,6 +347,17 @@ def _torch(graph):
         return {"grade": prob.argmax(1).numpy(), "grain": grain.double().numpy(),
                 "in_domain": inside.numpy(), "probabilities": prob.double().numpy()}
     return run
+
+
+def export_in_torch(checkpoint: str | Path, model) -> torch.nn.Module:
+    """The export's decoder graph in torch, at any window length: the checkpoint's net and
+    domain gate with the export's recalibration (``model.uncertainty``: the grain σ's scale,
+    the probabilities' temperature), as :func:`wtml.exporters.texture.export_texture` built
+    ``model.onnx`` from them; ``(e, i, t_re, t_im) -> (grain, log_sigma, probabilities,
+    in_domain)``."""
+    module = load_decoder(checkpoint)
+    names = tuple(json.loads(model.metadata["outputs"]))
+    return Gated(Recalibrated(module.net, names, model.uncertainty), module.gate, (1,)).eval()
 
 
 def _by_window(test: dict, graph, onnx_model, window_s: float, rate: float

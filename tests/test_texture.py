@@ -349,6 +349,7 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     np.testing.assert_allclose(cl["probabilities"], ref[2].numpy(), atol=1e-4)
     np.testing.assert_allclose(cl["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
 
+
 def test_the_bench_window_table_runs_the_checkpoint_and_the_export(texture_export):
     """The texture bench's accuracy-against-window-length table on the flow's test shard (as
     ``wtml bench texture`` runs it): the checkpoint's graph in torch at every window length,

@@ -116,8 +116,8 @@ def test_minirocket_fit_stacked_is_fit_without_the_copy():
 
 
 def test_bench_windows_keep_the_records_dtype_and_the_torch_graph_gets_float32():
-    """The bench's windows are a copy in the records' dtype (float32 from shards: 24 bytes
-    a sample fewer than float64), and its torch pass feeds the float32 graph float32 whatever
+    """The bench's windows are a copy in the records' dtype (float32 from shards: half the
+    bytes of float64), and its torch pass feeds the float32 graph float32 whatever
     the windows' dtype (float64 windows of fresh records met a float32 DFT matmul: the main
     job's texture bench failed on it)."""
     rng = np.random.default_rng(2)

@@ -774,7 +774,7 @@ def _report(s: dict) -> str:
               + f", {gen['kept']} kept; {gen['seconds']:.0f} s with the peer's features and "
               f"the manifests' checks. Decoders on {m['device']}"
               + (f" ({m['gpu']})" if m["gpu"] else "") + f", torch {m['torch']}, "
-              f"{m['cores']} cores; {s['elapsed_s']:.0f} s in all"
+              f"{m['cores']} core{'s' * (m['cores'] != 1)}; {s['elapsed_s']:.0f} s in all"
               + (f" (deadline {s['deadline_s']:g} s)" if s["deadline_s"] else "") + ".", "",
               "Plot: scale.png."]
     return "\n".join(lines) + "\n"

@@ -50,9 +50,8 @@ from wtml.bench.transfer import run_variants
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.checkpoint import load_decoder
-from wtml.decoders.domain import Gated
-from wtml.decoders.recalibration import Recalibrated
 from wtml.decoders.texture import WhiskFeatures
+from wtml.exporters.texture import decoder_graph
 from wtml.memory import release_memory
 from wtml.physics.twoport import flat_parts
 from wtml.runtime.predict import load_export, rows_per_run
@@ -351,13 +350,11 @@ def _torch(graph):
 
 def export_in_torch(checkpoint: str | Path, model) -> torch.nn.Module:
     """The export's decoder graph in torch, at any window length: the checkpoint's net and
-    domain gate with the export's recalibration (``model.uncertainty``: the grain σ's scale,
-    the probabilities' temperature), as :func:`wtml.exporters.texture.export_texture` built
-    ``model.onnx`` from them; ``(e, i, t_re, t_im) -> (grain, log_sigma, probabilities,
-    in_domain)``."""
-    module = load_decoder(checkpoint)
-    names = tuple(json.loads(model.metadata["outputs"]))
-    return Gated(Recalibrated(module.net, names, model.uncertainty), module.gate, (1,)).eval()
+    gate with the export's recalibration (``model.uncertainty``), built as
+    :func:`wtml.exporters.texture.export_texture` built ``model.onnx``
+    (:func:`~wtml.exporters.texture.decoder_graph`)."""
+    return decoder_graph(load_decoder(checkpoint), tuple(json.loads(model.metadata["outputs"])),
+                         model.uncertainty)
 
 
 def _by_window(test: dict, graph, onnx_model, window_s: float, rate: float

@@ -61,6 +61,14 @@ def _window_answers(module, raw, records: dict) -> tuple:
     return (*out, np.repeat(records["grade"], per), np.repeat(records["grain_m"], per), per)
 
 
+def decoder_graph(module, outputs: tuple[str, ...], uncertainty) -> Gated:
+    """The decoder's graph as ``model.onnx`` holds it: ``module``'s net with its recalibration
+    (``uncertainty``: the grain σ's scale, the probabilities' temperature) behind its domain
+    gate, in eval mode; ``(e, i, t_re, t_im) -> (grain, log_sigma, probabilities, in_domain)``
+    at any window length. ``outputs``: the net's outputs' names."""
+    return Gated(Recalibrated(module.net, outputs, uncertainty), module.gate, (1,)).eval()
+
+
 @torch.no_grad()
 def export_texture(module, scene, out: Path) -> dict[str, Path]:
     """Write ``out/model.onnx`` (decoder; its probabilities tempered and its grain σ scaled,
@@ -85,8 +93,7 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
         f"{len(labels)} windows of {FRESH_RECORDS + CALIBRATION_RECORDS} fresh records of the "
         f"trained scene (seeds [{scene.seed}, 1000001] and [{scene.seed}, 1000003, k] for "
         f"chunks k of {CHUNK_RECORDS}; not the training data)", "probabilities", labels)
-    decoder = Gated(Recalibrated(module.net, scene.OUTPUTS, uncertainty), module.gate,
-                    (1,)).eval()
+    decoder = decoder_graph(module, scene.OUTPUTS, uncertainty)
     # the false-alarm rate on the first window of each of the first FRESH_RECORDS
     domain = domain_metadata(scene, float(1 - inside[:FRESH_RECORDS * per:per].mean()),
                              FRESH_RECORDS)

@@ -74,13 +74,17 @@ def test_inversion_recovers_noise_free_contacts():
 
 def test_inversion_grid_start_is_the_least_misfit_table_entry(rng):
     """The grid start's expanded misfit (one matrix product) picks the table entry a direct
-    search of ``Σ |(ze - table)/table|²`` picks, for noisy measurements anywhere in range."""
+    search of ``Σ |(ze - table)/table|²`` picks, for noisy measurements anywhere in range,
+    whether the misfits are taken all at once or 7 measurements at a time."""
     inv = InversionRadial(SMALL, step=20e-6)
     ze = SMALL.simulate(300, rng)["ze"]
     misfit = np.sum(np.abs((ze[:, None] - inv.table[None]) / inv.table[None]) ** 2, -1)
     d, lnk = inv.start(ze)
     np.testing.assert_array_equal(d, inv.table_d[np.argmin(misfit, -1)])
     np.testing.assert_array_equal(lnk, inv.table_lnk[np.argmin(misfit, -1)])
+    chunked = inv.start(ze, chunk_bytes=7 * 8 * len(inv.table))
+    np.testing.assert_array_equal(chunked[0], d)
+    np.testing.assert_array_equal(chunked[1], lnk)
 
 
 def test_polynomial_layer_matches_scikit_learn(rng):

@@ -115,6 +115,28 @@ def test_minirocket_fit_stacked_is_fit_without_the_copy():
         MiniRocketPeer(n_kernels=200).fit_stacked(x.astype(np.float64), grade)
 
 
+def test_minirocket_peer_is_aeons_classifier_transformed_a_few_windows_at_a_time(monkeypatch):
+    """The peer's pipeline, its features made 5 windows at a time, is aeon's
+    MiniRocketClassifier with the same seed and kernels: the same decision function and
+    predictions on held-out windows (3 grades; the fit scaled both alike)."""
+    from aeon.classification.convolution_based import MiniRocketClassifier
+
+    from wtml.baselines import texture_peers
+
+    monkeypatch.setattr(texture_peers, "TRANSFORM_WINDOWS", 5)
+    rng = np.random.default_rng(2)
+    n, length = 36, 300
+    grade = np.arange(n) % 3
+    e = rng.standard_normal((n, length))
+    i = 1e-6 * rng.standard_normal((n, length)) * (1.0 + grade[:, None])
+    peer = MiniRocketPeer(n_kernels=168, seed=4).fit(e[:27], i[:27], grade[:27])
+    x = np.stack([e, i], 1).astype(np.float32) / peer.scale
+    aeon = MiniRocketClassifier(n_kernels=168, random_state=4, n_jobs=1).fit(x[:27], grade[:27])
+    np.testing.assert_allclose(peer.model.decision_function(x[27:].copy()),
+                               aeon.pipeline_.decision_function(x[27:]), rtol=1e-4, atol=1e-6)
+    np.testing.assert_array_equal(peer.predict(e[27:], i[27:])["grade"], aeon.predict(x[27:]))
+
+
 def test_bench_windows_keep_the_records_dtype_and_the_torch_graph_gets_float32():
     """The bench's windows are a copy in the records' dtype (float32 from shards: half the
     bytes of float64), and its torch pass feeds the float32 graph float32 whatever

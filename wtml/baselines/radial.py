@@ -94,8 +94,10 @@ class InversionRadial:
         prior = self.noise * (-np.log(c) - self.lnk_mid) / self.lnk_std
         return np.concatenate([r.real, r.imag, prior[:, None]], -1)
 
-    def start(self, ze: np.ndarray, chunk: int = 4096) -> tuple[np.ndarray, np.ndarray]:
-        """The grid point of least relative misfit: ``(d in m, ln k)``, each ``(n,)``.
+    def start(self, ze: np.ndarray, chunk_bytes: int = 2**26) -> tuple[np.ndarray, np.ndarray]:
+        """The grid point of least relative misfit: ``(d in m, ln k)``, each ``(n,)``, the
+        misfits of as many measurements at a time as fit in ``chunk_bytes`` (64 MiB: the
+        default grid's 14409 points take 115 kB per measurement; 4096 at a time held 0.47 GB).
 
         With ``w = 1/table``, the misfit ``Σ_f |ze_f w_f - 1|²`` expands to
         ``Σ_f |ze_f|² |w_f|² - 2 Re ze_f Re w_f + 2 Im ze_f Im w_f + 1``: one real matrix
@@ -104,6 +106,7 @@ class InversionRadial:
         w = 1.0 / self.table
         rows = np.concatenate([np.abs(w) ** 2, -2 * w.real, 2 * w.imag], -1).T  # (3 f, n_t)
         d, lnk = np.empty(len(ze)), np.empty(len(ze))
+        chunk = max(1, chunk_bytes // (8 * len(self.table)))
         for s in range(0, len(ze), chunk):
             z = ze[s:s + chunk]
             best = np.argmin(np.concatenate([np.abs(z) ** 2, z.real, z.imag], -1) @ rows, -1)

@@ -15,7 +15,7 @@ and the clamp are kept nominal.
 Assembling a beam model takes ~1 ms, so a scene draws a finite set of devices per call
 (:attr:`DeviceSpread.devices`, a few hundred) and assigns its records to them at random;
 :func:`device_ze` then evaluates every device's free Ze and every record's contact with one
-batched inverse per device (``wtml.physics.beam.device_forms``).
+batched inverse per device (``wtml.physics.beam.device_forms``), a few devices at a time.
 """
 
 from __future__ import annotations
@@ -28,6 +28,9 @@ from wtml.devices import BeamDevice
 from wtml.physics.beam import BeamTransducer, contact_transduction_matrices, device_forms
 from wtml.physics.beam_presets import beam_device, build, device_parameters, fit_parameters
 from wtml.schema import SceneError
+
+DEVICE_CHUNK = 64
+"""Devices whose beam inverses :func:`device_ze` holds at once."""
 
 
 def _width(high: float, default=0.0):
@@ -165,16 +168,33 @@ def devices(preset: BeamDevice | str, factors: dict[str, np.ndarray]) -> list[Be
 
 
 def device_ze(transducers: list[BeamTransducer], omega: np.ndarray, which: np.ndarray,
-              distance: np.ndarray, stiffness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+              distance: np.ndarray, stiffness: np.ndarray, chunk: int = DEVICE_CHUNK
+              ) -> tuple[np.ndarray, np.ndarray]:
     """Ze (Ω) of each device with its tip free, ``(n_devices, n_freq)``, and of record c with
     a contact ``distance[c]`` m from the tip of device ``which[c]`` of stiffness
-    ``stiffness[c]`` N/m (free tip), ``(n, n_freq)``: one batched inverse for both."""
-    forms = device_forms(transducers, omega)
-    free = BeamTransducer._t_from_forms(omega, *forms[-1])
+    ``stiffness[c]`` N/m (free tip), ``(n, n_freq)``: one batched inverse per device for both,
+    ``chunk`` devices at a time (their inverses ``G``, 128 kB per device and frequency on the
+    micro preset's mesh, are the memory: a whole shard's 2048 devices at 5 frequencies held
+    0.26 GB, and ~0.45 GB at its peak)."""
+    omega = np.atleast_1d(omega)
+    which = np.asarray(which, dtype=int)
+    distance = np.asarray(distance, dtype=float)
+    stiffness = np.broadcast_to(np.asarray(stiffness, dtype=float), distance.shape)
     length = np.array([tr.length for tr in transducers])
-    t = contact_transduction_matrices(transducers, which, omega, length[which] - distance,
-                                      stiffness, forms=forms)
-    return free[..., 0, 1] / free[..., 1, 1], t[..., 0, 1] / t[..., 1, 1]
+    free_ze = np.empty((len(transducers), len(omega)), dtype=complex)
+    ze = np.empty((len(which), len(omega)), dtype=complex)
+    for start in range(0, len(transducers), chunk):
+        group = transducers[start:start + chunk]
+        forms = device_forms(group, omega)
+        free = BeamTransducer._t_from_forms(omega, *forms[-1])
+        free_ze[start:start + len(group)] = free[..., 0, 1] / free[..., 1, 1]
+        rows = np.flatnonzero((which >= start) & (which < start + len(group)))
+        if len(rows):
+            t = contact_transduction_matrices(
+                group, which[rows] - start, omega, length[which[rows]] - distance[rows],
+                stiffness[rows], forms=forms)
+            ze[rows] = t[..., 0, 1] / t[..., 1, 1]
+    return free_ze, ze
 
 
 __all__ = ["CLASSES", "DeviceSpread", "device_ze", "devices", "draw_factors"]

@@ -164,6 +164,35 @@ def test_a_recalibrated_graph_gives_the_same_sigmas_and_probabilities_in_onnx_an
                                atol=2e-5)
 
 
+def test_the_bayes_rows_score_the_exact_posterior_on_the_in_family_sets_only():
+    """``wtml bench coverage``'s best-achievable fluid rows: the exact posterior on the
+    export's own float32 inputs (T rebuilt from its parts), on the sets of its trained scene
+    only, two interval forms per value, each covering near its nominal rates over the prior
+    (300 draws: within 8 points)."""
+    from conftest import FLUID_SMALL
+
+    from wtml.bench.coverage import RecordSet, fluid_bayes_rows
+    from wtml.physics.twoport import flat_parts
+
+    def made(seed):
+        def make():
+            d = FLUID_SMALL.simulate(300, np.random.default_rng(seed))
+            return ((d["ze"].real, d["ze"].imag, *flat_parts(d["t"])),
+                    {"eta": d["eta"], "rho": d["rho"]})
+        return make
+
+    sets = [RecordSet("fresh", "in family", made(1)), RecordSet("off", "held out", made(2))]
+    rows = fluid_bayes_rows(FLUID_SMALL, sets, progress=lambda _: None)
+    assert set(rows) == {"eta", "rho"}
+    for value in rows.values():
+        assert [(r["name"], r["label"]) for r in value] == [
+            ("fresh", "Bayes posterior: mean ± zσ"), ("fresh", "Bayes posterior: central credible")]
+        for r in value:
+            cell = coverage_cell(r["hits"])
+            assert cell["n"] == 300
+            assert np.allclose(cell["cover"], NOMINAL, atol=0.08), (r["label"], cell["cover"])
+
+
 def test_a_fluid_export_carries_its_intervals_and_an_old_one_is_refused(flow):
     """The fluid decoder's graph adds the std of ln η and of ρ, per range of η, and says so in
     its metadata; a decoder graph without ``uncertainty`` (an export of a wtml before issue

@@ -424,8 +424,9 @@ def _coverage_parser(be_sub) -> None:
                                        "records and the held-out physics of the transfer "
                                        "benches; the texture classifier's expected "
                                        "calibration error and reliability curve; beside the "
-                                       "fluid decoder, sbi's neural posterior estimation "
-                                       "(the [sbi] extra). Reads datasets/<task>, "
+                                       "fluid decoder, the exact Bayes posterior's intervals "
+                                       "(the best achievable) and sbi's neural posterior "
+                                       "estimation (the [sbi] extra). Reads datasets/<task>, "
                                        "runs/<task>/checkpoints/last.ckpt and export/<task>.")
     bc.add_argument("--only", choices=list(TASKS), action="append", default=None,
                     help="the tasks (repeat; default all)")

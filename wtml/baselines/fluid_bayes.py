@@ -24,6 +24,8 @@ spread), about 1 ms each on
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from wtml.physics import zm_from_ze
@@ -89,14 +91,44 @@ class BayesFluid:
                 + m11 * np.abs(b2) ** 2) / det
         return -(q1 - quad) - np.log(det)
 
-    def predict(self, ze: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+    def posteriors(self, ze: np.ndarray, t: np.ndarray) -> Iterator[tuple[slice, np.ndarray]]:
+        """The posterior over the grid (the radius integrated out) of :attr:`chunk`
+        measurements at a time: ``(rows, weights (len(rows), n_grid))``, each row summing to
+        1; ``ze`` complex ``(n, n_freq)`` Ω, ``t`` each one's calibrated T."""
         ze = np.atleast_2d(np.asarray(ze, dtype=complex))
         t = np.broadcast_to(t, (*ze.shape, 2, 2))
-        eta, rho = np.empty(len(ze)), np.empty(len(ze))
         for s in range(0, len(ze), self.chunk):
-            logl = np.stack([self.log_likelihood(ze[s:s + self.chunk], t[s:s + self.chunk], k)
-                             + self.log_w[k] for k in range(len(self.log_w))])
-            post = np.exp(logl - logl.max((0, -1), keepdims=True)).sum(0)  # R integrated out
-            post /= post.sum(-1, keepdims=True)
-            eta[s:s + self.chunk], rho[s:s + self.chunk] = post @ self.eta, post @ self.rho
+            rows = slice(s, min(s + self.chunk, len(ze)))
+            logl = np.stack([self.log_likelihood(ze[rows], t[rows], k) + self.log_w[k]
+                             for k in range(len(self.log_w))])
+            post = np.exp(logl - logl.max((0, -1), keepdims=True)).sum(0)
+            yield rows, post / post.sum(-1, keepdims=True)
+
+    def predict(self, ze: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
+        eta, rho = np.empty(len(np.atleast_2d(ze))), np.empty(len(np.atleast_2d(ze)))
+        for rows, post in self.posteriors(ze, t):
+            eta[rows], rho[rows] = post @ self.eta, post @ self.rho
         return {"eta": eta, "rho": rho}
+
+    def intervals(self, ze: np.ndarray, t: np.ndarray, levels: tuple[float, ...]
+                  ) -> dict[str, dict[str, np.ndarray]]:
+        """The posterior's own uncertainty of ln η and ρ, as a decoder's σ is read
+        (``wtml bench coverage``): per value (``"eta"``: of ln η; ``"rho"``) its posterior
+        ``mean`` and ``std`` ``(n,)`` and its central credible intervals ``(n, len(levels),
+        2)`` at ``levels`` (shares of the posterior, e.g. 0.6827 and 0.95)."""
+        n = len(np.atleast_2d(ze))
+        values = {"eta": np.log(self.eta), "rho": self.rho}
+        out = {k: {"mean": np.empty(n), "std": np.empty(n),
+                   "central": np.empty((n, len(levels), 2))} for k in values}
+        tails = np.array([[(1 - q) / 2, (1 + q) / 2] for q in levels])
+        for rows, post in self.posteriors(ze, t):
+            for name, grid in values.items():
+                mean = post @ grid
+                out[name]["mean"][rows] = mean
+                out[name]["std"][rows] = np.sqrt(np.maximum(post @ grid**2 - mean**2, 0.0))
+                order = np.argsort(grid)
+                cdf = np.cumsum(post[:, order], -1)
+                at = np.stack([(cdf < q).sum(-1) for q in tails.ravel()], -1)
+                out[name]["central"][rows] = grid[order][np.minimum(at, len(grid) - 1)].reshape(
+                    -1, *tails.shape)
+        return out

@@ -10,7 +10,9 @@ law alone, the wall's friction, each acquisition effect alone and the independen
 texture, each friction law alone and each acquisition effect alone. Each row twice: the
 checkpoint's own σ (where it has one: ``raw``) and the export's, recalibrated
 (:mod:`wtml.decoders.recalibration`). Only in-domain answers have an interval (σ is NaN out of
-domain): the flagged share is beside each row.
+domain): the flagged share is beside each row. Beside the fluid decoder's rows on its trained
+scene, the best achievable: the exact Bayes posterior's own intervals, scored the same way
+(:func:`fluid_bayes_rows`).
 
 A coverage misses when it is more than :data:`TOLERANCE` from nominal and its binomial 95 %
 interval (Wilson) leaves out the nominal rate too, on at least :data:`MIN_VERDICT` answers
@@ -223,6 +225,42 @@ def fluid_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
                       fresh(REFERENCE_SPREAD, 1)),
             RecordSet("sphere radius ±1 % alone", "held out",
                       fresh(DeviceSpread(sphere_radius=REFERENCE_SPREAD.sphere_radius), 2))]
+
+
+BAYES_KINDS = ("test shard", "in family")
+"""The fluid rows on which the exact Bayes posterior is the best achievable (the trained
+scene's prior, noise and spread: its own records)."""
+
+
+def fluid_bayes_rows(scene, sets: list[RecordSet], progress=print) -> dict[str, list[dict]]:
+    """The best achievable coverage beside the fluid decoder's: the exact posterior
+    (:class:`~wtml.baselines.fluid_bayes.BayesFluid`) on the sets of :data:`BAYES_KINDS`,
+    its mean ± 1σ / 1.96σ (the decoder's form of interval) and its central credible
+    intervals, as ``interval_table``'s extra rows per value (``"eta"``: of ln η; ``"rho"``).
+    Coverage per range of the truth is not guaranteed even here: the posterior is calibrated
+    over the prior as a whole, and given the truth near an end of the prior its mass leans
+    inward."""
+    from wtml.baselines.fluid_bayes import BayesFluid
+
+    bayes = BayesFluid(scene)
+    rows: dict[str, list[dict]] = {"eta": [], "rho": []}
+    for s in sets:
+        if s.kind not in BAYES_KINDS:
+            continue
+        progress(f"coverage: fluid: the Bayes posterior on {s.name}")
+        (ze_re, ze_im, t_re, t_im), truth = s.make()
+        t = (t_re + 1j * t_im).reshape(*t_re.shape[:-1], 2, 2)
+        got = bayes.intervals(ze_re + 1j * ze_im, t, NOMINAL)
+        for name, value in (("eta", np.log(truth["eta"])), ("rho", truth["rho"])):
+            g = got[name]
+            low, high = g["central"][..., 0], g["central"][..., 1]
+            central = ((low <= value[:, None]) & (value[:, None] <= high)).astype(float)
+            for label, covered in (("Bayes posterior: mean ± zσ",
+                                    hits(value - g["mean"], g["std"])),
+                                   ("Bayes posterior: central credible", central)):
+                rows[name].append({"name": s.name, "kind": s.kind, "label": label,
+                                   "truth": truth[name], "hits": covered, "flagged": None})
+    return rows
 
 
 RADIAL_SPREAD_SCENE = "configs/scenes/radial_spread.yaml"
@@ -451,11 +489,13 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
         added = {r.sigma for r in u.intervals if r.stored == "none"} - set(scene.OUTPUTS)
         names = tuple(name for name in decoder.outputs if name not in added)
         scored = score(decoder, module, names, sets, progress)
+        bayes = fluid_bayes_rows(scene, sets, progress) if task == "fluid" else {}
         lines += [f"## {task} ({paths['model']}; recalibrated on {u.fitted_on})", ""]
         entry: dict = {"model": str(paths["model"]), "fitted_on": u.fitted_on,
                        "intervals": {}}
         for r in u.intervals:
-            extra = (sbi or {}).get("rows", {}).get(r.value, []) if task == "fluid" else []
+            extra = ((sbi or {}).get("rows", {}).get(r.value, []) + bayes.get(r.value, [])
+                     if task == "fluid" else [])
             table, rows = interval_table(task, r, scored["intervals"][r.sigma], extra)
             scales = ", ".join(f"{s:.3g}" for s in r.scales)
             lines += table + ["", f"Recalibration: {r.stored} σ × ({scales}) in {len(r.scales)} "

@@ -166,9 +166,9 @@ def test_a_recalibrated_graph_gives_the_same_sigmas_and_probabilities_in_onnx_an
 
 def test_the_bayes_rows_score_the_exact_posterior_on_the_in_family_sets_only():
     """``wtml bench coverage``'s best-achievable fluid rows: the exact posterior on the
-    export's own float32 inputs (T rebuilt from its parts), on the sets of its trained scene
-    only, two interval forms per value, each covering near its nominal rates over the prior
-    (300 draws: within 8 points)."""
+    inputs the export gets (Ze's parts, T rebuilt from its float32 parts), on the sets of
+    its trained scene only, two interval forms per value, each covering near its nominal
+    rates over the prior (300 draws: within 8 points)."""
     from conftest import FLUID_SMALL
 
     from wtml.bench.coverage import RecordSet, fluid_bayes_rows

@@ -91,8 +91,8 @@ def test_perturbed_devices_are_reciprocal_and_the_batched_path_agrees(seed, pres
     The two paths differ in algorithm (a batched inverse for the rank-one contact updates,
     against an LU solve per frequency since 12eb545), so they agree to the dynamic stiffness's
     condition number times the rounding: hypothesis found 1.5e-10 (seed 12771, micro-fluid).
-    ``chunk`` devices at a time (1 or 2 of the 3: records of every group, each group's
-    indices its own) or all at once."""
+    ``chunk`` devices at a time (1 or 2 of the 3, each group's indices its own) or all at
+    once."""
     rng = np.random.default_rng(seed)
     wide = DeviceSpread(length=0.1, thickness=0.1, modulus=0.3, loss_factor=0.9,
                         tan_delta=0.9, coupling=0.3)
@@ -112,6 +112,24 @@ def test_perturbed_devices_are_reciprocal_and_the_batched_path_agrees(seed, pres
             tc = tr.contact_transduction_matrix(OMEGA, tr.length - d[sel], k[sel])
             np.testing.assert_allclose(np.linalg.det(tc), 1.0, atol=1e-9)
             np.testing.assert_allclose(ze[sel], tc[..., 0, 1] / tc[..., 1, 1], rtol=1e-9)
+
+
+def test_devices_taken_a_few_at_a_time_give_the_same_ze_and_a_bad_index_is_refused():
+    """``device_ze`` in groups of 2 of 5 devices, one of them with no record, is the all-at-once
+    evaluation to the bit; a record's device index outside the list is refused by name (not
+    left as uninitialised memory)."""
+    rng = np.random.default_rng(8)
+    trs = devices("micro", draw_factors("micro", SPREAD.widths("micro"), 5, rng))
+    which = np.array([0, 1, 1, 4, 0, 4, 1, 0])  # devices 2 and 3: none (3 alone in its group)
+    lengths = np.array([t.length for t in trs])
+    d = rng.uniform(0.0, 0.9, len(which)) * lengths[which]
+    k = np.exp(rng.uniform(0, np.log(1e6), len(which)))
+    whole, parts = device_ze(trs, OMEGA, which, d, k, 5), device_ze(trs, OMEGA, which, d, k, 2)
+    for a, b in zip(whole, parts, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for bad in (5, -1):
+        with pytest.raises(ValueError, match=r"which: device indices must be in \[0, 4\]"):
+            device_ze(trs, OMEGA, np.append(which, bad), np.append(d, 1e-4), np.append(k, 1e3))
 
 
 def test_radial_scene_without_spread_is_the_preset_draw_for_draw():

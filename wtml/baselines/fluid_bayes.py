@@ -121,12 +121,13 @@ class BayesFluid:
         out = {k: {"mean": np.empty(n), "std": np.empty(n),
                    "central": np.empty((n, len(levels), 2))} for k in values}
         tails = np.array([[(1 - q) / 2, (1 + q) / 2] for q in levels])
+        orders = {name: np.argsort(grid) for name, grid in values.items()}
         for rows, post in self.posteriors(ze, t):
             for name, grid in values.items():
                 mean = post @ grid
                 out[name]["mean"][rows] = mean
                 out[name]["std"][rows] = np.sqrt(np.maximum(post @ grid**2 - mean**2, 0.0))
-                order = np.argsort(grid)
+                order = orders[name]
                 cdf = np.cumsum(post[:, order], -1)
                 at = np.stack([(cdf < q).sum(-1) for q in tails.ravel()], -1)
                 out[name]["central"][rows] = grid[order][np.minimum(at, len(grid) - 1)].reshape(

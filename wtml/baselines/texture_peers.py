@@ -31,7 +31,8 @@ from wtml.physics.twoport import flat_parts
 from wtml.runtime.predict import rows_per_run
 
 TRANSFORM_WINDOWS = 64
-"""Windows that :class:`MiniRocketPeer`'s fit transforms at once (aeon copies them)."""
+"""Windows that :class:`MiniRocketPeer`'s fit transforms at once (aeon copies them), and
+rows of their features per step of its scaler's fit."""
 
 
 class MiniRocketPeer:
@@ -45,7 +46,8 @@ class MiniRocketPeer:
     scaler, row blocks at a time, in place; the ridge), the training windows free in between.
     aeon's own fit held +0.36 GB beside the main job's 1280 windows (131 MB): a float32 copy
     of them, the features, their float64 copy and its centred copy. The same model: its
-    predictions and decision function are aeon's (``tests/test_texture_bench.py``).
+    predictions and decision function are aeon's up to float rounding (its ridge sees float64
+    features scaled in float64, where aeon scales float32 ones; ``tests/test_texture_bench.py``).
     """
 
     name = "MiniRocket (aeon)"
@@ -81,7 +83,8 @@ class MiniRocketPeer:
         from aeon.transformations.collection.convolution_based import MiniRocket
 
         if x.dtype != np.float32:
-            raise TypeError(f"MiniRocketPeer.fit_stacked: x must be float32, got {x.dtype}")
+            raise TypeError(f"MiniRocketPeer: the stacked windows x must be float32, got "
+                            f"{x.dtype}")
         self.scale = x.std(axis=(0, 2), dtype=np.float64, keepdims=True).astype(np.float32)
         x /= self.scale
         self._transform = MiniRocket(n_kernels=self.n_kernels, random_state=self.seed,
@@ -107,8 +110,9 @@ class MiniRocketPeer:
         scaler = StandardScaler(with_mean=False, copy=False)
         for start in range(0, len(features), TRANSFORM_WINDOWS):
             scaler.partial_fit(features[start:start + TRANSFORM_WINDOWS])
-        scaler.transform(features)
+        features = scaler.transform(features)
         ridge = RidgeClassifierCV(alphas=np.logspace(-3, 3, 10)).fit(features, np.asarray(grade))
+        scaler.set_params(copy=True)  # aeon's: predicting leaves a caller's features alone
         self.model = make_pipeline(self._transform, scaler, ridge)
         return self
 

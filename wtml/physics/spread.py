@@ -180,6 +180,9 @@ def device_ze(transducers: list[BeamTransducer], omega: np.ndarray, which: np.nd
     which = np.asarray(which, dtype=int)
     distance = np.asarray(distance, dtype=float)
     stiffness = np.broadcast_to(np.asarray(stiffness, dtype=float), distance.shape)
+    if which.size and (which.min() < 0 or which.max() >= len(transducers)):
+        raise ValueError(f"which: device indices must be in [0, {len(transducers) - 1}], got "
+                         f"{which.min()}..{which.max()}")
     length = np.array([tr.length for tr in transducers])
     free_ze = np.empty((len(transducers), len(omega)), dtype=complex)
     ze = np.empty((len(which), len(omega)), dtype=complex)

@@ -105,7 +105,8 @@ class BayesFluid:
             yield rows, post / post.sum(-1, keepdims=True)
 
     def predict(self, ze: np.ndarray, t: np.ndarray) -> dict[str, np.ndarray]:
-        eta, rho = np.empty(len(np.atleast_2d(ze))), np.empty(len(np.atleast_2d(ze)))
+        n = len(np.atleast_2d(ze))
+        eta, rho = np.empty(n), np.empty(n)
         for rows, post in self.posteriors(ze, t):
             eta[rows], rho[rows] = post @ self.eta, post @ self.rho
         return {"eta": eta, "rho": rho}

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from wtml.bench.resampling import group_interval
+from wtml.bench.resampling import effective_count, group_interval
 
 
 def clustered(rng, groups=40, per_group=8, mean=0.85, concentration=3.0):
@@ -44,3 +44,17 @@ def test_group_interval_refuses_bad_input():
         group_interval([1.0, 0.0], [0])
     with pytest.raises(ValueError, match="level must be in"):
         group_interval([1.0, 0.0], [0, 1], level=1.5)
+
+
+def test_answers_that_share_their_errors_are_worth_their_groups():
+    hit = np.tile([1.0, 0.0, 1.0, 1.0], 25)  # 100 answers, 75 % covered
+    # each answer its own group: the binomial's n (less the variance's one degree)
+    assert effective_count(hit, np.arange(100)) == pytest.approx(99)
+    # 20 groups of 5 identical answers: worth 20 groups (less one), not 100 answers
+    same = np.repeat(np.tile([1.0, 0.0, 1.0, 1.0], 5), 5)
+    assert effective_count(same, np.repeat(np.arange(20), 5)) == pytest.approx(19)
+    # groups that agree everywhere, or one group: as many as the groups
+    assert effective_count(np.ones(50), np.repeat(np.arange(10), 5)) == 10
+    assert effective_count(hit, np.zeros(100)) == 1
+    # never narrower than the binomial: answers balanced within each group
+    assert effective_count(hit, np.repeat(np.arange(25), 4)) == 100

@@ -16,7 +16,10 @@ scene, the best achievable: the exact Bayes posterior's own intervals, scored th
 
 A coverage misses when it is more than :data:`TOLERANCE` from nominal and its binomial 95 %
 interval (Wilson) leaves out the nominal rate too, on at least :data:`MIN_VERDICT` answers
-(``✗``); more than :data:`TOLERANCE` off on too few answers to tell is marked ``?``.
+(``✗``); more than :data:`TOLERANCE` off on too few answers to tell is marked ``?``. Where
+answers come in groups that share their errors (texture: the windows of one specimen), the
+interval counts the answers as many as they are worth (:func:`effective_count`), not one
+each.
 
 For the texture classifier: the expected calibration error (15 equal-width confidence bins)
 before and after its temperature, beside the ECE that a perfectly calibrated classifier shows
@@ -37,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from wtml.bench.resampling import effective_count
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.checkpoint import load_decoder
@@ -67,7 +71,9 @@ BATCH = 64
 @dataclass(frozen=True)
 class RecordSet:
     """One row's records: a name, what they hold out (``kind``) and a maker of
-    ``(graph inputs, truth)`` (truth by value name; ``"probabilities"``: the classes)."""
+    ``(graph inputs, truth)`` (truth by value name; ``"probabilities"``: the classes;
+    ``"groups"``, where answers share their errors: each answer's group, as
+    :func:`effective_count` takes them)."""
 
     name: str
     kind: str
@@ -99,32 +105,41 @@ def hits(err: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     return out
 
 
-def coverage_cell(covered: np.ndarray) -> dict:
+def coverage_cell(covered: np.ndarray, groups: np.ndarray | None = None) -> dict:
     """Coverage of the two intervals from :func:`hits` ``(n, 2)`` (rows of NaN left out):
-    ``n``, ``cover`` (two shares), ``interval`` (their Wilson intervals) and ``verdict`` per
-    level (``"ok"``, ``"miss"``: off by more than :data:`TOLERANCE` and significantly so,
-    ``"?"``: off by more on too few rows to tell)."""
-    covered = covered[np.isfinite(covered).all(1)]
+    ``n``, ``cover`` (two shares), ``interval`` (their Wilson intervals, over
+    :func:`effective_count` answers where ``groups`` ``(n,)`` labels rows that share their
+    errors; ``n_effective`` beside them) and ``verdict`` per level (``"ok"``, ``"miss"``: off
+    by more than :data:`TOLERANCE` and significantly so, ``"?"``: off by more on too few rows
+    to tell)."""
+    kept = np.isfinite(covered).all(1)
+    covered = covered[kept]
     n = len(covered)
-    cover, interval, verdict = [], [], []
+    cover, interval, verdict, worth = [], [], [], []
     for level, nominal in enumerate(NOMINAL):
         k = int(covered[:, level].sum())
         share = k / n if n else float("nan")
-        lo, hi = wilson(k, n)
+        m = n if groups is None else effective_count(covered[:, level],
+                                                     np.asarray(groups)[kept])
+        lo, hi = wilson(k, n) if m == n else wilson(share * m, m)
+        worth.append(m)
         cover.append(share)
         interval.append((lo, hi))
         off = not n or abs(share - nominal) > TOLERANCE
         sure = n >= MIN_VERDICT and not lo <= nominal <= hi
         verdict.append("ok" if not off else "miss" if sure else "?")
-    return {"n": n, "cover": cover, "interval": interval, "verdict": verdict}
+    return {"n": n, "cover": cover, "interval": interval, "verdict": verdict,
+            "n_effective": worth}
 
 
-def by_range(covered: np.ndarray, truth: np.ndarray, edges: np.ndarray) -> list[dict]:
+def by_range(covered: np.ndarray, truth: np.ndarray, edges: np.ndarray,
+             groups: np.ndarray | None = None) -> list[dict]:
     """:func:`coverage_cell` in each range of ``truth`` between ``edges`` ``(K+1,)`` (the
-    outer edges widened to hold every row), then over all rows."""
+    outer edges widened to hold every row), then over all rows; ``groups``: as there."""
     inner = np.searchsorted(edges[1:-1], truth, side="right")
-    cells = [coverage_cell(covered[inner == k]) for k in range(len(edges) - 1)]
-    return cells + [coverage_cell(covered)]
+    cells = [coverage_cell(covered[inner == k], None if groups is None else groups[inner == k])
+             for k in range(len(edges) - 1)]
+    return cells + [coverage_cell(covered, groups)]
 
 
 def ece_floor(confidence: np.ndarray, draws: int = 400, seed: int = 0) -> tuple[float, float]:
@@ -161,7 +176,7 @@ def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progre
     """Every set's answers from the export (``decoder``, recalibrated) and the checkpoint
     (``module``, raw): per interval of the export's metadata the errors and both σ, per set;
     and for a classifier its probabilities. Returns ``{"intervals": {sigma name: [per set
-    {"name", "kind", "truth", "err", "sigma", "raw", "flagged"}]}, "classes": [per set
+    {"name", "kind", "truth", "err", "groups", "sigma", "raw", "flagged"}]}, "classes": [per set
     {"name", "kind", "labels", "after", "before", "flagged"}]}``."""
     u = decoder.uncertainty
     out = {"intervals": {r.sigma: [] for r in u.intervals}, "classes": []}
@@ -180,6 +195,7 @@ def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progre
                    raw_sigma({"sigma": r.sigma, "stored": r.stored}, before, len(err)))
             out["intervals"][r.sigma].append({
                 "name": s.name, "kind": s.kind, "truth": truth[r.value], "err": err,
+                "groups": truth.get("groups"),
                 "sigma": np.where(inside, sigma, np.nan),
                 "raw": None if raw is None else np.where(inside, raw, np.nan),
                 "flagged": flagged})
@@ -317,7 +333,7 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
 def texture_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[RecordSet]:
     """The test shard's windows (the export's), then the texture transfer table's rows
     (:func:`wtml.bench.texture_transfer.texture_variants`, ``records["texture"]`` records
-    each)."""
+    each); a window's group is its specimen (its records' windows share its grains)."""
     data_dir, n, window = Path(paths["data"]), records["texture"], decoder.meta.n_samples
     from wtml.bench.texture_transfer import texture_variants
 
@@ -327,9 +343,10 @@ def texture_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[
         t = np.repeat(records["t"], per, 0)
         return ((*cut, *flat_parts(t)),
                 {"grain": np.repeat(records["grain_m"], per),
-                 "probabilities": np.repeat(records["grade"], per)})
+                 "probabilities": np.repeat(records["grade"], per),
+                 "groups": np.repeat(records["specimen"], per)})
 
-    keys = ("e", "i", "t", "grain_m", "grade")
+    keys = ("e", "i", "t", "grain_m", "grade", "specimen")
     sets = [RecordSet("test shard", "test shard", lambda: made(_test_shard(data_dir, keys)))]
     for k, v in enumerate(texture_variants(scene)):
         sets.append(RecordSet(v.name, v.kind, lambda v=v, k=k: made(
@@ -374,7 +391,9 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
                    [(label, hits(row["err"], sigma)) for label, sigma in
                     (("raw", row["raw"]), ("recalibrated", row["sigma"])) if sigma is not None])
         for label, covered in answers:
-            cells = by_range(covered, np.asarray(row["truth"], float), edges)
+            groups = row.get("groups")
+            cells = by_range(covered, np.asarray(row["truth"], float), edges,
+                             None if groups is None else np.asarray(groups))
             flagged = row.get("flagged")
             lines.append(f"| {row['name']} | {row['kind']} | {label} | {cells[-1]['n']} | "
                          + ("–" if flagged is None else f"{100 * flagged:.1f} %") + " | "
@@ -477,8 +496,9 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
              "Coverage of ±1σ / ±1.96σ in % (nominal 68.3 / 95.0) over the in-domain answers, "
              f"overall and per range of the target (quintiles of the test shard's truth). ✗: "
              f"off by more than {100 * TOLERANCE:.0f} points and outside the binomial 95 % "
-             f"interval; ?: off by more on too few answers to tell. raw: the checkpoint's own "
-             f"σ; recalibrated: the export's.", ""]
+             f"interval (texture: over the answers' worth, windows of one specimen sharing "
+             f"their errors); ?: off by more on too few answers to tell. raw: the checkpoint's "
+             f"own σ; recalibrated: the export's.", ""]
     summary: dict = {"tolerance": TOLERANCE, "nominal": list(NOMINAL), "tasks": {}}
     for task, paths in tasks.items():
         decoder = load_export(paths["model"], threads=threads)[0]

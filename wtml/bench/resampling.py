@@ -1,7 +1,10 @@
 """Confidence intervals of a bench mean when the samples come in groups (windows of one
-specimen): the group bootstrap. Windows of one specimen share its friction and grains, so
-they are not independent draws; resampling windows alone would make the interval too narrow
-by about the square root of the windows per specimen."""
+specimen): the group bootstrap (:func:`group_interval`), and what a share's samples are worth
+in independent ones (:func:`effective_count`) for a binomial interval, which stays an interval
+at a share of 0 or 1 where a bootstrap collapses to a point (an interval's coverage of 100 %).
+Windows of one specimen share its friction and grains, so they are not independent draws;
+resampling windows alone would make the interval too narrow by about the square root of the
+windows per specimen."""
 
 from __future__ import annotations
 
@@ -36,6 +39,27 @@ def group_interval(values, groups, *, level: float = 0.95, draws: int = 4000,
     means = sums[pick].sum(1) / counts[pick].sum(1)
     low, high = np.quantile(means, [(1 - level) / 2, (1 + level) / 2])
     return float(low), float(high)
+
+
+def effective_count(hit, groups) -> float:
+    """How many independent answers ``hit`` ``(n,)`` (1: covered, 0: not) are worth when
+    they come in ``groups`` ``(n,)`` (labels) that share their errors, as the windows of one
+    specimen do: ``n`` over the design effect, ``p (1 - p) / var``, with ``var`` the
+    cluster-robust variance of the share ``p`` (the groups' summed deviations ``Σ_i (h_i - p)``,
+    squared and summed, times ``G / (G - 1) / n²``). At most ``n`` (never narrower than the
+    binomial); where every answer agrees (``p`` 0 or 1), the number of groups ``G``; with one
+    group, 1."""
+    hit = np.asarray(hit, float)
+    n = len(hit)
+    _, which = np.unique(np.asarray(groups), return_inverse=True)
+    g = int(which.max()) + 1 if n else 0
+    if g < 2:
+        return float(min(n, 1))
+    p = float(hit.mean())
+    if p in (0.0, 1.0):
+        return float(g)
+    var = g / (g - 1) * float(np.sum(np.bincount(which, hit - p) ** 2)) / n**2
+    return float(n) if var <= 0 else float(min(n, p * (1 - p) / var))
 
 
 def statistic_interval(values, statistic, *, level: float = 0.95, draws: int = 1000,

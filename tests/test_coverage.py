@@ -93,11 +93,28 @@ def test_grouped_intervals_hold_the_true_rate_where_the_binomial_misses_it():
             held[key] += lo <= NOMINAL[0] <= hi
             verdicts[key] += cell["verdict"][0] == "miss"
     assert held["windows"] / draws < 0.8
-    assert 0.9 <= held["groups"] / draws <= 0.99
+    assert 0.92 <= held["groups"] / draws <= 0.99
     assert verdicts["groups"] < verdicts["windows"] / 3
     cells = by_range(covered, np.tile(np.linspace(0, 1, 8), 40), np.linspace(0, 1, 3), groups)
     assert [c["n"] for c in cells] == [160, 160, 320]
-    assert cells[-1]["n_effective"][0] < 320
+    assert all(c["n_effective"] < c["n"] / 2 for c in cells)
+
+
+def test_a_share_of_one_is_judged_like_a_share_just_below_it():
+    """48 specimens of 4 windows, clustered at ±1σ: at ±1.96σ, 192 of 192 covered and 191 of
+    192 get the same verdict, since the count comes from both levels together (a share of 1
+    shows no clustering of its own, so on its own it would fall back to the 48 groups)."""
+    rng = np.random.default_rng(3)
+    own = rng.beta(2 * NOMINAL[0], 2 * (1 - NOMINAL[0]), 48)
+    inner = (rng.random((48, 4)) < own[:, None]).astype(float).ravel()
+    groups = np.repeat(np.arange(48), 4)
+    every = coverage_cell(np.stack([inner, np.ones(192)], 1), groups)
+    one_out = np.ones(192)
+    one_out[int(np.argmax(inner == 0))] = 0.0
+    all_but_one = coverage_cell(np.stack([inner, one_out], 1), groups)
+    assert every["verdict"][1] == all_but_one["verdict"][1] == "miss"
+    assert abs(every["n_effective"] - all_but_one["n_effective"]) < 0.05 * 192
+    assert every["n_effective"] > 48
 
 
 def test_a_scale_fitted_on_held_out_answers_restores_the_coverage(rng):

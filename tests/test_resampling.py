@@ -56,5 +56,26 @@ def test_answers_that_share_their_errors_are_worth_their_groups():
     # groups that agree everywhere, or one group: as many as the groups
     assert effective_count(np.ones(50), np.repeat(np.arange(10), 5)) == 10
     assert effective_count(hit, np.zeros(100)) == 1
-    # never narrower than the binomial: answers balanced within each group
-    assert effective_count(hit, np.repeat(np.arange(25), 4)) == 100
+    # never narrower than the binomial: answers balanced within each group (no spread
+    # between groups), or nearly so (spread of 2 in 25 groups: the ratio alone says 900)
+    groups = np.repeat(np.arange(25), 4)
+    assert effective_count(hit, groups) == 100
+    nearly = hit.copy()
+    nearly[[1, 6]] = 1.0, 0.0  # group 0 covers 4 of 4, group 1 covers 2 of 4
+    assert effective_count(nearly, groups) == 100
+    # two shares of the same rows count together: a share every answer agrees on adds
+    # nothing, so one miss more or less moves the count a little, not from G to n
+    both = np.stack([same, np.ones(100)], 1)
+    assert effective_count(both, np.repeat(np.arange(20), 5)) == pytest.approx(19)
+    one_off = both.copy()
+    one_off[0, 1] = 0.0
+    assert 19 <= effective_count(one_off, np.repeat(np.arange(20), 5)) <= 21
+
+
+def test_the_count_refuses_what_it_cannot_count():
+    with pytest.raises(ValueError, match="one label per answer"):
+        effective_count(np.ones(4), None)
+    with pytest.raises(ValueError, match="one label per answer"):
+        effective_count(np.ones(4), [0, 1])
+    with pytest.raises(ValueError, match="leave out rows without one"):
+        effective_count([1.0, np.nan, 0.0], [0, 1, 2])

@@ -42,24 +42,39 @@ def group_interval(values, groups, *, level: float = 0.95, draws: int = 4000,
 
 
 def effective_count(hit, groups) -> float:
-    """How many independent answers ``hit`` ``(n,)`` (1: covered, 0: not) are worth when
-    they come in ``groups`` ``(n,)`` (labels) that share their errors, as the windows of one
-    specimen do: ``n`` over the design effect, ``p (1 - p) / var``, with ``var`` the
-    cluster-robust variance of the share ``p`` (the groups' summed deviations ``Σ_i (h_i - p)``,
-    squared and summed, times ``G / (G - 1) / n²``). At most ``n`` (never narrower than the
-    binomial); where every answer agrees (``p`` 0 or 1), the number of groups ``G``; with one
-    group, 1."""
+    """How many independent answers ``hit`` ``(n,)`` or ``(n, k)`` (1: covered, 0: not; ``k``
+    shares of the same rows, as an interval's two levels) are worth when they come in
+    ``groups`` ``(n,)`` (labels) that share their errors, as the windows of one specimen do:
+    ``n`` over the design effect, ``Σ p (1 - p) / Σ var`` summed over the ``k`` shares, with
+    ``var`` the cluster-robust variance of the share ``p`` (the groups' summed deviations
+    ``Σ_i (h_i - p)``, squared and summed, times ``G / (G - 1) / n²``). Pooling the shares
+    keeps the count continuous where one share reaches 0 or 1 (a share every answer agrees
+    on shows no clustering of its own; the others still do). At most ``n`` (never narrower
+    than the binomial); where every share is 0 or 1, the number of groups ``G``; with one
+    group, 1.
+
+    Raises:
+        ValueError: ``groups`` missing or of another length, or ``hit`` not finite.
+    """
     hit = np.asarray(hit, float)
+    hit = hit[:, None] if hit.ndim == 1 else hit
+    if groups is None or hit.ndim != 2 or np.shape(groups) != (len(hit),):
+        raise ValueError(f"hit (n,) or (n, k) and groups (n,): one label per answer; got "
+                         f"{hit.shape} and {None if groups is None else np.shape(groups)}")
+    if not np.isfinite(hit).all():
+        raise ValueError("hit: every answer 0 or 1; leave out rows without one (NaN) first")
     n = len(hit)
     _, which = np.unique(np.asarray(groups), return_inverse=True)
     g = int(which.max()) + 1 if n else 0
     if g < 2:
         return float(min(n, 1))
-    p = float(hit.mean())
-    if p in (0.0, 1.0):
+    p = hit.mean(0)
+    spread = float(np.sum(p * (1 - p)))
+    if spread == 0.0:
         return float(g)
-    var = g / (g - 1) * float(np.sum(np.bincount(which, hit - p) ** 2)) / n**2
-    return float(n) if var <= 0 else float(min(n, p * (1 - p) / var))
+    deviations = np.stack([np.bincount(which, hit[:, j] - p[j]) for j in range(hit.shape[1])])
+    var = g / (g - 1) * float(np.sum(deviations**2)) / n**2
+    return float(n) if var <= 0 else float(min(n, spread / var))
 
 
 def statistic_interval(values, statistic, *, level: float = 0.95, draws: int = 1000,

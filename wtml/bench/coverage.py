@@ -109,25 +109,29 @@ def coverage_cell(covered: np.ndarray, groups: np.ndarray | None = None) -> dict
     """Coverage of the two intervals from :func:`hits` ``(n, 2)`` (rows of NaN left out):
     ``n``, ``cover`` (two shares), ``interval`` (their Wilson intervals, over
     :func:`effective_count` answers where ``groups`` ``(n,)`` labels rows that share their
-    errors), ``n_effective`` (that count, one for both levels) and ``verdict`` per level
+    errors), ``n_effective`` (that count per level) and ``verdict`` per level
     (``"ok"``, ``"miss"``: off by more than :data:`TOLERANCE` and significantly so, ``"?"``:
     off by more on too few rows to tell)."""
     kept = np.isfinite(covered).all(1)
     covered = covered[kept]
     n = len(covered)
-    m = n if groups is None else effective_count(covered, np.asarray(groups)[kept])
-    cover, interval, verdict = [], [], []
+    if groups is not None and np.shape(groups) != kept.shape:
+        raise ValueError(f"groups: one label per row, {kept.shape}; got {np.shape(groups)}")
+    cover, interval, verdict, worth = [], [], [], []
     for level, nominal in enumerate(NOMINAL):
         k = int(covered[:, level].sum())
         share = k / n if n else float("nan")
+        m = n if groups is None else effective_count(covered[:, level],
+                                                     np.asarray(groups)[kept])
         lo, hi = wilson(k, n) if m == n else wilson(share * m, m)
+        worth.append(m)
         cover.append(share)
         interval.append((lo, hi))
         off = not n or abs(share - nominal) > TOLERANCE
         sure = n >= MIN_VERDICT and not lo <= nominal <= hi
         verdict.append("ok" if not off else "miss" if sure else "?")
     return {"n": n, "cover": cover, "interval": interval, "verdict": verdict,
-            "n_effective": m}
+            "n_effective": worth}
 
 
 def by_range(covered: np.ndarray, truth: np.ndarray, edges: np.ndarray,

@@ -41,26 +41,31 @@ def group_interval(values, groups, *, level: float = 0.95, draws: int = 4000,
     return float(low), float(high)
 
 
+MIN_GROUPS_SHOWN = 5
+"""Groups in which a share's rarer outcome (a miss of a 95 % interval) must show before its
+clustering is read from them (:func:`effective_count`); in fewer, the answers are worth their
+groups."""
+
+
 def effective_count(hit, groups) -> float:
-    """How many independent answers ``hit`` ``(n,)`` or ``(n, k)`` (1: covered, 0: not; ``k``
-    shares of the same rows, as an interval's two levels) are worth when they come in
-    ``groups`` ``(n,)`` (labels) that share their errors, as the windows of one specimen do:
-    ``n`` over the design effect, ``Σ p (1 - p) / Σ var`` summed over the ``k`` shares, with
-    ``var`` the cluster-robust variance of the share ``p`` (the groups' summed deviations
-    ``Σ_i (h_i - p)``, squared and summed, times ``G / (G - 1) / n²``). Pooling the shares
-    keeps the count continuous where one share reaches 0 or 1 (a share every answer agrees
-    on shows no clustering of its own; the others still do). At most ``n`` (never narrower
-    than the binomial); where every share is 0 or 1, the number of groups ``G``; with one
-    group, 1.
+    """How many independent answers ``hit`` ``(n,)`` (1: covered, 0: not) are worth when they
+    come in ``groups`` ``(n,)`` (labels) that share their errors, as the windows of one
+    specimen do: ``n`` over the design effect, ``p (1 - p) / var``, with ``var`` the
+    cluster-robust variance of the share ``p`` (the groups' summed deviations ``Σ_i (h_i -
+    p)``, squared and summed, times ``G / (G - 1) / n²``), at most ``n`` (never narrower than
+    the binomial). Where the rarer outcome shows in fewer than :data:`MIN_GROUPS_SHOWN` of the
+    ``G`` groups (every answer alike, or a 95 % interval's few misses), its clustering cannot
+    be read, and the answers are worth ``G``: the cautious end, since a group's answers may
+    all fail together (192 of 192 windows of 48 specimens are judged as 48 groups, and so
+    are 191 of 192). With one group, 1.
 
     Raises:
         ValueError: ``groups`` missing or of another length, or ``hit`` not finite.
     """
     hit = np.asarray(hit, float)
-    hit = hit[:, None] if hit.ndim == 1 else hit
-    if groups is None or hit.ndim != 2 or np.shape(groups) != (len(hit),):
-        raise ValueError(f"hit (n,) or (n, k) and groups (n,): one label per answer; got "
-                         f"{hit.shape} and {None if groups is None else np.shape(groups)}")
+    if groups is None or hit.ndim != 1 or np.shape(groups) != hit.shape:
+        raise ValueError(f"hit and groups: one label per answer, both (n,); got {hit.shape} "
+                         f"and {None if groups is None else np.shape(groups)}")
     if not np.isfinite(hit).all():
         raise ValueError("hit: every answer 0 or 1; leave out rows without one (NaN) first")
     n = len(hit)
@@ -68,13 +73,12 @@ def effective_count(hit, groups) -> float:
     g = int(which.max()) + 1 if n else 0
     if g < 2:
         return float(min(n, 1))
-    p = hit.mean(0)
-    spread = float(np.sum(p * (1 - p)))
-    if spread == 0.0:
+    p = float(hit.mean())
+    rare = hit if p < 0.5 else 1.0 - hit
+    if np.count_nonzero(np.bincount(which, rare)) < MIN_GROUPS_SHOWN:
         return float(g)
-    deviations = np.stack([np.bincount(which, hit[:, j] - p[j]) for j in range(hit.shape[1])])
-    var = g / (g - 1) * float(np.sum(deviations**2)) / n**2
-    return float(n) if var <= 0 else float(min(n, spread / var))
+    var = g / (g - 1) * float(np.sum(np.bincount(which, hit - p) ** 2)) / n**2
+    return float(n) if var <= 0 else float(min(n, p * (1 - p) / var))
 
 
 def statistic_interval(values, statistic, *, level: float = 0.95, draws: int = 1000,

@@ -72,6 +72,9 @@ def test_answers_that_share_their_errors_are_worth_their_groups():
     assert effective_count(few, four) == 48
     few[16] = 0.0
     assert effective_count(few, four) > 150
+    # groups of unequal size: worth fewer than their number (4 of 10 windows, 44 of 4)
+    uneven = np.concatenate([np.repeat(np.arange(4), 10), np.repeat(np.arange(4, 48), 4)])
+    assert effective_count(np.ones(216), uneven) == pytest.approx(216**2 / (4 * 100 + 44 * 16))
 
 
 def test_the_count_refuses_what_it_cannot_count():

@@ -55,9 +55,10 @@ def effective_count(hit, groups) -> float:
     p)``, squared and summed, times ``G / (G - 1) / n²``), at most ``n`` (never narrower than
     the binomial). Where the rarer outcome shows in fewer than :data:`MIN_GROUPS_SHOWN` of the
     ``G`` groups (every answer alike, or a 95 % interval's few misses), its clustering cannot
-    be read, and the answers are worth ``G``: the cautious end, since a group's answers may
-    all fail together (192 of 192 windows of 48 specimens are judged as 48 groups, and so
-    are 191 of 192). With one group, 1.
+    be read, and the answers are worth their groups, ``n² / Σ_g n_g²`` (``G`` for groups of
+    one size; fewer where some are larger): the cautious end, since a group's answers may all
+    fail together (192 of 192 windows of 48 specimens are judged as 48 groups, and so are 191
+    of 192). With one group, 1.
 
     Raises:
         ValueError: ``groups`` missing or of another length, or ``hit`` not finite.
@@ -70,13 +71,14 @@ def effective_count(hit, groups) -> float:
         raise ValueError("hit: every answer 0 or 1; leave out rows without one (NaN) first")
     n = len(hit)
     _, which = np.unique(np.asarray(groups), return_inverse=True)
-    g = int(which.max()) + 1 if n else 0
-    if g < 2:
+    sizes = np.bincount(which).astype(float) if n else np.zeros(0)
+    if len(sizes) < 2:
         return float(min(n, 1))
+    g = len(sizes)
     p = float(hit.mean())
     rare = hit if p < 0.5 else 1.0 - hit
     if np.count_nonzero(np.bincount(which, rare)) < MIN_GROUPS_SHOWN:
-        return float(g)
+        return float(n * n / np.sum(sizes**2))
     var = g / (g - 1) * float(np.sum(np.bincount(which, hit - p) ** 2)) / n**2
     return float(n) if var <= 0 else float(min(n, p * (1 - p) / var))
 

@@ -737,7 +737,9 @@ def _report(s: dict) -> str:
              f"({plan['records']} records) of `{s['scene']}` (its seed); held out: "
              f"{s['test_specimens']} specimens (the seed + 1), every whole window of "
              f"{s['window_s']:g} s ({s['test_windows']} windows). Decoders: {recipes}, "
-             "one random crop of every record per epoch. "
+             "one random crop of every record per epoch. The decoders and the band-power "
+             "peer fit features computed beforehand (the features of the decoders' crops, shard by "
+             "shard; the peer's band powers at generation), which `fit (s)` leaves out. "
              + (f"{MINIROCKET}: aeon's MiniRocketClassifier (`MiniRocketPeer`, "
                 f"{mr['kernels']} kernels) on every whole window of the training records; its "
                 "fit includes transforming them. " if mr["sizes"] else "")

@@ -115,14 +115,15 @@ def coverage_cell(covered: np.ndarray, groups: np.ndarray | None = None) -> dict
     kept = np.isfinite(covered).all(1)
     covered = covered[kept]
     n = len(covered)
-    if groups is not None and np.shape(groups) != kept.shape:
-        raise ValueError(f"groups: one label per row, {kept.shape}; got {np.shape(groups)}")
+    if groups is not None:
+        if np.shape(groups) != kept.shape:
+            raise ValueError(f"groups: one label per row, {kept.shape}; got {np.shape(groups)}")
+        groups = np.asarray(groups)[kept]
     cover, interval, verdict, worth = [], [], [], []
     for level, nominal in enumerate(NOMINAL):
         k = int(covered[:, level].sum())
         share = k / n if n else float("nan")
-        m = n if groups is None else effective_count(covered[:, level],
-                                                     np.asarray(groups)[kept])
+        m = n if groups is None else effective_count(covered[:, level], groups)
         lo, hi = wilson(k, n) if m == n else wilson(share * m, m)
         worth.append(m)
         cover.append(share)

@@ -71,7 +71,7 @@ def effective_count(hit, groups) -> float:
         raise ValueError("hit: every answer 0 or 1; leave out rows without one (NaN) first")
     n = len(hit)
     _, which = np.unique(np.asarray(groups), return_inverse=True)
-    sizes = np.bincount(which).astype(float) if n else np.zeros(0)
+    sizes = np.bincount(which).astype(float)
     if len(sizes) < 2:
         return float(min(n, 1))
     g = len(sizes)

@@ -20,13 +20,15 @@ from wtml.bench.coverage import (
 )
 from wtml.decoders.domain import DomainGate, Gated, ZeParts
 from wtml.decoders.recalibration import (
+    MAX_WIDTH,
     NOMINAL,
     Recalibrated,
-    best_scale,
+    conformal_quantile,
     expected_calibration_error,
     fit_scales,
     fit_temperature,
     fit_uncertainty,
+    level_widths,
     metadata,
     tempered,
 )
@@ -138,19 +140,50 @@ def test_a_95_percent_level_whose_misses_may_be_whole_specimens_is_not_called_ea
 
 def test_a_scale_fitted_on_held_out_answers_restores_the_coverage(rng):
     """σ too small by 2× overall, and by 1.5× or 3× depending on the range: the scales per
-    range of the answer bring fresh answers back to nominal in every range."""
+    range of the answer bring fresh answers back to nominal in every range, with a Gaussian's
+    95 % width."""
     truth, err, sigma = gaussian_answers(rng)
-    assert best_scale(np.abs(err) / (sigma / 2)) == pytest.approx(2.0, rel=0.03)
+    scale, width = level_widths(np.abs(err) / (sigma / 2))
+    assert scale == pytest.approx(2.0, rel=0.03) and width == pytest.approx(1.96, rel=0.03)
     wrong = np.where(truth < 0.5, 1.5, 3.0)
-    edges, scales = fit_scales(err, sigma / wrong, truth + 0.01 * err, 2)
+    edges, scales, widths = fit_scales(err, sigma / wrong, truth + 0.01 * err, 2)
     assert len(edges) == 1 and abs(edges[0] - 0.5) < 0.02
     assert scales == pytest.approx([1.5, 3.0], rel=0.04)
+    assert widths == pytest.approx([1.96, 1.96], rel=0.04)
     # too few answers in domain to fit (a decoder that flags nearly all): σ left as it is
-    assert [len(x) for x in fit_scales(err[:30], sigma[:30], truth[:30], 3)] == [0, 1]
+    assert [x.tolist() for x in fit_scales(err[:30], sigma[:30], truth[:30], 3)] == [
+        [], [1.0], [md.WIDE]]
     truth2, err2, sigma2 = gaussian_answers(np.random.default_rng(1))
-    back = sigma2 / np.where(truth2 < 0.5, 1.5, 3.0) * scales[(truth2 >= edges[0]).astype(int)]
-    for c in by_range(hits(err2, back), truth2, np.linspace(0, 1, 6)):
+    which = (truth2 >= edges[0]).astype(int)
+    back = sigma2 / np.where(truth2 < 0.5, 1.5, 3.0) * scales[which]
+    for c in by_range(hits(err2, back, widths[which]), truth2, np.linspace(0, 1, 6)):
         assert c["verdict"] == ["ok", "ok"]
+
+
+def test_a_width_per_level_covers_both_levels_where_errors_are_not_gaussian(rng):
+    """Errors Laplace (heavy-tailed: q95/q68 of |err| is ln 20 / ln(1/0.3173) = 2.61) below
+    0.5 and uniform (light: 0.95 / 0.6827 = 1.39) above: no single σ per range holds both
+    of a range's levels with the Gaussian 1.96σ, and the fitted 95 % width per range does, on
+    fresh answers, in every quintile."""
+    def answers(g, n=40000):
+        truth = g.uniform(0.0, 1.0, n)
+        err = np.where(truth < 0.5, g.laplace(0.0, 1.0, n), g.uniform(-1.0, 1.0, n))
+        return truth, err, np.ones(n)
+
+    truth, err, sigma = answers(rng)
+    edges, scales, widths = fit_scales(err, sigma, truth, 2)
+    assert widths == pytest.approx([np.log(20) / -np.log(1 - 0.6827), 0.95 / 0.6827],
+                                   rel=0.03)
+    truth2, err2, sigma2 = answers(np.random.default_rng(1))
+    which = np.searchsorted(edges, truth2, side="right")
+    fitted = by_range(hits(err2, sigma2 * scales[which], widths[which]), truth2,
+                      np.linspace(0, 1, 6))
+    assert all(c["verdict"] == ["ok", "ok"] for c in fitted)
+    gaussian = by_range(hits(err2, sigma2 * scales[which]), truth2, np.linspace(0, 1, 6))
+    # the quintiles of one law each (the middle one mixes them, and the whole): Laplace
+    # below (1.96σ holds too little), uniform above (1.96σ holds everything)
+    assert all(gaussian[k]["verdict"] == ["ok", "miss"] for k in (0, 1, 3, 4))
+    assert gaussian[0]["cover"][1] < 0.91 and gaussian[4]["cover"][1] == 1.0
 
 
 def synthetic_classifier(rng, n: int, sharpen: float = 1.0):
@@ -229,6 +262,16 @@ def test_a_recalibrated_graph_gives_the_same_sigmas_and_probabilities_in_onnx_an
     which = np.searchsorted(r.edges, out["value"], side="right")
     np.testing.assert_allclose(got[1], out["sigma"] * np.array(r.scales)[which], rtol=2e-5)
     np.testing.assert_allclose(got[4], np.array(u.intervals[2].scales)[which], rtol=2e-5)
+    # the 95 % half-width the device runtime makes of the metadata: width × σ of σ's range,
+    # ln width + log σ for a log std; the fitted widths near 1.96 (Gaussian errors)
+    np.testing.assert_allclose(r.half_width(got[1], got[0]),
+                               got[1] * np.array(r.widths)[which], rtol=1e-6)
+    log_rule = u.intervals[1]
+    np.testing.assert_allclose(log_rule.half_width(got[2], got[0]) - got[2],
+                               np.log(np.array(log_rule.widths))[
+                                   np.searchsorted(log_rule.edges, out["value"], "right")],
+                               atol=1e-6)
+    assert all(abs(w - 1.96) < 0.2 for w in r.widths)
     np.testing.assert_allclose(got[3], tempered(out["probabilities"], u.temperature),
                                atol=2e-5)
 
@@ -277,6 +320,10 @@ def test_a_fluid_export_carries_its_intervals_and_an_old_one_is_refused(flow):
     u = decoder.uncertainty
     assert [r.sigma for r in u.intervals] == list(md.FLUID_SIGMAS)
     assert all(r.stored == "none" and r.by == "eta" for r in u.intervals)
+    # a 95 % width per range, and both levels met on the held-out answers they were fitted on
+    for r in u.intervals:
+        assert len(r.widths) == len(r.scales) and min(r.widths) >= 1.0
+        assert np.allclose(r.coverage_after, NOMINAL, atol=0.02), (r.sigma, r.coverage_after)
     net, scene = load_fluid_net(str(flow[1]))
     data = scene_from_dict(scene).simulate(200, np.random.default_rng(5))
     from wtml.physics.twoport import flat_parts
@@ -290,6 +337,10 @@ def test_a_fluid_export_carries_its_intervals_and_an_old_one_is_refused(flow):
         inside = got["in_domain"]
         np.testing.assert_allclose(got[name][inside], w.numpy()[inside], rtol=2e-4)
         assert np.isnan(got[name][~inside]).all() or name in ("eta", "rho")
+    # the 95 % half-widths beside them, each by the range of η (not of its own value)
+    for name, r in decoder.intervals.items():
+        np.testing.assert_array_equal(got[name], got[r.sigma] * r.wide(got["eta"]))
+    assert set(decoder.intervals) == {f"{s}_95" for s in md.FLUID_SIGMAS}
     props = dict(decoder.metadata)
     del props["uncertainty"]
     with pytest.raises(SchemaError, match="metadata uncertainty: missing.*export it again"):
@@ -297,3 +348,68 @@ def test_a_fluid_export_carries_its_intervals_and_an_old_one_is_refused(flow):
     with pytest.raises(SchemaError, match="a classical graph has no recalibration"):
         md.graph_metadata(dict(classical.metadata) | {"uncertainty": decoder.metadata[
             "uncertainty"]}, "classical.onnx")
+
+
+def test_the_95_percent_widths_are_checked_and_an_export_without_them_reads_as_gaussian():
+    """The metadata's widths: one per range or none (an export made before them: 1.96 in
+    every range), each >= 1 (a 95 % interval no narrower than the 68 % one); the range of an
+    answer found as the graph finds it (float32, NaN in the first)."""
+    rule = {"sigma": "sigma", "value": "d", "by": "d", "log_value": False, "stored": "std",
+            "edges": [0.1, 0.2], "scales": [1.0, 2.0, 3.0]}
+    old = build(md.IntervalRecalibration, rule)
+    by = np.array([0.05, 0.1, 0.15, 0.25, np.nan])
+    np.testing.assert_array_equal(old.wide(by), [1.96] * 5)
+    new = build(md.IntervalRecalibration, rule | {"widths": [1.5, 1.7, 2.5]})
+    np.testing.assert_array_equal(new.wide(by), [1.5, 1.7, 1.7, 2.5, 1.5])
+    assert new.wide(0.15) == 1.7  # one answer: one width
+    np.testing.assert_allclose(new.half_width(np.full(5, 2.0), by), [3.0, 3.4, 3.4, 5.0, 3.0])
+    # float32, as the graph compares: just below the edge in float64, at it in float32
+    assert new.wide(np.array([np.nextafter(0.2, 0.0)]))[0] == 2.5
+    with pytest.raises(SchemaError, match=r"widths: must hold one 95 % width per range"):
+        build(md.IntervalRecalibration, rule | {"widths": [1.5, 1.7]})
+    with pytest.raises(SchemaError, match="widths"):
+        build(md.IntervalRecalibration, rule | {"widths": [1.5, 0.9, 2.0]})
+
+
+def test_the_conformal_quantile_is_the_finite_sample_rank_and_the_widths_hold_it(rng):
+    """q at level p of n scores is the ⌈(n+1)p⌉-th smallest (the largest beyond n); the
+    fitted scale and width hold at least that rank's share of the answers they were fitted on
+    at both levels (the width rounded up, never a row short), and stay loadable (width
+    <= MAX_WIDTH) where most errors vanish."""
+    z = np.arange(1.0, 11.0)
+    assert conformal_quantile(z[::-1], 0.6827) == 8 and conformal_quantile(z, 0.95) == 10
+    assert conformal_quantile(np.array([3.0]), 0.6827) == 3.0
+    for n in (37, 110, 400):
+        for _ in range(100):
+            z = np.abs(rng.standard_t(3, n)) * rng.uniform(0.1, 10)
+            scale, width = level_widths(z)
+            for level, half in zip(NOMINAL, (scale, scale * width), strict=True):
+                assert np.sum(z <= half) >= min(n, np.ceil((n + 1) * level)), (n, level)
+    exact = np.r_[np.zeros(280), np.linspace(0.1, 1.0, 120)]  # 70 % of answers exact
+    scale, width = level_widths(exact)
+    assert 1.0 <= width <= MAX_WIDTH and scale * width >= conformal_quantile(exact, 0.95)
+    rule = {"sigma": "s", "value": "v", "by": "v", "log_value": False, "stored": "none",
+            "scales": [scale], "widths": [width]}
+    assert build(md.IntervalRecalibration, rule).wide(np.zeros(1))[0] == width
+
+
+def test_the_coverage_table_scores_the_recalibrated_95_percent_interval_with_its_width(rng):
+    """``wtml bench coverage``'s table: the raw σ's 95 % interval is ±1.96σ, the export's is
+    ± its fitted width; uniform errors (q95/q68 = 1.39) are a miss at 1.96σ (all covered)
+    and nominal at their width."""
+    from wtml.bench.coverage import interval_table
+
+    truth, err = rng.uniform(0, 1, 20000), rng.uniform(-1, 1, 20000)
+    row = {"name": "uniform", "kind": "synthetic", "truth": truth, "err": err, "groups": None,
+           "sigma": np.full(20000, 0.6827), "wide": np.full(20000, 0.95 / 0.6827),
+           "raw": np.full(20000, 0.6827), "flagged": 0.0}
+    rule = build(md.IntervalRecalibration, {"sigma": "sigma", "value": "distance",
+                                            "by": "distance",
+                                            "log_value": False, "stored": "std",
+                                            "scales": [1.0], "widths": [0.95 / 0.6827]})
+    _, rows = interval_table("toy", rule, [row])
+    raw, fitted = rows
+    assert raw["sigma"] == "raw" and raw["all"]["cover"][1] == 1.0
+    assert raw["all"]["verdict"] == ["ok", "miss"]
+    assert fitted["all"]["verdict"] == ["ok", "ok"]
+    assert abs(fitted["all"]["cover"][1] - 0.95) < 0.01

@@ -157,6 +157,8 @@ def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene
     np.testing.assert_allclose(streamed["contact"], offline["contact"], atol=1e-5)
     np.testing.assert_allclose(streamed["gap"], offline["gap"], rtol=1e-5, atol=1e-12)
     np.testing.assert_allclose(streamed["sigma"], offline["sigma"], rtol=1e-4, atol=1e-12)
+    np.testing.assert_allclose(streamed["sigma_95"], offline["sigma_95"], rtol=1e-4,
+                               atol=1e-12)
     # the record summary's sums run over chunks in another order than the offline mean:
     # float32 rounding (RESOLUTION) whitened, a few parts in 1e3 of the score
     np.testing.assert_allclose(streamed["domain_score"], offline["domain_score"], rtol=1e-2,
@@ -386,6 +388,12 @@ def test_predict_needs_the_devices_calibration_and_refuses_without_it(onset_expo
     out = model.run(*record_inputs(rec))
     dec = [r for r in rows if r["method"] == "decoder"]
     assert dec[0]["domain_score"] == pytest.approx(float(out["domain_score"][0]), rel=1e-6)
+    # σ and the 95 % half-width beside it: the metadata's width × σ (the decoder's alone)
+    rule = model.intervals["sigma_95"]
+    for r in dec:
+        assert r["sigma_95 (m)"] == pytest.approx(r["sigma (m)"] * rule.wide(r["gap (m)"]),
+                                                  rel=1e-12, nan_ok=True)
+    assert all(np.isnan(r["sigma_95 (m)"]) for r in rows if r["method"] == "classical")
 
 
 def test_a_decoder_trained_on_one_device_flags_the_others(onset_export, scene, spread_scene):

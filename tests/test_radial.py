@@ -145,6 +145,12 @@ def test_radial_onnx_matches_torch_and_predict_reads_it(radial_flow, tmp_path):
     np.savez(tmp_path / "free.npz", frequency_hz=freq, ze=ref[:2])
     rows = predict_file(tmp / "export/radial", tmp_path / "m.npz", reference=tmp_path / "free.npz")
     assert len(rows) == 2 and "distance_decoder (m)" in rows[0] and "sigma_decoder (m)" in rows[0]
+    # beside σ (the 68 % half-width) the 95 % one, the metadata's width of σ's range × σ
+    rule = OnnxModel(tmp / "export/radial/model.onnx").intervals["sigma_95"]
+    for row in rows:
+        want = row["sigma_decoder (m)"] * rule.wide([row["distance_decoder (m)"]])[0]
+        assert row["sigma_95_decoder (m)"] == pytest.approx(want, rel=1e-12)
+        assert row["sigma_95_decoder (m)"] >= row["sigma_decoder (m)"] or not row["in_domain"]
     # one reference row serves every measurement; the export's own sample reference reads
     sample = tmp / "export/radial/sample_reference.npz"
     one = predict_file(tmp / "export/radial", tmp_path / "m.npz", reference=sample)

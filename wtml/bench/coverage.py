@@ -1,7 +1,8 @@
 """``wtml bench coverage``: whether every decoder's uncertainty is honest (issue 25 §4).
 
 Per regression decoder and interval (radial distance, onset gap, fluid ln η and ρ, texture ln
-grain size), the empirical coverage of ±1σ and ±1.96σ (nominal 68.27 % and 95 %), overall
+grain size), the empirical coverage of its 68.27 % and 95 % intervals (±1σ and ±1.96σ raw;
+recalibrated, ±1σ and ± the export's fitted 95 % width, ``<σ>_95`` of ``wtml predict``), overall
 and per range of the target (quintiles of the test shard's truth, the same ranges on every
 row), on the held-out test shard, on fresh records of the trained scene and on the held-out
 physics its task's benches score: fluid, devices off the trained spread (issue 21's, the
@@ -47,12 +48,12 @@ from wtml.decoders.checkpoint import load_decoder
 from wtml.decoders.domain import Gated
 from wtml.decoders.recalibration import (
     NOMINAL,
-    WIDTHS,
     errors,
     expected_calibration_error,
     raw_sigma,
 )
 from wtml.physics.twoport import flat_parts
+from wtml.runtime.metadata import WIDE
 from wtml.runtime.predict import load_export
 
 TOLERANCE = 0.03
@@ -94,13 +95,15 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return float(mid - half), float(mid + half)
 
 
-def hits(err: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Per row whether ±1σ and ±1.96σ hold the truth, ``(n, 2)`` float: 1, 0, or NaN where
-    ``err`` or ``sigma`` is not finite (no answer, or no interval: out of domain)."""
+def hits(err: np.ndarray, sigma: np.ndarray, wide: float | np.ndarray = WIDE
+         ) -> np.ndarray:
+    """Per row whether ±1σ and ±wide·σ (the 68 % and 95 % intervals; ``wide`` one, or
+    ``(n,)`` per row: an export's fitted widths) hold the truth, ``(n, 2)`` float: 1, 0, or
+    NaN where ``err`` or ``sigma`` is not finite (no answer, or no interval: out of domain)."""
     err, sigma = np.asarray(err, float), np.asarray(sigma, float)
     with np.errstate(invalid="ignore", divide="ignore"):
         z = np.abs(err) / sigma
-    out = np.stack([z <= w for w in WIDTHS], 1).astype(float)
+    out = np.stack([z <= 1.0, z <= wide], 1).astype(float)
     out[~(np.isfinite(err) & np.isfinite(sigma))] = np.nan
     return out
 
@@ -177,9 +180,10 @@ def raw_answers(module, names: tuple[str, ...], inputs: tuple[np.ndarray, ...]
 def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progress=print
           ) -> dict:
     """Every set's answers from the export (``decoder``, recalibrated) and the checkpoint
-    (``module``, raw): per interval of the export's metadata the errors and both σ, per set;
-    and for a classifier its probabilities. Returns ``{"intervals": {sigma name: [per set
-    {"name", "kind", "truth", "err", "groups", "sigma", "raw", "flagged"}]}, "classes": [per set
+    (``module``, raw): per interval of the export's metadata the errors, both σ and the
+    export's 95 % width in σ per answer (``wide``; the raw σ's is 1.96), per set; and for a
+    classifier its probabilities. Returns ``{"intervals": {sigma name: [per set {"name",
+    "kind", "truth", "err", "groups", "sigma", "wide", "raw", "flagged"}]}, "classes": [per set
     {"name", "kind", "labels", "after", "before", "flagged"}]}``."""
     u = decoder.uncertainty
     out = {"intervals": {r.sigma: [] for r in u.intervals}, "classes": []}
@@ -199,7 +203,7 @@ def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progre
             out["intervals"][r.sigma].append({
                 "name": s.name, "kind": s.kind, "truth": truth[r.value], "err": err,
                 "groups": truth.get("groups"),
-                "sigma": np.where(inside, sigma, np.nan),
+                "sigma": np.where(inside, sigma, np.nan), "wide": r.wide(after[r.by]),
                 "raw": None if raw is None else np.where(inside, raw, np.nan),
                 "flagged": flagged})
         if u.probabilities is not None:
@@ -391,8 +395,9 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
     out = []
     for row in [*rows, *extra]:
         answers = ([(row["label"], row["hits"])] if "hits" in row else
-                   [(label, hits(row["err"], sigma)) for label, sigma in
-                    (("raw", row["raw"]), ("recalibrated", row["sigma"])) if sigma is not None])
+                   [(label, hits(row["err"], sigma, wide)) for label, sigma, wide in
+                    (("raw", row["raw"], WIDE),
+                     ("recalibrated", row["sigma"], row["wide"])) if sigma is not None])
         for label, covered in answers:
             groups = row.get("groups")
             cells = by_range(covered, np.asarray(row["truth"], float), edges,
@@ -496,7 +501,8 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
             sbi_note = ["## sbi", "", "Not run: the `sbi` package is not installed (pip "
                         "install -c constraints.txt -e '.[sbi]').", ""]
     lines = ["# wtml bench coverage: honest uncertainty", "",
-             "Coverage of ±1σ / ±1.96σ in % (nominal 68.3 / 95.0) over the in-domain answers, "
+             "Coverage of the 68 % / 95 % intervals in % (raw: ±1σ / ±1.96σ; recalibrated: ±1σ / "
+             "± the export's 95 % width) over the in-domain answers, "
              f"overall and per range of the target (quintiles of the test shard's truth). ✗: "
              f"off by more than {100 * TOLERANCE:.0f} points and outside the binomial 95 % "
              f"interval (texture: over the answers' worth, windows of one specimen sharing "
@@ -521,8 +527,10 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
                      if task == "fluid" else [])
             table, rows = interval_table(task, r, scored["intervals"][r.sigma], extra)
             scales = ", ".join(f"{s:.3g}" for s in r.scales)
-            lines += table + ["", f"Recalibration: {r.stored} σ × ({scales}) in {len(r.scales)} "
-                              f"range(s) of the answer `{r.by}`; on its {r.n} held-out answers "
+            widths = ", ".join(f"{w:.3g}" for w in r.widths or (WIDE,))
+            lines += table + ["", f"Recalibration: {r.stored} σ × ({scales}), 95 % widths "
+                              f"({widths})σ, in {len(r.scales)} range(s) of the answer "
+                              f"`{r.by}`; on its {r.n} held-out answers "
                               f"coverage {_pair(r.coverage_before)} → "
                               f"{_pair(r.coverage_after)}.", ""]
             entry["intervals"][r.sigma] = {"recalibration": dataclasses.asdict(r),

@@ -4,24 +4,28 @@ exported graph.
 
 Two well-kept methods:
 
-- **σ per range of the answer** (split conformal, Mondrian by range): the decoder's own σ
-  (or, for a decoder without one, a unit σ) times a scale per range of its answer, fitted on
-  held-out records so that the ±1σ and ±1.96σ intervals cover 68.27 % and 95 % of them in
-  every range (:func:`fit_scales`). Per range, because a decoder's errors change over its
-  range (fluid: η's relative error falls tenfold over its decades), and a single scale would
-  cover too much at one end and too little at the other; by the answer, because the truth is
-  what a device does not know. Within a range, the scale is the one whose two coverages miss
-  by the least: between the split-conformal quantiles ``q68(|err|/σ)`` and
-  ``q95(|err|/σ) / 1.96``, equal where the normalised errors are Gaussian.
+- **σ and a 95 % width per range of the answer** (split conformal, Mondrian by range): the
+  decoder's own σ (or, for a decoder without one, a unit σ) times a scale per range of its
+  answer, and the half-width of its 95 % interval in those σ, both fitted on held-out records
+  so that ±1σ covers 68.27 % and ±width·σ 95 % of them in every range (:func:`fit_scales`):
+  the split-conformal quantiles ``q68(|err|/σ)`` and ``q95(|err|/σ)``. Per range, because a
+  decoder's errors change over its range (fluid: η's relative error falls tenfold over its
+  decades), and a single scale would cover too much at one end and too little at the other;
+  by the answer, because the truth is what a device does not know. Per level, because the
+  errors are not Gaussian: fluid ρ's are lighter-tailed (``q95/q68`` 1.6–1.7, a Gaussian's
+  1.96), texture's grain heavier, so that one σ cannot hold both levels (the width is 1.96
+  for Gaussian errors).
 - **temperature scaling** (Guo et al., 2017): class probabilities ``softmax(log p / T)``, one
   ``T`` fitted by the negative log-likelihood of held-out windows (:func:`fit_temperature`); it
   never changes the likeliest class.
 
-:class:`Recalibrated` wraps an exported net and applies both in its graph (a few comparisons,
-a sum and a product per σ; a log, a division and a softmax for the probabilities), so that
-every graph of the export and ``wtml predict`` give the recalibrated values. The metadata
-states what was fitted, on what, and how much it moved the coverage
-(:class:`wtml.runtime.metadata.Uncertainty`).
+:class:`Recalibrated` wraps an exported net and applies the scales and the temperature in its
+graph (a few comparisons, a sum and a product per σ; a log, a division and a softmax for the
+probabilities), so that every graph of the export and ``wtml predict`` give the recalibrated
+values. The metadata states what was fitted, on what, and how much it moved the coverage
+(:class:`wtml.runtime.metadata.Uncertainty`), and holds the 95 % widths, which the device
+runtime applies (:meth:`wtml.runtime.metadata.IntervalRecalibration.half_width`: ``wtml
+predict``'s ``<σ>_95`` columns); a graph's σ output is the 68 % half-width.
 """
 
 from __future__ import annotations
@@ -32,13 +36,15 @@ import numpy as np
 import torch
 from torch import nn
 
-from wtml.runtime.metadata import IntervalRecalibration, Uncertainty
+from wtml.runtime.metadata import WIDE, IntervalRecalibration, Uncertainty
 from wtml.schema import to_dict
 
 NOMINAL = (0.6827, 0.95)
-"""The coverage of ±1σ and of ±1.96σ for a Gaussian error."""
-WIDTHS = (1.0, 1.96)
-"""The intervals' half-widths in σ: what each of :data:`NOMINAL` is the coverage of."""
+"""The coverage of ±1σ and of ±1.96σ (:data:`~wtml.runtime.metadata.WIDE`) for a Gaussian
+error: the levels of the two intervals."""
+MAX_WIDTH = 1e6
+"""The largest 95 % width in σ: where most held-out errors vanish (q68 of 0), σ's scale is
+raised to q95 / MAX_WIDTH rather than left at 0."""
 TINY = 1e-30
 """Probabilities are floored here before their log (a float32 softmax underflows to 0)."""
 MIN_PER_RANGE = 40
@@ -47,37 +53,43 @@ ECE_BINS = 15
 """Equal-width confidence bins of the expected calibration error."""
 
 
-def coverage(err: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
-    """The shares of ``|err| <= 1σ`` and ``|err| <= 1.96σ`` over the rows where both are
-    finite (NaN where none is), ``err`` and ``sigma`` ``(n,)`` in one unit."""
+def coverage(err: np.ndarray, sigma: np.ndarray, wide: float | np.ndarray = WIDE
+             ) -> tuple[float, float]:
+    """The shares of ``|err| <= 1σ`` and ``|err| <= wide·σ`` over the rows where both are
+    finite (NaN where none is), ``err`` and ``sigma`` ``(n,)`` in one unit, ``wide`` the 95 %
+    half-width in σ (one, or ``(n,)`` per row)."""
     err, sigma = np.asarray(err, float), np.asarray(sigma, float)
+    wide = np.broadcast_to(np.asarray(wide, float), err.shape)
     ok = np.isfinite(err) & np.isfinite(sigma)
     if not ok.any():
         return float("nan"), float("nan")
     z = np.abs(err[ok]) / sigma[ok]
-    return tuple(float(np.mean(z <= w)) for w in WIDTHS)
+    return float(np.mean(z <= 1.0)), float(np.mean(z <= wide[ok]))
 
 
-def best_scale(z: np.ndarray) -> float:
-    """The scale ``s`` on σ whose coverages of ``z = |err|/σ`` ``(n,)`` (finite, n >= 1),
-    ``mean(z <= s)`` and ``mean(z <= 1.96 s)``, miss :data:`NOMINAL` by the least (the larger
-    of the two misses, minimised; exact over every value where a coverage steps)."""
+def conformal_quantile(z: np.ndarray, level: float) -> float:
+    """The split-conformal quantile of scores ``z`` ``(n,)`` (finite, n >= 1): the
+    ⌈(n + 1)·level⌉-th smallest (the largest where that exceeds n), so that a fresh score
+    exchangeable with them lies at or below it with probability >= ``level``."""
     z = np.sort(np.asarray(z, float))
-    a = float(np.quantile(z, NOMINAL[0]))
-    b = float(np.quantile(z, NOMINAL[1])) / WIDTHS[1]
-    lo, hi = min(a, b), max(a, b)
-    steps = np.concatenate([z, z / WIDTHS[1]])
-    candidates = np.unique(np.concatenate([[a, b], steps[(steps >= lo) & (steps <= hi)]]))
-    n = len(z)
-    miss = np.maximum(
-        np.abs(np.searchsorted(z, candidates, side="right") / n - NOMINAL[0]),
-        np.abs(np.searchsorted(z, WIDTHS[1] * candidates, side="right") / n - NOMINAL[1]))
-    return max(float(candidates[np.argmin(miss)]), TINY)
+    return float(z[min(len(z), int(np.ceil((len(z) + 1) * level))) - 1])
+
+
+def level_widths(z: np.ndarray) -> tuple[float, float]:
+    """The scale on σ and the 95 % half-width in scaled σ from ``z = |err|/σ`` ``(n,)``
+    (finite, n >= 1): ``q68(z)`` and ``q95(z) / q68(z)`` (:func:`conformal_quantile`), so
+    that ``|err| <= scale·σ`` holds for 68.27 % of them and ``|err| <= width·scale·σ`` for
+    95 % (the width rounded up by a float step, so that the product does not round below
+    q95). The width lies in [1, :data:`MAX_WIDTH`]: a q68 of 0 (errors that mostly vanish)
+    raises the scale to ``q95 / MAX_WIDTH`` (and :data:`TINY` where q95 is 0 too)."""
+    q68, q95 = (conformal_quantile(z, level) for level in NOMINAL)
+    scale = max(q68, q95 / MAX_WIDTH, TINY)
+    return scale, float(np.clip(np.nextafter(q95 / scale, np.inf), 1.0, MAX_WIDTH))
 
 
 def fit_scales(err: np.ndarray, sigma: np.ndarray, by: np.ndarray, n_ranges: int
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Scales on σ per range of ``by`` (:func:`best_scale` in each).
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Scales on σ and 95 % widths per range of ``by`` (:func:`level_widths` in each).
 
     Args:
         err: the errors ``(n,)`` in σ's unit (estimate − truth; of ln values for a σ of ln).
@@ -88,23 +100,24 @@ def fit_scales(err: np.ndarray, sigma: np.ndarray, by: np.ndarray, n_ranges: int
             few for :data:`MIN_PER_RANGE` each.
 
     Returns:
-        ``edges`` ``(K-1,)`` ascending, in ``by``'s unit, and ``scales`` ``(K,)``: range k is
-        ``edges[k-1] <= by < edges[k]`` (open at both ends). Fewer than
-        :data:`MIN_PER_RANGE` usable rows (a decoder that flags nearly all of them out of
-        domain) leave σ as it is: one range, scale 1 (the metadata states how many rows).
+        ``edges`` ``(K-1,)`` ascending, in ``by``'s unit, ``scales`` ``(K,)`` and ``widths``
+        ``(K,)``: range k is ``edges[k-1] <= by < edges[k]`` (open at both ends), where the
+        68 % interval is ±scales[k]·σ and the 95 % interval ±widths[k]·scales[k]·σ. Fewer
+        than :data:`MIN_PER_RANGE` usable rows (a decoder that flags nearly all of them out of
+        domain) leave σ as it is: one range, scale 1, the Gaussian width 1.96 (the metadata
+        states how many rows).
     """
     err, sigma, by = (np.asarray(x, float) for x in (err, sigma, by))
     ok = np.isfinite(err) & np.isfinite(sigma) & np.isfinite(by) & (sigma > 0)
     if ok.sum() < MIN_PER_RANGE:
-        return np.zeros(0), np.ones(1)
+        return np.zeros(0), np.ones(1), np.full(1, WIDE)
     z, by = np.abs(err[ok]) / sigma[ok], by[ok]
     k = int(max(1, min(n_ranges, len(z) // MIN_PER_RANGE)))
     edges = np.unique(np.quantile(by, np.arange(1, k) / k)) if k > 1 else np.zeros(0)
     which = np.searchsorted(edges, by, side="right")
-    scales = np.array([best_scale(z[which == j]) if np.any(which == j) else 1.0
-                       for j in range(len(edges) + 1)])
-    return edges, scales
-
+    scales, widths = np.array([level_widths(z[which == j]) if np.any(which == j)
+                               else (1.0, WIDE) for j in range(len(edges) + 1)]).T
+    return edges, scales, widths
 
 
 def fit_temperature(probabilities: np.ndarray, labels: np.ndarray) -> float:
@@ -165,14 +178,15 @@ def interval(spec: dict, outputs: dict[str, np.ndarray], truth: np.ndarray, n_ra
     """
     err = errors(outputs[spec["value"]], truth, spec["log_value"])
     sigma = raw_sigma(spec, outputs, len(err))
-    edges, scales = fit_scales(err, sigma, outputs[spec["by"]], n_ranges)
+    edges, scales, widths = fit_scales(err, sigma, outputs[spec["by"]], n_ranges)
     which = np.searchsorted(edges, np.nan_to_num(outputs[spec["by"]], nan=-np.inf),
                             side="right")
     used = np.isfinite(err) & np.isfinite(sigma)
     before = () if spec["stored"] == "none" or not used.any() else coverage(err, sigma)
-    after = coverage(err, sigma * scales[which]) if used.any() else ()
+    after = coverage(err, sigma * scales[which], widths[which]) if used.any() else ()
     return IntervalRecalibration(**spec, edges=tuple(map(float, edges)),
-                                 scales=tuple(map(float, scales)), n=int(used.sum()),
+                                 scales=tuple(map(float, scales)),
+                                 widths=tuple(map(float, widths)), n=int(used.sum()),
                                  coverage_before=before, coverage_after=after)
 
 

@@ -29,9 +29,10 @@ path is fitted and the exported decoder's false-alarm rate is measured."""
 CALIBRATION_RECORDS = 300
 """Fresh records more (another seed) on whose every whole window, with the
 :data:`FRESH_RECORDS`', the decoder's probabilities and grain σ are recalibrated
-(:mod:`wtml.decoders.recalibration`: a temperature, one scale). On 100 records alone (40
-specimens, whose windows are not independent) the temperature of the main job's decoder
-ranged 0.65–1.07 between draws, and the test shard's ECE 3.1–7.1 %; on 400, 0.94 and 3.2 %."""
+(:mod:`wtml.decoders.recalibration`: a temperature, one scale and one 95 % width). On 100
+records alone (40 specimens, whose windows are not independent) the temperature of the main
+job's decoder ranged 0.65–1.07 between draws, and the test shard's ECE 3.1–7.1 %; on 400,
+0.94 and 3.2 %."""
 CHUNK_RECORDS = 60
 """The calibration records are simulated and run this many at a time: all 300 at once took
 the main job's texture slice to 2.2 GB."""

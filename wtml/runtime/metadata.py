@@ -25,6 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from wtml import tasks
 from wtml.devices import DeviceIdentity, physical_hash
 from wtml.files import FileError, inside, parse_json, read_json, regular_file, sha256
@@ -86,6 +88,9 @@ REFERENCE_KEYS = {"fluid": ("calibration",), "radial": ("reference",),
                   "onset": ("calibration",), "texture": ("calibration",)}
 """What each task's graphs need besides the measurement (the metadata's ``references``):
 ``wtml predict --calibration`` or ``--reference``."""
+WIDE = 1.96
+"""The 95 % interval's half-width in σ of a Gaussian error: an export's 95 % width where its
+metadata states none."""
 PLAIN = ("wtml_version", "task", "kind", "label", "scene_hash")
 """Metadata keys stored as plain strings; every other key holds JSON."""
 
@@ -154,11 +159,14 @@ class IntervalRecalibration:
     """One σ output's recalibration (:mod:`wtml.decoders.recalibration`): output ``sigma`` is
     the std of output ``value`` (of ln ``value`` where ``log_value``), scaled by
     ``scales[k]`` in the k-th range of output ``by``'s answer (``edges`` ascending, in
-    ``by``'s unit: range k is ``edges[k-1] <= by < edges[k]``, open at both ends). ``stored``
-    is how the net gave σ before: ``"std"`` (σ × scale), ``"log_std"`` (a log std: + ln
-    scale), ``"none"`` (no σ of its own: σ = scale). Fitted on ``n`` held-out answers in
-    domain (too few: scale 1), whose coverage of ±1σ and ±1.96σ was ``coverage_before``
-    (empty without a σ) and is ``coverage_after`` (empty without answers)."""
+    ``by``'s unit: range k is ``edges[k-1] <= by < edges[k]``, open at both ends), so that ±σ
+    is the 68 % interval; ``widths[k]`` is the 95 % interval's half-width in those σ (empty:
+    an export made before per-level widths, :data:`WIDE` in every range). ``stored`` is how
+    the net gave σ before: ``"std"`` (σ × scale), ``"log_std"`` (a log std: + ln scale),
+    ``"none"`` (no σ of its own: σ = scale). Fitted on ``n`` held-out answers in domain (too
+    few: scale 1, width :data:`WIDE`), whose coverage of the 68 % and 95 % intervals was
+    ``coverage_before`` (±1σ and ±1.96σ; empty without a σ) and is ``coverage_after``
+    (empty without answers)."""
 
     sigma: str
     value: str
@@ -167,6 +175,7 @@ class IntervalRecalibration:
     stored: str = one_of("std", "log_std", "none")
     edges: tuple[float, ...] = bounded(-1e300, 1e300, default=())
     scales: tuple[float, ...] = bounded(1e-30, 1e30, default=())
+    widths: tuple[float, ...] = bounded(1.0, 1e30, default=())
     n: int = bounded(0, 10**9, default=0)
     coverage_before: tuple[float, ...] = bounded(0.0, 1.0, default=())
     coverage_after: tuple[float, ...] = bounded(0.0, 1.0, default=())
@@ -175,12 +184,32 @@ class IntervalRecalibration:
         if len(self.scales) != len(self.edges) + 1:
             raise _fail(f"{path}.scales", f"must hold one scale per range, len(edges) + 1 = "
                         f"{len(self.edges) + 1}, got {len(self.scales)}")
+        if len(self.widths) not in (0, len(self.scales)):
+            raise _fail(f"{path}.widths", f"must hold one 95 % width per range, len(edges) + 1 "
+                        f"= {len(self.scales)}, or none, got {len(self.widths)}")
         if any(b <= a for a, b in zip(self.edges, self.edges[1:], strict=False)):
             raise _fail(f"{path}.edges", f"must ascend strictly, got {list(self.edges)}")
         for name in ("coverage_before", "coverage_after"):
             if len(getattr(self, name)) not in (0, 2):
-                raise _fail(f"{path}.{name}", f"must be [±1σ, ±1.96σ] shares or empty, got "
+                raise _fail(f"{path}.{name}", f"must be [68 %, 95 %] shares or empty, got "
                             f"{list(getattr(self, name))}")
+
+    def wide(self, by: np.ndarray) -> np.ndarray:
+        """The 95 % interval's half-width in σ for answers ``by`` (any shape, ``(n,)``) of
+        output ``by``, in that shape: its range's width, the range found as the graph finds it
+        (float32 comparisons; a NaN answer in the first range)."""
+        by = np.asarray(by, np.float32)
+        edges = np.asarray(self.edges, np.float32)
+        which = (by[..., None] >= edges).sum(-1)
+        return np.asarray(self.widths or (WIDE,) * len(self.scales), float)[which]
+
+    def half_width(self, sigma: np.ndarray, by: np.ndarray) -> np.ndarray:
+        """The 95 % interval's half-width ``(n,)`` in the σ output's own form and unit (a log
+        std where ``stored`` is ``"log_std"``) from that output ``sigma`` and output ``by``,
+        each ``(n,)``: ``wide·σ``, or ``log σ + ln wide``."""
+        w = self.wide(by)
+        sigma = np.asarray(sigma, float)
+        return sigma + np.log(w) if self.stored == "log_std" else sigma * w
 
 
 @dataclass(frozen=True)

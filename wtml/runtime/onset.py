@@ -75,7 +75,8 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
                     profile: RecordingProfile | None = None) -> list[dict]:
     """One row per contact (and one per record without any) for the decoder and the
     classical path: ``record``, ``method``, ``contact``, ``onset (s)``, ``detachment (s)``,
-    ``gap (m)``, ``sigma (m)``, ``in_domain``, ``domain_score``, ``flags``. ``calibration``:
+    ``gap (m)``, ``sigma (m)``, ``sigma_95 (m)`` (the 95 % half-width; NaN for the classical
+    path, which is not recalibrated), ``in_domain``, ``domain_score``, ``flags``. ``calibration``:
     the device's (:func:`read_onset_calibration`), which an export whose metadata names it
     needs (:class:`InputError` without it); ``profile``: how to read an instrument's recording
     (:mod:`wtml.runtime.instruments`)."""
@@ -102,6 +103,8 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
                 flags.append("gap physically impossible")
             base = {"record": r, "method": label, "gap (m)": float(pred["gap"][r]),
                     "sigma (m)": float(pred["sigma"][r]),
+                    "sigma_95 (m)": float(pred["sigma_95"][r]) if "sigma_95" in pred
+                    else float("nan"),
                     "in_domain": bool(pred["in_domain"][r]),
                     "domain_score": float(pred["domain_score"][r]), "flags": "; ".join(flags)}
             found = np.flatnonzero(np.isfinite(onset[r]))
@@ -126,8 +129,8 @@ def stream_record(stream, e: np.ndarray, i: np.ndarray, *calibration: np.ndarray
 
     Returns:
         ``contact``, ``detach_margin`` and ``touch``, each ``(n, n_frames)`` (the chunks'
-        frames side by side), and the running ``gap``, ``sigma``, ``in_domain``,
-        ``domain_score`` after the last chunk.
+        frames side by side), and the running ``gap``, ``sigma``, ``sigma_95``,
+        ``in_domain``, ``domain_score`` after the last chunk.
     """
     chunk = stream.meta.chunk_samples
     if e.shape[1] % chunk:
@@ -140,4 +143,5 @@ def stream_record(stream, e: np.ndarray, i: np.ndarray, *calibration: np.ndarray
         for key, parts in frames.items():
             parts.append(out[key])
     return {**{key: np.concatenate(parts, 1) for key, parts in frames.items()},
-            **{key: out[key] for key in ("gap", "sigma", "in_domain", "domain_score")}}
+            **{key: out[key] for key in ("gap", "sigma", "sigma_95", "in_domain",
+                                         "domain_score")}}

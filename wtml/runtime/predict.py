@@ -62,7 +62,9 @@ model's metadata; another grid is refused, never interpolated):
 Fluid models return eta (Pa*s) and rho (kg/m^3), the decoder also eta_log_sigma (the std of
 ln eta) and rho_sigma (kg/m^3); radial models distance (m from the tip) and sigma (m, the
 decoder's std). A decoder's stds are recalibrated on held-out data (the metadata's
-uncertainty) and NaN out of domain.
+uncertainty) so that +-sigma is its 68 % interval, each with the half-width of its 95 %
+interval beside it (<sigma>_95, same unit: 1.96 sigma for Gaussian errors, fitted per
+range as the metadata's widths), and NaN out of domain.
 Fluid and texture models also need the device's calibration (--calibration): .npz with
 frequency_hz (n_freq,) on the model's grid (texture: its metadata's calibration_hz) and t, the
 calibrated T (complex, (n_freq, 2, 2) for every measurement, or (n, n_freq, 2, 2) one per
@@ -72,7 +74,7 @@ Onset models take a recording instead: .npz with e (V) and i (A), each (n_sample
 ratio is one of whole numbers, else refused) and the device's calibration (--calibration:
 .npz with frequency_hz [the probe's], t, its calibrated T there, complex (1, 2, 2) or
 (n_records, 1, 2, 2), and hue0, its HUE(0) in m/V); they return one row per contact: onset and
-detachment (s), the wall's location gap (m) and sigma (m).
+detachment (s), the wall's location gap (m), sigma (m) and the decoder's sigma_95 (m).
 Texture models take recordings of any length from one window up (the same .npz as onset);
 a long one is cut into whole windows, run in batches.
 Recordings (onset, texture) may also be as instruments write them: LabVIEW .tdms, a
@@ -160,13 +162,19 @@ class OnnxModel:
         """What the graph needs besides the measurement, ``{name: description}``."""
         self.uncertainty = self.meta.uncertainty
         """How the graph's σ and probabilities were recalibrated (None: a classical path)."""
+        self.intervals = {f"{r.sigma}_95": r for r in
+                          (self.uncertainty.intervals if self.uncertainty else ())}
+        """The 95 % half-widths :meth:`run` adds after the graph's outputs, by name
+        (``<σ output>_95``, in that σ's unit and form)."""
+        self.units.update({k: self.units[r.sigma] for k, r in self.intervals.items()})
         self.name = f"{self.meta.label or self.meta.kind} ONNX"
         self._inputs = [i.name for i in self.session.get_inputs()]
 
     def run(self, *inputs: np.ndarray) -> dict[str, np.ndarray]:
         """The graph on float32 inputs (in the order of its metadata's ``inputs``, each
-        ``(n, ...)``): each output by name, ``in_domain`` (bool) and ``domain_score``. Rows
-        run in batches of about :data:`RUN_BYTES` of input."""
+        ``(n, ...)``): each output by name, each σ's 95 % half-width (:attr:`intervals`),
+        ``in_domain`` (bool) and ``domain_score``. Rows run in batches of about
+        :data:`RUN_BYTES` of input."""
         arrays = [np.asarray(x) for x in inputs]
         if len(arrays) != len(self._inputs):
             raise InputError(f"{self.name}: takes {self._inputs}, got {len(arrays)} inputs")
@@ -184,6 +192,8 @@ class OnnxModel:
         values = [p[0] if len(parts) == 1 else np.concatenate(p)
                   for p in zip(*parts, strict=True)]
         out = {k: v.astype(float) for k, v in zip(self.outputs, values, strict=False)}
+        for name, r in self.intervals.items():
+            out[name] = r.half_width(out[r.sigma], out[r.by])
         out["in_domain"] = values[-2].astype(bool)
         out["domain_score"] = values[-1].astype(float)
         return out
@@ -595,7 +605,7 @@ def predict_file(model_dir: str | Path, input_path: str | Path, *,
                 if not row["in_domain"]:
                     flags[k].append("outside the trained domain" if row["domain_score"] > 1
                                     else "decoder answer outside the trained range")
-        for key in model.outputs:
+        for key in (*model.outputs, *model.intervals):
             for k, v in enumerate(pred[key]):
                 rows[k][f"{key}_{label} ({model.units[key]})"] = float(v)
         for name, bad in impossible(model, pred).items():

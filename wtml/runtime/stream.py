@@ -46,6 +46,7 @@ class StreamEvent:
     latency_s: float
     gap_m: float = math.nan
     sigma_m: float = math.nan
+    sigma_95_m: float = math.nan
     in_domain: bool = True
 
     def line(self) -> str:
@@ -55,7 +56,7 @@ class StreamEvent:
                 f"decided_s={self.decided_s:.6f} latency_ms={1e3 * self.latency_s:.3f}")
         if e.kind == "detachment":
             text += (f" gap_m={self.gap_m:.6g} sigma_m={self.sigma_m:.3g} "
-                     f"in_domain={int(self.in_domain)}")
+                     f"sigma_95_m={self.sigma_95_m:.3g} in_domain={int(self.in_domain)}")
         return text
 
 
@@ -176,6 +177,7 @@ class Streamer:
                                    time.perf_counter() - arrived)
                 if event.kind == "detachment":
                     item.gap_m, item.sigma_m = float(out["gap"][0]), float(out["sigma"][0])
+                    item.sigma_95_m = float(out["sigma_95"][0]) if "sigma_95" in out else math.nan
                     item.in_domain = bool(out["in_domain"][0])
                 summary.events.append(item)
                 if emit is not None:

@@ -9,6 +9,8 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from torch import nn
 
 from wtml.bench.coverage import (
@@ -413,3 +415,24 @@ def test_the_coverage_table_scores_the_recalibrated_95_percent_interval_with_its
     assert raw["all"]["verdict"] == ["ok", "miss"]
     assert fitted["all"]["verdict"] == ["ok", "ok"]
     assert abs(fitted["all"]["cover"][1] - 0.95) < 0.01
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.one_of(st.floats(0.0, 1e300), st.sampled_from([0.0, np.inf])),
+                min_size=1, max_size=120),
+       st.floats(1e-320, 1e300))
+def test_any_held_out_errors_give_a_recalibration_the_metadata_accepts(z, sigma):
+    """Whatever the held-out errors (all exact, ties, 1e300, a σ so small that |err|/σ
+    overflows): a scale and a width inside the metadata's bounds, and the export's rule
+    builds; with at least MIN_PER_RANGE rows, through fit_scales too."""
+    z = np.asarray(z)
+    scale, width = level_widths(z)
+    assert 1e-30 <= scale <= 1e30 and 1.0 <= width <= MAX_WIDTH
+    rows = np.resize(np.where(np.isfinite(z), z, 1e300), 40)
+    with np.errstate(over="ignore"):  # an error beyond 1e308 is not finite: left out
+        err = rows * sigma
+    edges, scales, widths = fit_scales(err, np.full(40, sigma), rows, 1)
+    rule = build(md.IntervalRecalibration, {
+        "sigma": "s", "value": "v", "by": "v", "log_value": False, "stored": "std",
+        "edges": list(edges), "scales": list(scales), "widths": list(widths)})
+    assert np.all(np.isfinite(rule.wide(rows)))

@@ -68,7 +68,7 @@ def coverage(err: np.ndarray, sigma: np.ndarray, wide: float | np.ndarray = WIDE
 
 
 def conformal_quantile(z: np.ndarray, level: float) -> float:
-    """The split-conformal quantile of scores ``z`` ``(n,)`` (finite, n >= 1): the
+    """The split-conformal quantile of scores ``z`` ``(n,)`` (not NaN, n >= 1): the
     ⌈(n + 1)·level⌉-th smallest (the largest where that exceeds n), so that a fresh score
     exchangeable with them lies at or below it with probability >= ``level``."""
     z = np.sort(np.asarray(z, float))
@@ -77,13 +77,14 @@ def conformal_quantile(z: np.ndarray, level: float) -> float:
 
 def level_widths(z: np.ndarray) -> tuple[float, float]:
     """The scale on σ and the 95 % half-width in scaled σ from ``z = |err|/σ`` ``(n,)``
-    (finite, n >= 1): ``q68(z)`` and ``q95(z) / q68(z)`` (:func:`conformal_quantile`), so
+    (>= 0, inf allowed, n >= 1): ``q68(z)`` and ``q95(z) / q68(z)`` (:func:`conformal_quantile`), so
     that ``|err| <= scale·σ`` holds for 68.27 % of them and ``|err| <= width·scale·σ`` for
     95 % (the width rounded up by a float step, so that the product does not round below
-    q95). The width lies in [1, :data:`MAX_WIDTH`]: a q68 of 0 (errors that mostly vanish)
-    raises the scale to ``q95 / MAX_WIDTH`` (and :data:`TINY` where q95 is 0 too)."""
+    q95). Both stay what the metadata allows: the width in [1, :data:`MAX_WIDTH`], a q68 of 0
+    (errors that mostly vanish) raising the scale to ``q95 / MAX_WIDTH``; the scale in
+    [:data:`TINY`, 1 / TINY] (a σ that underflows makes ``z`` infinite)."""
     q68, q95 = (conformal_quantile(z, level) for level in NOMINAL)
-    scale = max(q68, q95 / MAX_WIDTH, TINY)
+    scale = float(np.clip(max(q68, q95 / MAX_WIDTH), TINY, 1 / TINY))
     return scale, float(np.clip(np.nextafter(q95 / scale, np.inf), 1.0, MAX_WIDTH))
 
 
@@ -111,7 +112,8 @@ def fit_scales(err: np.ndarray, sigma: np.ndarray, by: np.ndarray, n_ranges: int
     ok = np.isfinite(err) & np.isfinite(sigma) & np.isfinite(by) & (sigma > 0)
     if ok.sum() < MIN_PER_RANGE:
         return np.zeros(0), np.ones(1), np.full(1, WIDE)
-    z, by = np.abs(err[ok]) / sigma[ok], by[ok]
+    with np.errstate(over="ignore"):
+        z, by = np.abs(err[ok]) / sigma[ok], by[ok]
     k = int(max(1, min(n_ranges, len(z) // MIN_PER_RANGE)))
     edges = np.unique(np.quantile(by, np.arange(1, k) / k)) if k > 1 else np.zeros(0)
     which = np.searchsorted(edges, by, side="right")

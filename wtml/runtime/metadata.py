@@ -198,8 +198,9 @@ class IntervalRecalibration:
         """The 95 % interval's half-width in σ for answers ``by`` (any shape, ``(n,)``) of
         output ``by``, in that shape: its range's width, the range found as the graph finds it
         (float32 comparisons; a NaN answer in the first range)."""
-        by = np.asarray(by, np.float32)
-        edges = np.asarray(self.edges, np.float32)
+        with np.errstate(over="ignore"):  # beyond float32: ±inf, as in the graph
+            by = np.asarray(by, np.float32)
+            edges = np.asarray(self.edges, np.float32)
         which = (by[..., None] >= edges).sum(-1)
         return np.asarray(self.widths or (WIDE,) * len(self.scales), float)[which]
 

@@ -95,6 +95,10 @@ class FakeStream:
                 "in_domain": np.array([True]), "domain_score": np.array([0.0]),
                 "next_state": np.array([[e[0, -self.meta.chunk_samples:].mean(), n]])}
 
+    def half_widths(self, out: dict) -> dict:
+        """The 95 % half-width: 1.5 × the running gap (a stand-in's, not σ's)."""
+        return {"sigma_95": 1.5 * out["gap"]}
+
 
 def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeypatch):
     """``wtml stream``'s loop (run_stream) on a stand-in graph, read in chunks of one, three
@@ -126,4 +130,8 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
         ends = [x.event.time for x in got.events if x.event.kind == "detachment"]
         np.testing.assert_allclose(onsets, want[0], atol=1e-12)
         np.testing.assert_allclose(ends, want[1], atol=1e-12)
+        # a detachment carries the running answers of the chunk that decided it
+        for x in got.events:
+            if x.event.kind == "detachment":
+                assert x.sigma_95_m == 1.5 * x.gap_m and "sigma_95_m=" in x.line()
         assert got.chunks == n_frames and abs(got.signal_s - n_frames * chunk / 1e3) < 1e-12

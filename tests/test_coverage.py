@@ -340,6 +340,7 @@ def test_a_fluid_export_carries_its_intervals_and_an_old_one_is_refused(flow):
         np.testing.assert_allclose(got[name][inside], w.numpy()[inside], rtol=2e-4)
         assert np.isnan(got[name][~inside]).all() or name in ("eta", "rho")
     # the 95 % half-widths beside them, each by the range of η (not of its own value)
+    got |= decoder.half_widths(got)
     for name, r in decoder.intervals.items():
         np.testing.assert_array_equal(got[name], got[r.sigma] * r.wide(got["eta"]))
     assert set(decoder.intervals) == {f"{s}_95" for s in md.FLUID_SIGMAS}

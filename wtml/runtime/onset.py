@@ -92,6 +92,7 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
     rows = []
     for label, model in (("decoder", decoder), ("classical", classical)):
         pred = model.run(x[0], x[1], *cal)
+        pred |= model.half_widths(pred)
         onset, detach = contacts_from(pred, Timing.of(model.meta))
         odd = impossible(model, pred)["gap"]
         for r in range(x.shape[1]):
@@ -142,6 +143,7 @@ def stream_record(stream, e: np.ndarray, i: np.ndarray, *calibration: np.ndarray
         state = out["next_state"].astype(np.float32)
         for key, parts in frames.items():
             parts.append(out[key])
+    out |= stream.half_widths(out)
     return {**{key: np.concatenate(parts, 1) for key, parts in frames.items()},
             **{key: out[key] for key in ("gap", "sigma", "sigma_95", "in_domain",
                                          "domain_score")}}

@@ -164,7 +164,7 @@ class OnnxModel:
         """How the graph's σ and probabilities were recalibrated (None: a classical path)."""
         self.intervals = {f"{r.sigma}_95": r for r in
                           (self.uncertainty.intervals if self.uncertainty else ())}
-        """The 95 % half-widths :meth:`run` adds after the graph's outputs, by name
+        """The 95 % half-widths :meth:`half_widths` makes of the graph's outputs, by name
         (``<σ output>_95``, in that σ's unit and form)."""
         self.units.update({k: self.units[r.sigma] for k, r in self.intervals.items()})
         self.name = f"{self.meta.label or self.meta.kind} ONNX"
@@ -172,9 +172,9 @@ class OnnxModel:
 
     def run(self, *inputs: np.ndarray) -> dict[str, np.ndarray]:
         """The graph on float32 inputs (in the order of its metadata's ``inputs``, each
-        ``(n, ...)``): each output by name, each σ's 95 % half-width (:attr:`intervals`),
-        ``in_domain`` (bool) and ``domain_score``. Rows run in batches of about
-        :data:`RUN_BYTES` of input."""
+        ``(n, ...)``): each output by name, ``in_domain`` (bool) and ``domain_score``. Rows
+        run in batches of about :data:`RUN_BYTES` of input. The 95 % half-widths are made on
+        request (:meth:`half_widths`): at batch 1 they would add a third to a fluid call."""
         arrays = [np.asarray(x) for x in inputs]
         if len(arrays) != len(self._inputs):
             raise InputError(f"{self.name}: takes {self._inputs}, got {len(arrays)} inputs")
@@ -192,11 +192,16 @@ class OnnxModel:
         values = [p[0] if len(parts) == 1 else np.concatenate(p)
                   for p in zip(*parts, strict=True)]
         out = {k: v.astype(float) for k, v in zip(self.outputs, values, strict=False)}
-        for name, r in self.intervals.items():
-            out[name] = r.half_width(out[r.sigma], out[r.by])
         out["in_domain"] = values[-2].astype(bool)
         out["domain_score"] = values[-1].astype(float)
         return out
+
+    def half_widths(self, out: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The 95 % half-width beside each recalibrated σ of :meth:`run`'s answers ``out``,
+        ``{"<σ output>_95": (n,)}`` in that σ's unit and form (the metadata's widths,
+        :meth:`~wtml.runtime.metadata.IntervalRecalibration.half_width`); empty for a graph
+        without recalibration (a classical path)."""
+        return {name: r.half_width(out[r.sigma], out[r.by]) for name, r in self.intervals.items()}
 
     def predict(self, ze: np.ndarray, reference: np.ndarray | None = None
                 ) -> dict[str, np.ndarray]:
@@ -598,6 +603,7 @@ def predict_file(model_dir: str | Path, input_path: str | Path, *,
     flags: list[list[str]] = [[] for _ in rows]
     for label, model in (("decoder", decoder), ("classical", classical)):
         pred = model.predict(ze, extra)
+        pred |= model.half_widths(pred)
         if label == "decoder":
             for k, row in enumerate(rows):
                 row["in_domain"] = bool(pred["in_domain"][k])

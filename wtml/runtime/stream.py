@@ -177,7 +177,8 @@ class Streamer:
                                    time.perf_counter() - arrived)
                 if event.kind == "detachment":
                     item.gap_m, item.sigma_m = float(out["gap"][0]), float(out["sigma"][0])
-                    item.sigma_95_m = float(out["sigma_95"][0]) if "sigma_95" in out else math.nan
+                    wide = self.model.half_widths(out)
+                    item.sigma_95_m = float(wide["sigma_95"][0]) if wide else math.nan
                     item.in_domain = bool(out["in_domain"][0])
                 summary.events.append(item)
                 if emit is not None:

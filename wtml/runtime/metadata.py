@@ -220,8 +220,8 @@ class IntervalRecalibration:
     def half_width(self, sigma: np.ndarray, by: np.ndarray) -> np.ndarray:
         """The 95 % interval's half-width ``(n,)`` in the σ output's own form and unit (a log
         std where ``stored`` is ``"log_std"``) from that output ``sigma`` and output ``by``,
-        each ``(n,)``: ``wide·σ``, or ``log σ + ln wide``. Cheap at batch 1 (a few µs: the
-        device runtime calls it on every answer)."""
+        each ``(n,)``: ``wide·σ``, or ``log σ + ln wide``. A few µs per call at batch 1
+        (``wtml.runtime.predict.OnnxModel.half_widths`` calls it where answers are printed)."""
         which = self._range(by)
         if self.stored == "log_std":
             return np.asarray(sigma, float) + self._lookup[2][which]

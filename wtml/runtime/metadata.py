@@ -206,10 +206,8 @@ class IntervalRecalibration:
     def _range(self, by: np.ndarray) -> np.ndarray:
         """Each answer's range, found as the graph finds it: ``by >= edges`` counted in
         float32 (a NaN answer compares false: the first range)."""
-        by = np.asarray(by)
-        if by.dtype != np.float32:
-            with np.errstate(over="ignore"):  # beyond float32: ±inf, as in the graph
-                by = by.astype(np.float32)
+        with np.errstate(over="ignore"):  # beyond float32: ±inf, as in the graph
+            by = np.asarray(by, np.float32)
         return (by[..., None] >= self._lookup[0]).sum(-1)
 
     def wide(self, by: np.ndarray) -> np.ndarray:

@@ -120,9 +120,14 @@ class MiniRocketPeer:
                 ) -> dict[str, np.ndarray]:
         """The grade of each window; ``t`` (the device's calibrated T) is not used: MiniRocket
         reads the raw samples, so it cannot adapt to the device."""
+        return self.predict_stacked(self._stack(e, i))
+
+    def predict_stacked(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`predict` on windows stacked as :meth:`fit_stacked` takes them,
+        ``(n, 2, window)`` float32, which are divided in place by the training std
+        (consumed)."""
         if self.model is None:
             raise RuntimeError("MiniRocketPeer.predict before fit")
-        x = self._stack(e, i)
         x /= self.scale
         grade = self.model.predict(x).astype(int)
         return {"grade": grade, "grain": np.full(len(grade), np.nan)}

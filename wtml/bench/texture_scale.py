@@ -29,12 +29,13 @@ window of the same records. Optionally (``minirocket_sizes``, none by default: i
 more than the rest on CPU), MiniRocket
 (:class:`~wtml.baselines.texture_peers.MiniRocketPeer`, as shipped: aeon's
 MiniRocketClassifier, :data:`MINIROCKET_KERNELS` kernels as ``wtml bench texture`` fits it)
-trains on every whole window of the same records at those sizes. aeon's classifier transforms
-all its training windows at once (it takes no precomputed features), so its peak memory grows
-with the size: the windows, their float32 stack and aeon's float32 copy (1.05 GB each per
-10240 windows of 2 × 12800 samples), the features (0.4 GB per 10240 windows at 10000
-kernels) and the ridge's SVD once the windows outnumber the features (measured on one CPU
-core: 8.1 GB peak RSS and a 1490 s fit at 10240 windows, 284 s at 5120).
+trains on every whole window of the same records at those sizes, in the peer's two steps: the
+windows, read straight into MiniRocket's float32 stack (1.05 GB per 10240 windows of 2 × 12800
+samples), are transformed a few at a time into float64 features (0.82 GB per 10240 windows at
+10000 kernels) and freed; then the scaler and the ridge, whose cross-validation holds about
+four times the features (scikit-learn's ``cov`` mode once the windows outnumber the features:
+their centred copy and two products of their size). So its peak memory grows with the size:
+about 5 × 0.82 GB per 10240 windows.
 
 Scores: every whole window (the recipes' ``window_s``) of every held-out record: accuracy,
 its 95 % interval (bootstrap over the held-out specimens), P320/P280 confusion
@@ -499,26 +500,27 @@ class _Study:
         return test
 
     def _windows(self, split: str, shards: int) -> tuple[np.ndarray, ...]:
-        """Every whole window of the first ``shards`` shards of ``split``: e, i ``(m, n)``
-        float32 (filled shard by shard: one copy), grade and specimen ``(m,)``, in
-        :func:`wtml.runtime.texture.windows`'s order (the peer's features')."""
+        """Every whole window of the first ``shards`` shards of ``split``, stacked as
+        MiniRocket reads them: ``(m, 2, n)`` float32, e then i (filled shard by shard: one
+        copy), and grade and specimen ``(m,)``, in :func:`wtml.runtime.texture.windows`'s
+        order (the peer's features')."""
         folder = Path(self.sets[split]["folder"])
-        e = i = None
+        x = None
         grade, specimen = [], []
         at = 0
         for k in range(shards):
             data = read_npz(folder / shard_name(k), what="dataset shard",
                             max_bytes=SHARD_MAX_BYTES)
-            (we, wi), owner = windows(np.stack([data["e"], data["i"]]), self.n)
-            if e is None:
-                e, i = (np.empty((shards * len(owner), self.n), np.float32) for _ in "ei")
-            e[at:at + len(owner)], i[at:at + len(owner)] = we, wi
+            cut, owner = windows(np.stack([data["e"], data["i"]]), self.n)
+            if x is None:
+                x = np.empty((shards * len(owner), 2, self.n), np.float32)
+            x[at:at + len(owner)] = cut.transpose(1, 0, 2)
             at += len(owner)
             grade.append(data["grade"][owner])
             specimen.append(data["specimen"][owner])
-        if at != len(e):
+        if at != len(x):
             raise RuntimeError(f"{folder}: shards of unequal windows")
-        return e, i, np.concatenate(grade), np.concatenate(specimen)
+        return x, np.concatenate(grade), np.concatenate(specimen)
 
     def left(self) -> float:
         return math.inf if self.deadline is None else self.deadline - time.perf_counter()
@@ -611,21 +613,26 @@ class _Study:
         why = self.skip(estimate)
         if why:
             return row | {"status": why}, None
-        e, i, grade, _ = self._windows("train", shards)
+        x, grade, _ = self._windows("train", shards)
         trained = len(grade)
         _progress(f"{MINIROCKET}, {size} specimens: fitting {self.kernels} kernels on "
                   f"{trained} windows")
         t0 = time.perf_counter()
-        peer = MiniRocketPeer(self.kernels).fit(e, i, grade)
+        peer = MiniRocketPeer(self.kernels)
+        features = peer.fit_transform_stacked(x)
+        del x  # the windows go before the ridge, which holds ~4× the features
+        _progress(f"{MINIROCKET}, {size} specimens: transformed in "
+                  f"{time.perf_counter() - t0:.0f} s; the ridge")
+        peer.fit_features(features, grade)
         fit_s = time.perf_counter() - t0
-        del e, i
-        e, i, grade, specimen = self._windows("test", self.plan.test_shards)
+        del features
+        x, grade, specimen = self._windows("test", self.plan.test_shards)
         if not (np.array_equal(grade, self.test["grade"])
                 and np.array_equal(specimen, self.test["specimen"])):
             raise RuntimeError(f"{self.sets['test']['folder']}: MiniRocket's windows are not "
                                "the decoders'")
         t0 = time.perf_counter()
-        pred = peer.predict(e, i)["grade"]
+        pred = peer.predict_stacked(x)["grade"]
         predict_s = time.perf_counter() - t0
         self.minirocket_s = (fit_s / trained, predict_s)
         row |= {"train_windows": trained, "fit_s": fit_s,

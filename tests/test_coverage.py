@@ -15,6 +15,7 @@ from torch import nn
 
 from wtml.bench.coverage import (
     by_range,
+    chance_misses,
     coverage_cell,
     ece_floor,
     hits,
@@ -416,6 +417,61 @@ def test_the_coverage_table_scores_the_recalibrated_95_percent_interval_with_its
     assert raw["all"]["verdict"] == ["ok", "miss"]
     assert fitted["all"]["verdict"] == ["ok", "ok"]
     assert abs(fitted["all"]["cover"][1] - 0.95) < 0.01
+
+
+def _miss_chance(m: int, level: int) -> float:
+    """P(✗) of one cell of ``m`` independent answers of an exact interval at ``level``: the
+    binomial law of its hits, each count judged by :func:`coverage_cell`."""
+    from scipy.stats import binom
+
+    judged = [coverage_cell(np.repeat((np.arange(m) < k).astype(float)[:, None], 2, 1)
+                            )["verdict"][level] == "miss" for k in range(m + 1)]
+    return float(binom.pmf(np.arange(m + 1), m, NOMINAL[level])[judged].sum())
+
+
+def test_an_exact_intervals_misses_by_chance_are_the_binomial_laws(rng):
+    """chance_misses on five ranges of 150 answers: its mean ✗ count over 3000 draws is the
+    sum of each cell's binomial chance of a ✗ (about 5 % per cell of ~150 answers at either
+    level, nearly none for the 750 together), within 4 standard errors; answers without an
+    interval (NaN) stay without one, so 15 answered of 750 (below MIN_VERDICT in every cell)
+    earn none."""
+    truth = rng.uniform(0, 1, 750)
+    edges = np.linspace(0, 1, 6)
+    inner = np.searchsorted(edges[1:-1], truth, side="right")
+    sizes = [*np.bincount(inner, minlength=5), 750]
+    expected = sum(_miss_chance(int(m), level) for m in sizes for level in (0, 1))
+    drawn = chance_misses(np.zeros((750, 2)), truth, edges, draws=3000, seed=1)
+    assert drawn.shape == (3000,) and drawn.min() >= 0 and drawn.max() <= 12
+    assert 0.4 < expected < 0.8
+    assert abs(drawn.mean() - expected) < 4 * drawn.std() / np.sqrt(3000)
+    covered = np.full((750, 2), np.nan)
+    covered[:15] = 1.0
+    assert not chance_misses(covered, truth, edges, draws=200).any()
+
+
+def test_the_coverage_table_counts_its_misses_against_chance(rng):
+    """A σ too small by a third misses beyond what an exact interval earns by chance in the
+    table's count (none of the draws reach it), the honest σ of the same answers does not;
+    the rows carry their ✗ and chance's median and 95th percentile."""
+    from wtml.bench.coverage import interval_table
+
+    n = 4000
+    truth, sigma = rng.uniform(0, 1, n), np.full(n, 0.5)
+    row = {"name": "gaussian", "kind": "test shard", "truth": truth,
+           "err": rng.normal(0, 0.5, n), "groups": None, "sigma": sigma,
+           "wide": np.full(n, 1.96), "raw": sigma * 2 / 3, "flagged": 0.0}
+    rule = build(md.IntervalRecalibration, {"sigma": "sigma", "value": "distance",
+                                            "by": "distance", "log_value": False,
+                                            "stored": "std", "scales": [1.0],
+                                            "widths": [1.96]})
+    lines, rows = interval_table("toy", rule, [row])
+    raw, fitted = rows
+    assert raw["misses"] == 12 and raw["chance_misses"][1] <= 2
+    assert fitted["misses"] <= fitted["chance_misses"][1] <= 2
+    table = [line.strip("| ").split(" | ") for line in lines[-2:]]
+    assert [t[:4] for t in table] == [["raw", "trained", "12", "12"],
+                                      ["recalibrated", "trained", "12", str(fitted["misses"])]]
+    assert table[0][-1] == "0.0 %" and float(table[1][-1].rstrip(" %")) > 5
 
 
 @settings(max_examples=300, deadline=None)

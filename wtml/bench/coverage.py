@@ -20,7 +20,9 @@ interval (Wilson) leaves out the nominal rate too, on at least :data:`MIN_VERDIC
 (``✗``); more than :data:`TOLERANCE` off on too few answers to tell is marked ``?``. Where
 answers come in groups that share their errors (texture: the windows of one specimen), the
 interval counts the answers as many as they are worth (:func:`effective_count`), not one
-each.
+each. A cell's verdict errs about one time in twenty, so each table ends with its ✗ count on
+the trained and on the held-out physics beside what an exact interval earns by chance on the
+same cells (:func:`chance_misses`): more than its 95th percentile is more than chance.
 
 For the texture classifier: the expected calibration error (15 equal-width confidence bins)
 before and after its temperature, beside the ECE that a perfectly calibrated classifier shows
@@ -67,6 +69,11 @@ DISPLAY = {"distance": (1e6, "µm"), "gap": (1e6, "µm"), "grain": (1e6, "µm"),
 """How each value's ranges are written: a factor and a unit."""
 BATCH = 64
 """Rows per call of the checkpoint's graph (texture windows are 12800 samples each)."""
+CHANCE_DRAWS = 200
+"""Draws of an exact interval's answers behind each table's ✗ count by chance
+(:func:`chance_misses`)."""
+TRAINED_KINDS = ("test shard", "in family")
+"""Rows of the physics the decoder was trained on; the others hold some out."""
 
 
 @dataclass(frozen=True)
@@ -146,6 +153,35 @@ def by_range(covered: np.ndarray, truth: np.ndarray, edges: np.ndarray,
     cells = [coverage_cell(covered[inner == k], None if groups is None else groups[inner == k])
              for k in range(len(edges) - 1)]
     return cells + [coverage_cell(covered, groups)]
+
+
+def misses(cells: list[dict]) -> int:
+    """The ✗ verdicts over ``cells`` (:func:`coverage_cell`'s), both levels counted."""
+    return sum(v == "miss" for c in cells for v in c["verdict"])
+
+
+def chance_misses(covered: np.ndarray, truth: np.ndarray, edges: np.ndarray,
+                  groups: np.ndarray | None = None, draws: int = CHANCE_DRAWS,
+                  seed: int = 0) -> np.ndarray:
+    """How many ✗ an exact interval earns by chance on the cells of one row: its answers
+    drawn ``draws`` times, each covered by the 68 % interval with probability 0.6827 and by
+    the 95 % one (which holds it) with 0.95, independently, on the same answers as
+    ``covered`` ``(n, 2)`` (:func:`hits`; rows of NaN stay without one), in the same ranges
+    of ``truth`` ``(n,)`` between ``edges`` with the same ``groups``, judged as
+    :func:`by_range` judges them. Returns the ✗ count of each draw ``(draws,)`` (both levels,
+    every range and the row's whole: ``2 × (len(edges))`` verdicts). Each cell errs about
+    one time in twenty (the binomial interval's 5 %, less where 3 points are wider than it),
+    so a table of many cells shows some ✗ even for an exact interval; for groups this is
+    the count of independent answers (answers of one group that fail together earn more)."""
+    rng = np.random.default_rng(seed)
+    answered = np.isfinite(covered).all(1)
+    out = np.empty(draws, int)
+    for d in range(draws):
+        u = rng.random(len(covered))
+        drawn = np.stack([u < NOMINAL[0], u < NOMINAL[1]], 1).astype(float)
+        drawn[~answered] = np.nan
+        out[d] = misses(by_range(drawn, truth, edges, groups))
+    return out
 
 
 def ece_floor(confidence: np.ndarray, draws: int = 400, seed: int = 0) -> tuple[float, float]:
@@ -392,7 +428,7 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
     lines = [f"### {task}: {what} (σ output `{r.sigma}`)", "",
              "| records | kind | σ | n | flagged | all | " + " | ".join(heads) + " |",
              "|---" * (6 + len(heads)) + "|"]
-    out = []
+    out, tally = [], {}
     for row in [*rows, *extra]:
         answers = ([(row["label"], row["hits"])] if "hits" in row else
                    [(label, hits(row["err"], sigma, wide)) for label, sigma, wide in
@@ -400,14 +436,30 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
                      ("recalibrated", row["sigma"], row["wide"])) if sigma is not None])
         for label, covered in answers:
             groups = row.get("groups")
-            cells = by_range(covered, np.asarray(row["truth"], float), edges,
-                             None if groups is None else np.asarray(groups))
+            groups = None if groups is None else np.asarray(groups)
+            row_truth = np.asarray(row["truth"], float)
+            cells = by_range(covered, row_truth, edges, groups)
             flagged = row.get("flagged")
             lines.append(f"| {row['name']} | {row['kind']} | {label} | {cells[-1]['n']} | "
                          + ("–" if flagged is None else f"{100 * flagged:.1f} %") + " | "
                          + " | ".join(_cell(c) for c in [cells[-1], *cells[:-1]]) + " |")
+            chance = chance_misses(covered, row_truth, edges, groups, seed=len(out))
             out.append({"name": row["name"], "kind": row["kind"], "sigma": label,
-                        "flagged": flagged, "all": cells[-1], "ranges": cells[:-1]})
+                        "flagged": flagged, "all": cells[-1], "ranges": cells[:-1],
+                        "misses": misses(cells),
+                        "chance_misses": [float(np.median(chance)),
+                                          float(np.quantile(chance, 0.95))]})
+            physics = "trained" if row["kind"] in TRAINED_KINDS else "held out"
+            seen, count, drawn = tally.get((label, physics), (0, 0, 0))
+            tally[label, physics] = (seen + misses(cells), count + 2 * len(cells),
+                                     drawn + chance)
+    lines += ["", f"✗ against chance: an exact interval's answers drawn {CHANCE_DRAWS} times "
+              "on the same cells and judged alike (`wtml.bench.coverage.chance_misses`).", "",
+              "| σ | physics | verdicts | ✗ | an exact interval's ✗: median | 95th pct | "
+              "draws with as many or more |", "|---" * 7 + "|"]
+    lines += [f"| {label} | {physics} | {count} | {seen} | {np.median(drawn):.0f} | "
+              f"{np.quantile(drawn, 0.95):.0f} | {100 * np.mean(drawn >= seen):.1f} % |"
+              for (label, physics), (seen, count, drawn) in tally.items()]
     return lines, out
 
 

@@ -97,20 +97,30 @@ def test_minirocket_separates_two_textures_of_different_roughness():
     assert np.all(np.isnan(out["grain"]))
 
 
-def test_minirocket_fit_stacked_is_fit_without_the_copy():
+def test_minirocket_fit_stacked_is_fit_without_the_copy(monkeypatch):
     """The bench's path (windows stacked once in float32, scaled in place) fits the same peer
-    as :meth:`MiniRocketPeer.fit` on e and i, and refuses float64 (it would copy after all)."""
+    as :meth:`MiniRocketPeer.fit` on e and i, and refuses float64 (it would copy after all);
+    its scale is numpy's std of each channel though summed 5 windows at a time; stacked
+    windows predict as e and i do."""
+    from wtml.baselines import texture_peers
+
+    monkeypatch.setattr(texture_peers, "TRANSFORM_WINDOWS", 5)
     rng = np.random.default_rng(1)
     n, length = 24, 256
     grade = np.arange(n) % 2
-    e = rng.standard_normal((n, length))
+    e = 3.0 + rng.standard_normal((n, length))
     i = 1e-6 * rng.standard_normal((n, length)) * np.where(grade[:, None] == 1, 3.0, 1.0)
     x = np.stack([e, i], 1).astype(np.float32)
+    np.testing.assert_allclose(MiniRocketPeer._channel_std(x).ravel(),
+                               x.std(axis=(0, 2), dtype=np.float64), rtol=1e-6)
     stacked = MiniRocketPeer(n_kernels=200).fit_stacked(x, grade)
     plain = MiniRocketPeer(n_kernels=200).fit(e, i, grade)
     np.testing.assert_array_equal(stacked.scale, plain.scale)
     np.testing.assert_allclose(x.std(axis=(0, 2)), 1.0, rtol=1e-5)  # consumed: scaled in place
     np.testing.assert_array_equal(stacked.predict(e, i)["grade"], plain.predict(e, i)["grade"])
+    np.testing.assert_array_equal(
+        stacked.predict_stacked(np.stack([e, i], 1).astype(np.float32))["grade"],
+        stacked.predict(e, i)["grade"])
     with pytest.raises(TypeError, match="float32"):
         MiniRocketPeer(n_kernels=200).fit_stacked(x.astype(np.float64), grade)
 

@@ -451,8 +451,9 @@ def test_an_exact_intervals_misses_by_chance_are_the_binomial_laws(rng):
 
 def test_the_coverage_table_counts_its_misses_against_chance(rng):
     """A σ too small by a third misses beyond what an exact interval earns by chance in the
-    table's count (none of the draws reach it), the honest σ of the same answers does not;
-    the rows carry their ✗ and chance's median and 95th percentile."""
+    table's count (none of the draws reach it) and its row is named beyond its own chance;
+    the honest σ of the same answers does neither; the rows carry their ✗ and chance's
+    median and 95th percentile."""
     from wtml.bench.coverage import interval_table
 
     n = 4000
@@ -471,7 +472,8 @@ def test_the_coverage_table_counts_its_misses_against_chance(rng):
     table = [line.strip("| ").split(" | ") for line in lines[-2:]]
     assert [t[:4] for t in table] == [["raw", "trained", "12", "12"],
                                       ["recalibrated", "trained", "12", str(fitted["misses"])]]
-    assert table[0][-1] == "0.0 %" and float(table[1][-1].rstrip(" %")) > 5
+    assert table[0][-2] == "0.0 %" and float(table[1][-2].rstrip(" %")) > 5
+    assert [t[-1] for t in table] == ["gaussian (12)", "none"]
 
 
 @settings(max_examples=300, deadline=None)

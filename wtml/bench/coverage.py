@@ -450,16 +450,20 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
                         "chance_misses": [float(np.median(chance)),
                                           float(np.quantile(chance, 0.95))]})
             physics = "trained" if row["kind"] in TRAINED_KINDS else "held out"
-            seen, count, drawn = tally.get((label, physics), (0, 0, 0))
+            seen, count, drawn, beyond = tally.get((label, physics), (0, 0, 0, []))
+            if misses(cells) > np.quantile(chance, 0.95):
+                beyond = [*beyond, f"{row['name']} ({misses(cells)})"]
             tally[label, physics] = (seen + misses(cells), count + 2 * len(cells),
-                                     drawn + chance)
+                                     drawn + chance, beyond)
     lines += ["", f"✗ against chance: an exact interval's answers drawn {CHANCE_DRAWS} times "
-              "on the same cells and judged alike (`wtml.bench.coverage.chance_misses`).", "",
+              "on the same cells and judged alike (`wtml.bench.coverage.chance_misses`); "
+              "rows beyond: those whose own ✗ exceed their chance's 95th percentile.", "",
               "| σ | physics | verdicts | ✗ | an exact interval's ✗: median | 95th pct | "
-              "draws with as many or more |", "|---" * 7 + "|"]
+              "draws with as many or more | rows beyond |", "|---" * 8 + "|"]
     lines += [f"| {label} | {physics} | {count} | {seen} | {np.median(drawn):.0f} | "
-              f"{np.quantile(drawn, 0.95):.0f} | {100 * np.mean(drawn >= seen):.1f} % |"
-              for (label, physics), (seen, count, drawn) in tally.items()]
+              f"{np.quantile(drawn, 0.95):.0f} | {100 * np.mean(drawn >= seen):.1f} % | "
+              f"{'; '.join(beyond) or 'none'} |"
+              for (label, physics), (seen, count, drawn, beyond) in tally.items()]
     return lines, out
 
 

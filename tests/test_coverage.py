@@ -18,6 +18,7 @@ from wtml.bench.coverage import (
     chance_misses,
     coverage_cell,
     ece_floor,
+    exact_hits,
     hits,
     wilson,
 )
@@ -432,9 +433,10 @@ def _miss_chance(m: int, level: int) -> float:
 def test_an_exact_intervals_misses_by_chance_are_the_binomial_laws(rng):
     """chance_misses on five ranges of 150 answers: its mean ✗ count over 3000 draws is the
     sum of each cell's binomial chance of a ✗ (about 5 % per cell of ~150 answers at either
-    level, nearly none for the 750 together), within 4 standard errors; answers without an
-    interval (NaN) stay without one, so 15 answered of 750 (below MIN_VERDICT in every cell)
-    earn none."""
+    level; for the 750 together 5 % at 68 %, nearly none at 95 %), within 4 standard errors;
+    answers without an interval (NaN) stay without one, so 15 answered of 750 (below
+    MIN_VERDICT in every cell) earn none; answers in 4 groups are worth 4 (no ✗ ever), where
+    the same answers alone earn some."""
     truth = rng.uniform(0, 1, 750)
     edges = np.linspace(0, 1, 6)
     inner = np.searchsorted(edges[1:-1], truth, side="right")
@@ -447,6 +449,22 @@ def test_an_exact_intervals_misses_by_chance_are_the_binomial_laws(rng):
     covered = np.full((750, 2), np.nan)
     covered[:15] = 1.0
     assert not chance_misses(covered, truth, edges, draws=200).any()
+    one = np.array([0.0, 1.0])
+    groups = np.repeat(np.arange(4), 50)
+    assert not chance_misses(np.zeros((200, 2)), truth[:200], one, groups, draws=300).any()
+    assert chance_misses(np.zeros((200, 2)), truth[:200], one, draws=300).mean() > 0.1
+
+
+def test_an_exact_intervals_hits_are_nested_at_their_nominal_rates(rng):
+    """exact_hits: the 95 % interval holds every answer the 68 % one does, each level at its
+    nominal rate (200000 answers: within 0.4 points), rows without an answer NaN at both."""
+    answered = np.ones(200_000, bool)
+    answered[::10] = False
+    drawn = exact_hits(answered, rng)
+    assert np.isnan(drawn[~answered]).all() and np.isfinite(drawn[answered]).all()
+    kept = drawn[answered]
+    assert np.all(kept[:, 0] <= kept[:, 1])
+    np.testing.assert_allclose(kept.mean(0), NOMINAL, atol=0.004)
 
 
 def test_the_coverage_table_counts_its_misses_against_chance(rng):
@@ -472,7 +490,7 @@ def test_the_coverage_table_counts_its_misses_against_chance(rng):
     table = [line.strip("| ").split(" | ") for line in lines[-2:]]
     assert [t[:4] for t in table] == [["raw", "trained", "12", "12"],
                                       ["recalibrated", "trained", "12", str(fitted["misses"])]]
-    assert table[0][-2] == "0.0 %" and float(table[1][-2].rstrip(" %")) > 5
+    assert table[0][-2] == "< 0.1 %" and float(table[1][-2].rstrip(" %")) > 5
     assert [t[-1] for t in table] == ["gaussian (12)", "none"]
 
 

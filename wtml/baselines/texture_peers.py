@@ -138,9 +138,15 @@ class MiniRocketPeer:
     def predict_stacked(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """:meth:`predict` on windows stacked as :meth:`fit_stacked` takes them,
         ``(n, 2, window)`` float32, which are divided in place by the training std
-        (consumed)."""
+        (consumed).
+
+        Raises:
+            TypeError: ``x`` is not float32 (aeon would copy it)."""
         if self.model is None:
             raise RuntimeError("MiniRocketPeer.predict before fit")
+        if x.dtype != np.float32:
+            raise TypeError(f"MiniRocketPeer: the stacked windows x must be float32, got "
+                            f"{x.dtype}")
         x /= self.scale
         grade = self.model.predict(x).astype(int)
         return {"grade": grade, "grain": np.full(len(grade), np.nan)}

@@ -31,11 +31,11 @@ more than the rest on CPU), MiniRocket
 MiniRocketClassifier, :data:`MINIROCKET_KERNELS` kernels as ``wtml bench texture`` fits it)
 trains on every whole window of the same records at those sizes, in the peer's two steps: the
 windows, read straight into MiniRocket's float32 stack (1.05 GB per 10240 windows of 2 × 12800
-samples), are transformed a few at a time into float64 features (0.82 GB per 10240 windows at
-10000 kernels) and freed; then the scaler and the ridge, whose cross-validation holds about
-four times the features (scikit-learn's ``cov`` mode once the windows outnumber the features:
-their centred copy and two products of their size). So its peak memory grows with the size:
-about 5 × 0.82 GB per 10240 windows.
+samples; aeon's fit makes a float32 copy of it for a moment), are transformed a few at a time
+into float64 features (0.82 GB per 10240 windows at 10000 kernels) and freed; then the scaler
+and the ridge, whose cross-validation holds about four times the features (scikit-learn's
+``cov`` mode once the windows outnumber the features: their centred copy and two products of
+their size). So its peak memory grows with the size: about 5 × 0.82 GB per 10240 windows.
 
 Scores: every whole window (the recipes' ``window_s``) of every held-out record: accuracy,
 its 95 % interval (bootstrap over the held-out specimens), P320/P280 confusion

@@ -454,17 +454,18 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
                          + " | ".join(_cell(c) for c in [cells[-1], *cells[:-1]]) + " |")
             chance = chance_misses(covered, row_truth, edges, groups,
                                    seed=[zlib.crc32(f"{task} {r.value}".encode()), len(out)])
+            missed = misses(cells)
             out.append({"name": row["name"], "kind": row["kind"], "sigma": label,
                         "flagged": flagged, "all": cells[-1], "ranges": cells[:-1],
-                        "misses": misses(cells),
+                        "misses": missed,
                         "chance_misses": [float(np.median(chance)),
                                           float(np.quantile(chance, 0.95))]})
             physics = "trained" if row["kind"] in TRAINED_KINDS else "not trained"
             seen, count, drawn, beyond = tally.get((label, physics), (0, 0, 0, []))
-            if misses(cells) > np.quantile(chance, 0.95):
-                beyond = [*beyond, f"{row['name']} ({misses(cells)})"]
-            tally[label, physics] = (seen + misses(cells), count + 2 * len(cells),
-                                     drawn + chance, beyond)
+            if missed > np.quantile(chance, 0.95):
+                beyond = [*beyond, f"{row['name']} ({missed})"]
+            tally[label, physics] = (seen + missed, count + 2 * len(cells), drawn + chance,
+                                     beyond)
     lines += ["", f"✗ against chance: an exact interval's answers drawn {CHANCE_DRAWS} times "
               "on the same cells and judged alike (`wtml.bench.coverage.chance_misses`); "
               "rows beyond: those whose own ✗ exceed their chance's 95th percentile (each "

@@ -74,6 +74,13 @@ class MiniRocketPeer:
         return self.fit_features(self.fit_transform_stacked(x), grade)
 
     @staticmethod
+    def _refuse_copies(x: np.ndarray) -> None:
+        """Stacked windows must be float32: aeon copies any other dtype (``TypeError``)."""
+        if x.dtype != np.float32:
+            raise TypeError(f"MiniRocketPeer: the stacked windows x must be float32, got "
+                            f"{x.dtype}")
+
+    @staticmethod
     def _channel_std(x: np.ndarray) -> np.ndarray:
         """Each channel's std over every window and sample of ``x`` ``(n, c, m)``, ``(1, c,
         1)`` float32: numpy's two passes (the mean, then the mean squared deviation) in
@@ -95,9 +102,7 @@ class MiniRocketPeer:
             TypeError: ``x`` is not float32 (it would be copied after all)."""
         from aeon.transformations.collection.convolution_based import MiniRocket
 
-        if x.dtype != np.float32:
-            raise TypeError(f"MiniRocketPeer: the stacked windows x must be float32, got "
-                            f"{x.dtype}")
+        self._refuse_copies(x)
         self.scale = self._channel_std(x)
         x /= self.scale
         self._transform = MiniRocket(n_kernels=self.n_kernels, random_state=self.seed,
@@ -144,9 +149,7 @@ class MiniRocketPeer:
             TypeError: ``x`` is not float32 (aeon would copy it)."""
         if self.model is None:
             raise RuntimeError("MiniRocketPeer.predict before fit")
-        if x.dtype != np.float32:
-            raise TypeError(f"MiniRocketPeer: the stacked windows x must be float32, got "
-                            f"{x.dtype}")
+        self._refuse_copies(x)
         x /= self.scale
         grade = self.model.predict(x).astype(int)
         return {"grade": grade, "grain": np.full(len(grade), np.nan)}

@@ -41,7 +41,8 @@ class Task:
             ``""`` for one that reads recordings.
         pipeline_s: its slice of the main job's wall-clock seconds on one thread, its bench
             included and no wait for another lane's bench (measured: the main job's stage
-            lines, 28 Nov 05:06, two lanes).
+            lines, 29 Nov 07:44, two lanes; radial's bench from its log's clock, after its
+            wait).
         bench_s: of those, its ``bench`` stage's (the slice's last). The main job's lanes
             start the slices in the order these predict ends first (:mod:`wtml.lanes`).
     """
@@ -79,23 +80,23 @@ TASKS = {t.name: t for t in (
          "wtml.exporters.fluid:export_fluid", "wtml.runtime.predict:predict_file",
          "wtml.pipeline:run_fluid",
          "wtml.bench.fluid:frontier_problem", evaluate="wtml.bench.fluid:evaluate_checkpoint",
-         measurement="wtml.exporters.fluid:FLUID", pipeline_s=53, bench_s=27),
+         measurement="wtml.exporters.fluid:FLUID", pipeline_s=38, bench_s=19),
     Task("radial", "a contact's distance from the tip along the whisker from Ze",
          "measurements", "wtml.scenes.radial:RadialScene", "wtml.decoders.radial:RadialDecoder",
          "wtml.exporters.radial:export_radial", "wtml.runtime.predict:predict_file",
          "wtml.pipeline:run_radial",
          "wtml.bench.radial:frontier_problem", evaluate="wtml.bench.radial:evaluate_checkpoint",
-         measurement="wtml.exporters.radial:RADIAL", pipeline_s=331, bench_s=66),
+         measurement="wtml.exporters.radial:RADIAL", pipeline_s=263, bench_s=50),
     Task("onset", "contact onsets, detachments and the wall's horizontal location from e, i",
          "recordings", "wtml.scenes.onset:OnsetScene", "wtml.decoders.onset:OnsetDecoder",
          "wtml.exporters.onset:export_onset", "wtml.runtime.onset:predict_records",
          "wtml.pipeline:run_onset",
-         "wtml.bench.onset:frontier_problem", pipeline_s=177, bench_s=52),
+         "wtml.bench.onset:frontier_problem", pipeline_s=146, bench_s=40),
     Task("texture", "a swept sandpaper's grade and grain size from e, i",
          "recordings", "wtml.scenes.texture:TextureScene",
          "wtml.decoders.texture:TextureDecoder", "wtml.exporters.texture:export_texture",
          "wtml.runtime.texture:predict_records", "wtml.pipeline:run_texture",
-         "wtml.bench.texture:frontier_problem", pipeline_s=286, bench_s=121),
+         "wtml.bench.texture:frontier_problem", pipeline_s=318, bench_s=199),
 )}
 """Every task, in the main job's order."""
 UNNAMED = "fluid"

@@ -356,9 +356,11 @@ class ModalTransducer(Structure):
 
 def _with_loss(out: dict[str, np.ndarray], loss: np.ndarray | None) -> dict[str, np.ndarray]:
     """``out`` of a stepper with the dielectric loss current ``loss`` (A, broadcast to the
-    records) added to its current (:meth:`ModalTransducer.loss_current`)."""
+    records) added to its current (:meth:`ModalTransducer.loss_current`), in place: the sum is
+    formed in float64 and rounded to the records' dtype, as ``(i + loss).astype(dtype)`` would,
+    without a second copy of the records."""
     if loss is not None:
-        out["i"] = (out["i"] + loss).astype(out["i"].dtype)
+        np.add(out["i"], loss, out=out["i"], casting="same_kind")
     return out
 
 

@@ -129,8 +129,11 @@ class Acquisition:
         e_noise += fx.voltage_noise(shape, self.sample_rate_hz, self.e_full_scale_v, rng)
         i_noise += fx.current_noise(shape, self.sample_rate_hz, capacitance,
                                     self.i_full_scale_a, rng)
-        return (quantize(e + e_noise, self.adc_bits, self.e_full_scale_v).astype(np.float32),
-                quantize(i + i_noise, self.adc_bits, self.i_full_scale_a).astype(np.float32))
+        e_noise += e  # the recorded signal, in the noise's array (records of a few 100 MB)
+        e_rec = quantize(e_noise, self.adc_bits, self.e_full_scale_v).astype(np.float32)
+        del e_noise
+        i_noise += i
+        return e_rec, quantize(i_noise, self.adc_bits, self.i_full_scale_a).astype(np.float32)
 
 
 @dataclass(frozen=True)

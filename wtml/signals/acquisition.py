@@ -172,20 +172,24 @@ class AcquisitionEffects:
         out = np.zeros(shape)
         if self.iv.enabled:
             out += coloured_noise(lambda f: self.iv.density(f, capacitance), shape, rate, rng)
-        return out + self._channel(shape, rate, full_scale, rng)
+        return self._add_channel(out, rate, full_scale, rng)
 
     def voltage_noise(self, shape: tuple[int, int], rate: float, full_scale: float,
                       rng: np.random.Generator) -> np.ndarray:
         """The voltage channel's added noise, V: the ADC floor and hum for a full scale
         ``full_scale`` (V), ``shape = (n, n_samples)`` at ``rate`` (Hz)."""
-        return self._channel(shape, rate, full_scale, rng)
+        return self._add_channel(np.zeros(shape), rate, full_scale, rng)
 
-    def _channel(self, shape, rate, full_scale, rng) -> np.ndarray:
-        out = np.zeros(shape)
+    def _add_channel(self, out: np.ndarray, rate, full_scale, rng) -> np.ndarray:
+        """``out`` (float64 ``(n, n_samples)``) with the ADC floor and hum added in place
+        (records of a few hundred MB: no temporary beyond one of ``out``'s size)."""
         if self.adc.enabled:
-            out += self.adc.rms(full_scale) * rng.standard_normal(shape)
+            floor = rng.standard_normal(out.shape)
+            floor *= self.adc.rms(full_scale)
+            out += floor
+            del floor
         if self.hum.enabled:
-            out += mains_hum(self.hum.mains_hz, full_scale * self.hum.amplitudes(), shape,
+            out += mains_hum(self.hum.mains_hz, full_scale * self.hum.amplitudes(), out.shape,
                              rate, rng)
         return out
 
@@ -224,9 +228,12 @@ def mains_hum(mains_hz: float, amplitudes, shape: tuple[int, int], rate: float,
                 high_open=True)
     t = np.arange(shape[1]) / rate
     phase = rng.uniform(0, 2 * np.pi, (shape[0], len(a)))
-    out = np.zeros(shape)
+    out, wave = np.zeros(shape), np.empty(shape)
     for h, amp in enumerate(a):
-        out += amp * np.sin(2 * np.pi * mains_hz * (h + 1) * t + phase[:, h, None])
+        np.add(2 * np.pi * mains_hz * (h + 1) * t, phase[:, h, None], out=wave)
+        np.sin(wave, out=wave)
+        wave *= amp
+        out += wave
     return out
 
 

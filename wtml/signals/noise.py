@@ -53,9 +53,11 @@ def quantize(x, bits: int, full_scale: float) -> np.ndarray:
     check_range("bits", bits, 2, 32)
     check_range("full_scale", full_scale, 0.0, np.inf, low_open=True, high_open=True)
     step = 2 * full_scale / 2**bits
-    levels = np.round(np.asarray(x, dtype=float) / step)
-    levels = np.clip(levels, -(2 ** (bits - 1)), 2 ** (bits - 1) - 1)
-    return levels * step
+    levels = np.asarray(x, dtype=float) / step  # a new array: the rest works in it
+    np.round(levels, out=levels)
+    np.clip(levels, -(2 ** (bits - 1)), 2 ** (bits - 1) - 1, out=levels)
+    levels *= step
+    return levels
 
 
 def gain_phase_drift(z, gain_error, phase_error_rad) -> np.ndarray:

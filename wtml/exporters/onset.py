@@ -56,9 +56,10 @@ decoder's false-alarm rate is measured and its σ recalibrated (one range: a sca
 width; ~460 records with a wall; :mod:`wtml.decoders.recalibration`). On 128 (~115 with a
 wall) the 68 % interval's true coverage scattered by 4.2 points between draws (the main job's
 export of 29 Nov drew one that covers 77 % of 1802 fresh answers), on 512 by 2.3; they are
-simulated :data:`FRESH_CHUNK` at a time (~3 s each on the main job's scene)."""
-FRESH_CHUNK = 128
-"""Records simulated and answered at once among the :data:`FRESH_RECORDS`."""
+simulated :data:`FRESH_CHUNK` at a time (~1.5 s each on the main job's scene)."""
+FRESH_CHUNK = 64
+"""Records simulated and answered at once among the :data:`FRESH_RECORDS` (each chunk its own
+seed; 128 had held ~0.19 GB more at the export's peak, its records' noise being drawn)."""
 GAP_INTERVAL = {"sigma": "sigma", "value": "gap", "by": "gap", "log_value": False,
                 "stored": "std"}
 """The onset graphs' interval: σ, the std of the wall's location g (m)."""
@@ -109,6 +110,7 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
         answers += [raw(*(torch.tensor(x[s:s + 32]) for x in inputs))
                     for s in range(0, len(fresh["gap"]), 32)]
         truth.append(fresh["gap"])
+        del fresh, inputs  # not beside the next chunk's simulation
     gap, sigma, inside = (torch.cat([a[k] for a in answers]) for k in (0, 1, -2))
     uncertainty = fit_uncertainty(
         {"gap": gap.double().numpy(), "sigma": sigma.double().numpy()},

@@ -215,7 +215,9 @@ def coloured_noise(density: Callable[[np.ndarray], np.ndarray], shape: tuple[int
     gain[1:] = np.sqrt(np.asarray(density(f[1:]), dtype=float) * rate / 2)
     if not np.all(np.isfinite(gain)):
         raise ValueError("density: must be finite and >= 0 at every f > 0")
-    return np.fft.irfft(np.fft.rfft(rng.standard_normal(shape), axis=-1) * gain, n, axis=-1)
+    spectrum = np.fft.rfft(rng.standard_normal(shape), axis=-1)
+    spectrum *= gain
+    return np.fft.irfft(spectrum, n, axis=-1)
 
 
 def mains_hum(mains_hz: float, amplitudes, shape: tuple[int, int], rate: float,

@@ -41,10 +41,14 @@ class Task:
             ``""`` for one that reads recordings.
         pipeline_s: its slice of the main job's wall-clock seconds on one thread, its bench
             included and no wait for another lane's bench (measured: the main job's stage
-            lines, 29 Nov 07:44, two lanes; radial's bench from its log's clock, after its
-            wait).
+            lines, 28 Nov 05:06, two lanes).
         bench_s: of those, its ``bench`` stage's (the slice's last). The main job's lanes
             start the slices in the order these predict ends first (:mod:`wtml.lanes`).
+            Re-measured on 29 Nov (texture 318 s, its bench 199 s; radial 263 s) they start
+            onset and fluid first; tried in four runs and not kept: texture's bench then runs
+            beside radial's training, not beside radial's idle wait, and took 3 min 15 s to
+            4 min 03 s against 3 min 19–24 s, and the two peaked at 2.04–2.08 GB in three
+            runs (README, the main job).
     """
 
     name: str
@@ -80,23 +84,23 @@ TASKS = {t.name: t for t in (
          "wtml.exporters.fluid:export_fluid", "wtml.runtime.predict:predict_file",
          "wtml.pipeline:run_fluid",
          "wtml.bench.fluid:frontier_problem", evaluate="wtml.bench.fluid:evaluate_checkpoint",
-         measurement="wtml.exporters.fluid:FLUID", pipeline_s=38, bench_s=19),
+         measurement="wtml.exporters.fluid:FLUID", pipeline_s=53, bench_s=27),
     Task("radial", "a contact's distance from the tip along the whisker from Ze",
          "measurements", "wtml.scenes.radial:RadialScene", "wtml.decoders.radial:RadialDecoder",
          "wtml.exporters.radial:export_radial", "wtml.runtime.predict:predict_file",
          "wtml.pipeline:run_radial",
          "wtml.bench.radial:frontier_problem", evaluate="wtml.bench.radial:evaluate_checkpoint",
-         measurement="wtml.exporters.radial:RADIAL", pipeline_s=263, bench_s=50),
+         measurement="wtml.exporters.radial:RADIAL", pipeline_s=331, bench_s=66),
     Task("onset", "contact onsets, detachments and the wall's horizontal location from e, i",
          "recordings", "wtml.scenes.onset:OnsetScene", "wtml.decoders.onset:OnsetDecoder",
          "wtml.exporters.onset:export_onset", "wtml.runtime.onset:predict_records",
          "wtml.pipeline:run_onset",
-         "wtml.bench.onset:frontier_problem", pipeline_s=146, bench_s=40),
+         "wtml.bench.onset:frontier_problem", pipeline_s=177, bench_s=52),
     Task("texture", "a swept sandpaper's grade and grain size from e, i",
          "recordings", "wtml.scenes.texture:TextureScene",
          "wtml.decoders.texture:TextureDecoder", "wtml.exporters.texture:export_texture",
          "wtml.runtime.texture:predict_records", "wtml.pipeline:run_texture",
-         "wtml.bench.texture:frontier_problem", pipeline_s=318, bench_s=199),
+         "wtml.bench.texture:frontier_problem", pipeline_s=286, bench_s=121),
 )}
 """Every task, in the main job's order."""
 UNNAMED = "fluid"

@@ -513,3 +513,21 @@ def test_any_held_out_errors_give_a_recalibration_the_metadata_accepts(z, sigma)
         "sigma": "s", "value": "v", "by": "v", "log_value": False, "stored": "std",
         "edges": list(edges), "scales": list(scales), "widths": list(widths)})
     assert np.all(np.isfinite(rule.wide(rows)))
+
+
+def test_the_coverage_bench_draws_its_fresh_records_from_the_seed_it_is_given(monkeypatch,
+                                                                             capsys):
+    """``--seed`` reaches the bench (another draw of every row), 2025 without it; a seed
+    outside 0…2³²−1 is refused by name."""
+    from wtml import cli
+    from wtml.bench import coverage
+
+    seen = []
+    monkeypatch.setattr(coverage, "run_coverage",
+                        lambda tasks, out, **kw: seen.append(kw["seed"]) or "report")
+    assert cli.main(["bench", "coverage", "--only", "texture", "--seed", "2026"]) == 0
+    assert cli.main(["bench", "coverage", "--only", "texture"]) == 0
+    assert seen == [2026, 2025]
+    with pytest.raises(SystemExit):
+        cli.main(["bench", "coverage", "--seed", "-1"])
+    assert "--seed" in capsys.readouterr().err

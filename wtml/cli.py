@@ -408,7 +408,7 @@ def _bench_coverage(args: argparse.Namespace) -> int:
         tasks["radial"]["invalid"] = args.invalid
     records = {"fluid": args.records, "radial": args.records, "onset": args.time_records,
                "texture": args.time_records, "independent": args.independent_records}
-    print(run_coverage(tasks, args.out, records=records, threads=args.threads,
+    print(run_coverage(tasks, args.out, records=records, seed=args.seed, threads=args.threads,
                        sbi_simulations=args.sbi_simulations, sbi_epochs=args.sbi_epochs))
     return 0
 
@@ -445,6 +445,9 @@ def _coverage_parser(be_sub) -> None:
                     help="simulations of sbi's NPE on the fluid scene (0: none)")
     bc.add_argument("--sbi-epochs", type=_number(1, 10**4, int), default=50,
                     help="NPE's most training epochs")
+    bc.add_argument("--seed", type=_number(0, 2**32 - 1, int), default=2025,
+                    help="the fresh records' seed (another draw of every row: is a ✗ there "
+                         "again?)")
     bc.add_argument("--threads", type=THREADS, default=2, help="torch and onnxruntime threads")
     bc.set_defaults(func=_bench_coverage)
 

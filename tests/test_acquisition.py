@@ -222,3 +222,28 @@ def test_shipped_scenes_are_bench_top_and_the_probe_band_noise_is_the_budget():
     probe = 2 * np.abs(np.mean(base["i"][0] * np.exp(-2j * np.pi * 420.0 * t)))
     assert probe / np.sqrt(2) / got > 10**4  # > 80 dB in the probe band
     np.testing.assert_array_equal(rec["e"].shape, base["e"].shape)
+
+
+def test_the_in_place_noise_is_the_textbook_sum_and_leaves_its_inputs_alone():
+    """``quantize`` and ``mains_hum`` work in their own arrays (records of a few 100 MB):
+    bit for bit the plain expressions, the caller's samples untouched."""
+    from wtml.signals.noise import quantize
+
+    rng = np.random.default_rng(3)
+    x = (rng.standard_normal((3, 500)) * 4.0).astype(np.float32)  # past ±2 V: clipped too
+    kept = x.copy()
+    step = 2 * 2.0 / 2**12
+    plain = np.clip(np.round(np.asarray(x, dtype=float) / step), -2**11, 2**11 - 1) * step
+    assert np.array_equal(quantize(x, 12, 2.0), plain)
+    assert np.array_equal(x, kept)
+    x64 = x.astype(float)  # asarray does not copy it: quantize must
+    assert np.array_equal(quantize(x64, 12, 2.0), plain)
+    assert np.array_equal(x64, kept)
+    amps = np.array([1e-3, 4e-5, 3e-4])
+    hum = mains_hum(50.0, amps, (3, 500), 5e3, np.random.default_rng(7))
+    phase = np.random.default_rng(7).uniform(0, 2 * np.pi, (3, 3))
+    t = np.arange(500) / 5e3
+    plain = np.zeros((3, 500))
+    for h, a in enumerate(amps):
+        plain += a * np.sin(2 * np.pi * 50.0 * (h + 1) * t + phase[:, h, None])
+    assert np.array_equal(hum, plain)

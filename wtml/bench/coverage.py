@@ -454,15 +454,13 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
                          + " | ".join(_cell(c) for c in [cells[-1], *cells[:-1]]) + " |")
             chance = chance_misses(covered, row_truth, edges, groups,
                                    seed=[zlib.crc32(f"{task} {r.value}".encode()), len(out)])
-            missed = misses(cells)
+            missed, high = misses(cells), float(np.quantile(chance, 0.95))
             out.append({"name": row["name"], "kind": row["kind"], "sigma": label,
                         "flagged": flagged, "all": cells[-1], "ranges": cells[:-1],
-                        "misses": missed,
-                        "chance_misses": [float(np.median(chance)),
-                                          float(np.quantile(chance, 0.95))]})
+                        "misses": missed, "chance_misses": [float(np.median(chance)), high]})
             physics = "trained" if row["kind"] in TRAINED_KINDS else "not trained"
             seen, count, drawn, beyond = tally.get((label, physics), (0, 0, 0, []))
-            if missed > np.quantile(chance, 0.95):
+            if missed > high:
                 beyond = [*beyond, f"{row['name']} ({missed})"]
             tally[label, physics] = (seen + missed, count + 2 * len(cells), drawn + chance,
                                      beyond)

@@ -377,7 +377,7 @@ def _step_friction(lam, gain, out, feed, e, de_step, de_out, law, coulomb, slip,
         for b in range(bsz):
             src = b if e.shape[0] > 1 else 0
             ek, ok = e[src, k], de_out[src, k]
-            for r in range(4):
+            for r in (0, 1, 3):  # u, v, i; F (2) is the law's, below
                 acc = feed[r, 0, b] * ek + feed[r, 1, b] * ok
                 for j in range(m):
                     acc += out[0, r, j, b] * w[0, j, b] - out[1, r, j, b] * w[1, j, b]

@@ -224,19 +224,20 @@ def mains_hum(mains_hz: float, amplitudes, shape: tuple[int, int], rate: float,
               rng: np.random.Generator) -> np.ndarray:
     """Hum ``Σ_h a_h sin(2π h f_m t + φ_h)``, ``shape = (n, n_samples)`` at ``rate`` (Hz), t from
     0: ``amplitudes`` a_h (the channel's unit) of the harmonics h = 1, 2, ... of ``mains_hz``,
-    each with a uniform random phase per record. Harmonics must lie below Nyquist."""
+    each with a uniform random phase per record. Harmonics must lie below Nyquist.
+
+    Summed as ``a_h cos φ_h sin(ω_h t) + a_h sin φ_h cos(ω_h t)``: one matrix product of the
+    records' ``(n, 2H)`` weights with the ``(2H, n_samples)`` waves, the sines taken once for
+    all records (a sine per sample, harmonic and record took 0.4 s a channel on 120 texture
+    records); equal to the plain sum to rounding."""
     a = check_range("amplitudes", amplitudes, 0.0, np.inf, high_open=True)
     check_range("mains_hz", mains_hz, 0.0, rate / (2 * len(a)), unit="Hz", low_open=True,
                 high_open=True)
-    t = np.arange(shape[1]) / rate
     phase = rng.uniform(0, 2 * np.pi, (shape[0], len(a)))
-    out, wave = np.zeros(shape), np.empty(shape)
-    for h, amp in enumerate(a):
-        np.add(2 * np.pi * mains_hz * (h + 1) * t, phase[:, h, None], out=wave)
-        np.sin(wave, out=wave)
-        wave *= amp
-        out += wave
-    return out
+    angle = 2 * np.pi * mains_hz * np.arange(1, len(a) + 1)[:, None] * (np.arange(shape[1])
+                                                                         / rate)
+    weights = np.concatenate([a * np.cos(phase), a * np.sin(phase)], axis=1)
+    return weights @ np.concatenate([np.sin(angle), np.cos(angle)])
 
 
 def base_motion(rms_m: float, band_hz: tuple[float, float], shape: tuple[int, int],

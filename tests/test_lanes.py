@@ -47,3 +47,15 @@ def test_equal_orders_keep_longest_first():
     work = {"a": 0.7, "b": 0.6, "c": 0.3, "d": 0.1}
     bench = {"a": 0.1, "b": 0.2, "c": 0.1, "d": 0.1}
     assert lane_order(work, bench, 1) == ["a", "b", "c", "d"]
+
+
+def test_a_warm_up_holds_the_first_lane_from_the_start():
+    """a starts at 0 in the free lane, its bench 90-100 s; b waits for the warm-up's lane
+    (30 s): its bench 70-80 s. In the other order b's bench is 40-50 s and a, from 30 s,
+    asks at 120 s. On one lane the warm-up comes before the sum."""
+    work, bench = {"a": 100.0, "b": 50.0}, {"a": 10.0, "b": 10.0}
+    assert makespan(["a", "b"], work, bench, 2, warm_s=30.0) == pytest.approx(100.0)
+    assert makespan(["b", "a"], work, bench, 2, warm_s=30.0) == pytest.approx(130.0)
+    assert lane_order(work, bench, 2, warm_s=30.0) == ["a", "b"]
+    assert makespan(["a", "b"], work, bench, 1, warm_s=30.0) == pytest.approx(180.0)
+    assert makespan(["a"], work, bench, 2, warm_s=130.0) == pytest.approx(130.0)

@@ -41,9 +41,14 @@ def _stand_in(name: str, other: str, folder: str, fail: bool, wait_s: float, sta
             "torch_threads": torch.get_num_threads(), "max_epochs": max_epochs}
 
 
+def _warm_stand_in(name: str, folder: str) -> None:
+    (Path(folder) / f"warm-{name}").write_text(str(os.getpid()))
+
+
 @dataclass(frozen=True)
 class StandIn(Task):
-    """A task whose slice is :func:`_stand_in`, waiting for ``other``'s file in ``folder``."""
+    """A task whose slice is :func:`_stand_in`, waiting for ``other``'s file in ``folder``;
+    its warm part (where it declares one) writes ``warm-<name>`` there."""
 
     other: str = ""
     folder: str = ""
@@ -51,6 +56,8 @@ class StandIn(Task):
     wait_s: float = 60.0
 
     def load(self, part: str):
+        if part == "warm":
+            return partial(_warm_stand_in, self.name, self.folder)
         assert part == "pipeline"
         return partial(_stand_in, self.name, self.other, self.folder, self.fail, self.wait_s)
 
@@ -63,13 +70,14 @@ def lanes(tmp_path, monkeypatch):
         pytest.skip("the lanes need two cores (run_all runs one lane per core it may use)")
     monkeypatch.setattr(pipeline, "LOGS", tmp_path / "logs")
     seen: dict = {}
-    monkeypatch.setattr(pipeline, "summary",
-                        lambda results, stages: seen.update(results=results) or "summary")
+    monkeypatch.setattr(pipeline, "summary", lambda results, stages: seen.update(
+        results=results, times=stages.times) or "summary")
 
-    def register(fail: str = "", wait_s: float = 60.0) -> None:
+    def register(fail: str = "", wait_s: float = 60.0, warm: bool = False) -> None:
         monkeypatch.setattr(pipeline, "TASKS", {
             name: StandIn(name, "a stand-in", "measurements", "", "", "", "", "", "",
-                          pipeline_s=cost, other=other, folder=str(tmp_path),
+                          pipeline_s=cost, warm="stand-in warm" if warm and cost > 1 else "",
+                          warm_s=1.0, other=other, folder=str(tmp_path),
                           fail=name == fail, wait_s=wait_s)
             for name, other, cost in (("first", "second", 2.0), ("second", "first", 1.0))})
     return register, tmp_path, seen
@@ -90,6 +98,33 @@ def test_two_lanes_run_two_slices_side_by_side_on_one_thread_each(lanes, capfd):
         assert f"{name} says hello" in log and log in out  # kept, and printed whole
     assert "2 slices in 2 lanes of 1 thread(s), in the order that ends first (first, second)" in out
     assert os.environ.get("WTML_THREADS") is None  # this process's threads untouched
+
+
+def test_the_warm_up_holds_a_lane_of_its_own_before_the_slices_it_serves(lanes, capfd):
+    """The warm job is submitted first: one lane runs it while the first slice of the order
+    starts in the other; the second slice takes the warm job's lane once it frees (the
+    stand-ins wait for each other, so neither could end before both had started)."""
+    register, folder, seen = lanes
+    register(warm=True)
+    pipeline.run_all(lanes=2)
+    out = capfd.readouterr().out
+    warm_pid = int((folder / "warm-first").read_text())
+    assert warm_pid not in {r["pid"] for r in seen["results"].values()} | {os.getpid()}
+    assert (folder / "warm-first").stat().st_mtime <= (folder / "second").stat().st_mtime
+    assert not (folder / "warm-second").exists()  # only a task with a warm part is warmed
+    assert "warm-up of first's kernels first, in the order that ends first" in out
+    log = (folder / "logs" / "warm-up.log").read_text()
+    assert "warm-up: first's kernels compiled in" in log and log in out
+    assert set(seen["times"]["warm-up"]) == {"first"}
+
+
+def test_one_lane_compiles_in_the_slices_themselves(lanes, capfd):
+    """One lane has no lane to spare: no warm job (each slice compiles on first use)."""
+    register, folder, seen = lanes
+    register(warm=True, wait_s=0.0)
+    with pytest.raises(RuntimeError, match="never ran beside it"):
+        pipeline.run_all(lanes=1)
+    assert not (folder / "warm-first").exists()
 
 
 def test_a_failing_slice_stops_the_job_with_its_log_printed(lanes, capfd):

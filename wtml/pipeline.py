@@ -367,6 +367,9 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
         lines += _onset_lines(results["onset"], stages)
     if results.get("texture"):
         lines += _texture_lines(results["texture"], stages)
+    if stages.times.get(WARM):
+        lines.append(f"{WARM} (the kernels compiled ahead, in a lane of their own): "
+                     f"{stages.line(WARM)}")
     lines.append(f"total: {duration(time.perf_counter() - stages.start)}")
     return "\n".join(lines)
 
@@ -605,6 +608,9 @@ LANES = 2
 """Slices of the main job run side by side, one thread each (see :func:`run_all`)."""
 LOGS = Path("runs/pipeline")
 """Where each slice run in a lane writes its log (``<task>.log``)."""
+WARM = "warm-up"
+"""The job that compiles the slices' JIT kernels ahead (:func:`run_all`), its log
+``warm-up.log`` and its line of the summary."""
 BENCH_LOCK = "bench.lock"
 """The file in :data:`LOGS` that the lanes' ``bench`` stages take turns on (:class:`Stages`):
 side by side, the texture and radial benches peaked at 3.1 GB together (27 Nov)."""
@@ -651,21 +657,64 @@ def _logged(path: Path) -> Iterator[TextIO]:
             terminal.close()
 
 
-def _lane_slice(spec: Task, max_epochs: int | None, threads: int, log: Path | None
-                ) -> tuple[dict, dict[str, float]]:
-    """A slice in a process of its own, computing on ``threads`` threads (torch, BLAS,
-    onnxruntime, the stepper: :data:`wtml.cores.THREADS_ENV`), its output into ``log`` (None:
-    to the terminal)."""
+@contextmanager
+def _threads(threads: int) -> Iterator[None]:
+    """This process computing on ``threads`` threads (torch, BLAS, onnxruntime, the stepper:
+    :data:`wtml.cores.THREADS_ENV`)."""
     import torch
     from threadpoolctl import threadpool_limits
 
     os.environ[THREADS_ENV] = str(threads)
     torch.set_num_threads(threads)
     with threadpool_limits(threads):
+        yield
+
+
+def _lane_slice(spec: Task, max_epochs: int | None, threads: int, log: Path | None
+                ) -> tuple[dict, dict[str, float]]:
+    """A slice in a process of its own, on ``threads`` threads, its output into ``log``
+    (None: to the terminal)."""
+    with _threads(threads):
         if log is None:
             return run_slice(spec, max_epochs)
         with _logged(log) as terminal:
             return run_slice(spec, max_epochs, terminal, log.parent / BENCH_LOCK)
+
+
+def _lane_warm(specs: list[Task], threads: int, log: Path) -> dict[str, float]:
+    """Each task's warm part (:attr:`wtml.tasks.Task.warm`) in a process of its own, on
+    ``threads`` threads, its output into ``log``; returns each one's seconds."""
+    times = {}
+    with _threads(threads), _logged(log) as terminal:
+        for spec in specs:
+            print(f"{time.strftime('%H:%M:%S')} {WARM}: {spec.name}", file=terminal, flush=True)
+            start = time.perf_counter()
+            spec.load("warm")()
+            times[spec.name] = time.perf_counter() - start
+            print(f"{WARM}: {spec.name}'s kernels compiled in {duration(times[spec.name])}")
+    return times
+
+
+def warm_onset() -> None:
+    """The onset slice's kernels compiled ahead (numba, into its cache on disk): the scene's
+    stepper on one record of the shipped scene (the types of the slice's own arrays: a
+    default scene compiles another signature) and the independent simulator's on one."""
+    from wtml.bench.onset_transfer import independent_variant
+    from wtml.scenes import load_scene
+
+    scene, rng = load_scene("configs/scenes/onset.yaml"), np.random.default_rng(0)
+    scene.simulate(1, rng)
+    independent_variant(scene).make(1, rng)
+
+
+def warm_texture() -> None:
+    """The texture slice's MiniRocket peer compiled ahead (aeon's kernels, by numba, into its
+    cache on disk: ~25 s on one core in a fresh environment), fitted and run on a few random
+    windows as its bench fits and runs it (float32 ``(n, 2, window)``)."""
+    from wtml.baselines.texture_peers import MiniRocketPeer
+
+    x = np.random.default_rng(0).standard_normal((10, 2, 256)).astype(np.float32)
+    MiniRocketPeer(84).fit_stacked(x.copy(), np.arange(10) % 5).predict_stacked(x)
 
 
 def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LANES) -> str:
@@ -681,6 +730,13 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
     turns (:data:`BENCH_LOCK`). Each writes its log to :data:`LOGS` ``/<task>.log``, printed
     whole when it ends, and a line per stage as it goes. ``lanes`` 1: one after another on
     every core, printing as they go.
+
+    With lanes, the JIT kernels that the slices would compile on first use (the tasks'
+    ``warm`` parts: onset's steppers, texture's MiniRocket) are compiled first, by a
+    :data:`WARM` job that holds one lane while the first slice starts in another
+    (:func:`wtml.lanes.makespan` replays it): in the 29 Nov main job these ~45 s lay on the
+    path that ends last (texture's bench, then onset), and the lane that took radial had
+    that long to spare while radial's bench waited for texture's.
 
     Raises:
         ValueError: ``lanes`` < 1.
@@ -699,16 +755,23 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
         threads = max(1, available_cores() // lanes)
         context = get_context("forkserver")
         context.set_forkserver_preload(PRELOAD)
-        order = lane_order({n: TASKS[n].pipeline_s for n in names},
-                           {n: TASKS[n].bench_s for n in names}, lanes)
+        warm = [TASKS[n] for n in names if TASKS[n].warm] if lanes > 1 else []
+        ahead = {spec.name: spec.warm_s for spec in warm}  # off the slices' cold seconds
+        order = lane_order({n: TASKS[n].pipeline_s - ahead.get(n, 0.0) for n in names},
+                           {n: TASKS[n].bench_s - ahead.get(n, 0.0) for n in names}, lanes,
+                           sum(ahead.values()))
         if lanes > 1:
-            print(f"{len(names)} slices in {lanes} lanes of {threads} thread(s), in the order "
-                  f"that ends first ({', '.join(order)}); each slice's log: {LOGS}/<slice>.log, "
-                  "printed when it ends", flush=True)
+            first = f"{WARM} of {', '.join(ahead)}'s kernels first, " if warm else ""
+            print(f"{len(names)} slices in {lanes} lanes of {threads} thread(s), {first}in "
+                  f"the order that ends first ({', '.join(order)}); each slice's log: "
+                  f"{LOGS}/<slice>.log, printed when it ends", flush=True)
         with ProcessPoolExecutor(lanes, mp_context=context, max_tasks_per_child=1) as pool:
-            running = {pool.submit(_lane_slice, TASKS[name], max_epochs, threads,
-                                   LOGS / f"{name}.log" if lanes > 1 else None): name
-                       for name in order}
+            running = {}
+            if warm:  # submitted first: the pool's first free lane takes it
+                running[pool.submit(_lane_warm, warm, threads, LOGS / f"{WARM}.log")] = WARM
+            for name in order:
+                running[pool.submit(_lane_slice, TASKS[name], max_epochs, threads,
+                                    LOGS / f"{name}.log" if lanes > 1 else None)] = name
             while running:
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for future in done:
@@ -718,7 +781,10 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
                         print(log.read_text(), end="", flush=True)
                     if future.exception() is not None:
                         pool.shutdown(cancel_futures=True)
-                    results[name], stages.times[name] = future.result()
+                    if name == WARM:
+                        stages.times[WARM] = future.result()
+                    else:
+                        results[name], stages.times[name] = future.result()
         results = {name: results[name] for name in names}
     text = summary(results, stages)
     print(text)

@@ -49,6 +49,13 @@ class Task:
             beside radial's training, not beside radial's idle wait, and took 3 min 15 s to
             4 min 03 s against 3 min 19–24 s, and the two peaked at 2.04–2.08 GB in three
             runs (README, the main job).
+        warm: ``() -> None``, compiling the JIT kernels its slice would otherwise compile on
+            first use (into numba's cache on disk), which the main job runs ahead in a lane
+            of its own (:func:`wtml.pipeline.run_all`); ``""``: it compiles none.
+        warm_s: that warm-up's seconds on one core with a cold cache (29 Nov). The replay of
+            the lanes takes them off the slice's ``pipeline_s`` and ``bench_s`` (measured
+            cold), as if all were compiled in its bench: texture's are; of onset's, the
+            stepper's compile at its ``generate``.
     """
 
     name: str
@@ -64,10 +71,13 @@ class Task:
     measurement: str = ""
     pipeline_s: float = 60.0
     bench_s: float = 0.0
+    warm: str = ""
+    warm_s: float = 0.0
 
     def load(self, part: str) -> Any:
         """The object a part names (``"scene"``, ``"decoder"``, ``"export"``, ``"rows"``,
-        ``"pipeline"``, ``"frontier"``, ``"evaluate"``, ``"measurement"``), imported now.
+        ``"pipeline"``, ``"frontier"``, ``"evaluate"``, ``"measurement"``, ``"warm"``),
+        imported now.
 
         Raises:
             ValueError: the task declares no such part (``""``).
@@ -95,12 +105,14 @@ TASKS = {t.name: t for t in (
          "recordings", "wtml.scenes.onset:OnsetScene", "wtml.decoders.onset:OnsetDecoder",
          "wtml.exporters.onset:export_onset", "wtml.runtime.onset:predict_records",
          "wtml.pipeline:run_onset",
-         "wtml.bench.onset:frontier_problem", pipeline_s=177, bench_s=52),
+         "wtml.bench.onset:frontier_problem", pipeline_s=177, bench_s=52,
+         warm="wtml.pipeline:warm_onset", warm_s=15),
     Task("texture", "a swept sandpaper's grade and grain size from e, i",
          "recordings", "wtml.scenes.texture:TextureScene",
          "wtml.decoders.texture:TextureDecoder", "wtml.exporters.texture:export_texture",
          "wtml.runtime.texture:predict_records", "wtml.pipeline:run_texture",
-         "wtml.bench.texture:frontier_problem", pipeline_s=286, bench_s=121),
+         "wtml.bench.texture:frontier_problem", pipeline_s=286, bench_s=121,
+         warm="wtml.pipeline:warm_texture", warm_s=30),
 )}
 """Every task, in the main job's order."""
 UNNAMED = "fluid"

@@ -1069,8 +1069,9 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--max-epochs", type=_number(1, 10**6, int), default=None,
                     help="override the training configs' epochs (default: the configs')")
     pl.add_argument("--lanes", type=_number(1, 64, int), default=2,
-                    help="slices run side by side, one thread each of the cores (default 2; "
-                         "1: one after another on every core, printing as they go)")
+                    help="slices run side by side, one thread each of the cores, after a "
+                         "warm-up that compiles their JIT kernels in one lane (default 2; 1: "
+                         "one after another on every core, printing as they go)")
     pl.set_defaults(func=_pipeline)
     return parser
 

@@ -734,9 +734,9 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
     With lanes, the JIT kernels that the slices would compile on first use (the tasks'
     ``warm`` parts: onset's steppers, texture's MiniRocket) are compiled first, by a
     :data:`WARM` job that holds one lane while the first slice starts in another
-    (:func:`wtml.lanes.makespan` replays it): in the 29 Nov main job these ~45 s lay on the
-    path that ends last (texture's bench, then onset), and the lane that took radial had
-    that long to spare while radial's bench waited for texture's.
+    (:func:`wtml.lanes.makespan` replays it): in the 29 Nov main job these 35–40 s lay on
+    the path that ends last (texture's bench, then onset), and the lane that took radial had
+    more than that to spare while radial's bench waited for texture's (1 min 43–49 s).
 
     Raises:
         ValueError: ``lanes`` < 1.

@@ -112,9 +112,9 @@ def test_the_warm_up_holds_a_lane_of_its_own_before_the_slices_it_serves(lanes, 
     assert warm_pid not in {r["pid"] for r in seen["results"].values()} | {os.getpid()}
     assert (folder / "warm-first").stat().st_mtime <= (folder / "second").stat().st_mtime
     assert not (folder / "warm-second").exists()  # only a task with a warm part is warmed
-    assert "warm-up of first's kernels first, in the order that ends first" in out
+    assert "warm-up (first) first, in the order that ends first" in out
     log = (folder / "logs" / "warm-up.log").read_text()
-    assert "warm-up: first's kernels compiled in" in log and log in out
+    assert "warm-up: first's done in" in log and log in out
     assert set(seen["times"]["warm-up"]) == {"first"}
 
 
@@ -146,3 +146,28 @@ def test_one_lane_cannot_run_slices_that_need_each_other(lanes):
 def test_lanes_must_be_positive():
     with pytest.raises(ValueError, match="--lanes: must be at least 1, got 0"):
         pipeline.run_all(lanes=0)
+
+
+def test_a_dataset_generated_ahead_is_waited_for_then_kept(tmp_path, monkeypatch):
+    """``generate_locked`` holds the dataset's lock: a second generation of it (the slice's
+    own, while the warm-up still generates) waits, then finds every shard complete."""
+    import fcntl
+    import threading
+
+    monkeypatch.setattr(pipeline, "LOGS", tmp_path / "logs")
+    scene = str(Path(__file__).resolve().parents[1] / "configs/scenes/fluid.yaml")
+    out = tmp_path / "fluid"
+    (tmp_path / "logs").mkdir()
+    with open(tmp_path / "logs" / "fluid.generate.lock", "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)  # another process generating it
+        second = threading.Thread(target=pipeline.generate_locked, args=(scene, out))
+        second.start()
+        second.join(1.0)
+        assert second.is_alive() and not (out / "manifest.json").exists()  # waiting
+        fcntl.flock(held, fcntl.LOCK_UN)
+    second.join(60)
+    first = (out / "manifest.json").read_bytes()
+    stamps = {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")}
+    assert stamps and pipeline.generate_locked(scene, out)["n_shards"] == len(stamps)
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("*.npz")} == stamps  # kept
+    assert (out / "manifest.json").read_bytes() == first

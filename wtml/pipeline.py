@@ -34,6 +34,9 @@ TRANSFER_RECORDS = 4
 version: their benches' defaults are the full tables)."""
 INDEPENDENT_RECORDS = 4
 """Records of the independent simulator in the main job's onset transfer table."""
+ONSET_SCENE, FEPA_SCENE = "configs/scenes/onset.yaml", "configs/scenes/texture_fepa.yaml"
+"""Scenes of datasets the warm-up generates ahead (:func:`warm_onset`, :func:`warm_texture`)
+as well as their slices."""
 DEVICE_RECORDS = {"onset": 8, "texture": 16}
 """Fresh records per row of the main job's device-spread tables (texture's rows are paired:
 the same specimens and nuisance on every device)."""
@@ -157,13 +160,24 @@ def write_sample_csv(data_dir: Path, path: Path, n: int = 3) -> dict[str, Path]:
 
 
 def _generate(stages: Stages, slice_: str, scene_path: str, out: Path) -> dict:
+    stages.begin(slice_, "generate", f"wtml generate --config {scene_path} --out {out}")
+    manifest = generate_locked(scene_path, out)
+    print(f"{manifest['samples']} samples in {manifest['n_shards']} shards")
+    return manifest
+
+
+def generate_locked(scene_path: str, out: Path) -> dict:
+    """``wtml generate`` of the scene ``scene_path`` into ``out`` (its manifest), holding the
+    dataset's lock file in :data:`LOGS` (``<name>.generate.lock``): a dataset the warm-up
+    generates ahead (:func:`warm_onset`, :func:`warm_texture`) is waited for, then found
+    complete, by its slice's own ``generate`` whatever the lanes' timing."""
     from wtml.data import generate
     from wtml.scenes import load_scene
 
-    stages.begin(slice_, "generate", f"wtml generate --config {scene_path} --out {out}")
-    manifest = generate(load_scene(scene_path), out)
-    print(f"{manifest['samples']} samples in {manifest['n_shards']} shards")
-    return manifest
+    LOGS.mkdir(parents=True, exist_ok=True)
+    with open(LOGS / f"{out.name}.generate.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return generate(load_scene(scene_path), out)
 
 
 def train_config(config: str, data: Path, *, max_epochs: int | None = None,
@@ -368,8 +382,8 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
     if results.get("texture"):
         lines += _texture_lines(results["texture"], stages)
     if stages.times.get(WARM):
-        lines.append(f"{WARM} (the kernels compiled ahead, in a lane of their own): "
-                     f"{stages.line(WARM)}")
+        lines.append(f"{WARM} (kernels compiled and datasets generated ahead, in a lane of "
+                     f"their own): {stages.line(WARM)}")
     lines.append(f"total: {duration(time.perf_counter() - stages.start)}")
     return "\n".join(lines)
 
@@ -409,7 +423,7 @@ def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
     from wtml.runtime.onset import predict_records
 
     data, model, bench = Path("datasets/onset"), Path("export/onset"), Path("runs/onset/bench")
-    _generate(stages, "onset", "configs/scenes/onset.yaml", data)
+    _generate(stages, "onset", ONSET_SCENE, data)
     ckpt = _train(stages, "onset", "configs/onset.yaml", data, max_epochs)
     test = _export_and_predict_records(stages, "onset", ckpt, model, data, predict_records,
                                        calibration_file)
@@ -508,7 +522,7 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
     data, fepa = Path("datasets/texture"), Path("datasets/texture_fepa")
     model, bench = Path("export/texture"), Path("runs/texture/bench")
     _generate(stages, "texture", "configs/scenes/texture.yaml", data)
-    _generate(stages, "texture", "configs/scenes/texture_fepa.yaml", fepa)
+    _generate(stages, "texture", FEPA_SCENE, fepa)
     ckpt = _train(stages, "texture", "configs/texture.yaml", data, max_epochs)
     test = _export_and_predict_records(stages, "texture", ckpt, model, data, predict_records,
                                        calibration_file)
@@ -691,30 +705,32 @@ def _lane_warm(specs: list[Task], threads: int, log: Path) -> dict[str, float]:
             start = time.perf_counter()
             spec.load("warm")()
             times[spec.name] = time.perf_counter() - start
-            print(f"{WARM}: {spec.name}'s kernels compiled in {duration(times[spec.name])}")
+            print(f"{WARM}: {spec.name}'s done in {duration(times[spec.name])}")
     return times
 
 
 def warm_onset() -> None:
-    """The onset slice's kernels compiled ahead (numba, into its cache on disk): the scene's
-    stepper on one record of the shipped scene (the types of the slice's own arrays: a
-    default scene compiles another signature) and the independent simulator's on one."""
+    """The onset slice's work ahead: its dataset generated (:func:`generate_locked`), which
+    compiles the scene's stepper for the shipped scene's own signatures (a default scene
+    compiles others), and the independent simulator's kernels compiled on one record (numba,
+    into its cache on disk)."""
     from wtml.bench.onset_transfer import independent_variant
     from wtml.scenes import load_scene
 
-    scene, rng = load_scene("configs/scenes/onset.yaml"), np.random.default_rng(0)
-    scene.simulate(1, rng)
-    independent_variant(scene).make(1, rng)
+    generate_locked(ONSET_SCENE, Path("datasets/onset"))
+    independent_variant(load_scene(ONSET_SCENE)).make(1, np.random.default_rng(0))
 
 
 def warm_texture() -> None:
-    """The texture slice's MiniRocket peer compiled ahead (aeon's kernels, by numba, into its
-    cache on disk: ~25 s on one core in a fresh environment), fitted and run on a few random
-    windows as its bench fits and runs it (float32 ``(n, 2, window)``)."""
+    """The texture slice's work ahead: its MiniRocket peer compiled (aeon's kernels, by numba,
+    into its cache on disk: ~25 s on one core in a fresh environment), fitted and run on a
+    few random windows as its bench fits and runs it (float32 ``(n, 2, window)``), and the
+    unseen FEPA grades' dataset its bench reads generated (:func:`generate_locked`)."""
     from wtml.baselines.texture_peers import MiniRocketPeer
 
     x = np.random.default_rng(0).standard_normal((10, 2, 256)).astype(np.float32)
     MiniRocketPeer(84).fit_stacked(x.copy(), np.arange(10) % 5).predict_stacked(x)
+    generate_locked(FEPA_SCENE, Path("datasets/texture_fepa"))
 
 
 def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LANES) -> str:
@@ -731,12 +747,13 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
     whole when it ends, and a line per stage as it goes. ``lanes`` 1: one after another on
     every core, printing as they go.
 
-    With lanes, the JIT kernels that the slices would compile on first use (the tasks'
-    ``warm`` parts: onset's steppers, texture's MiniRocket) are compiled first, by a
+    With lanes, what the slices would do when they first need it and that waits on nothing
+    else (the tasks' ``warm`` parts: onset's steppers compiled and its dataset generated,
+    texture's MiniRocket compiled and its FEPA set generated) is done first, by a
     :data:`WARM` job that holds one lane while the first slice starts in another
-    (:func:`wtml.lanes.makespan` replays it): in the 29 Nov main job these 35–40 s lay on
-    the path that ends last (texture's bench, then onset), and the lane that took radial had
-    more than that to spare while radial's bench waited for texture's (1 min 43–49 s).
+    (:func:`wtml.lanes.makespan` replays it): in the 29 Nov main job that work lay on the
+    path that ends last (texture's bench, then onset), and the lane that took radial had a
+    minute or more to spare while radial's bench waited for texture's.
 
     Raises:
         ValueError: ``lanes`` < 1.
@@ -756,12 +773,12 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
         context = get_context("forkserver")
         context.set_forkserver_preload(PRELOAD)
         warm = [TASKS[n] for n in names if TASKS[n].warm] if lanes > 1 else []
-        ahead = {spec.name: spec.warm_s for spec in warm}  # off the slices' cold seconds
-        order = lane_order({n: TASKS[n].pipeline_s - ahead.get(n, 0.0) for n in names},
-                           {n: TASKS[n].bench_s - ahead.get(n, 0.0) for n in names}, lanes,
-                           sum(ahead.values()))
+        order = lane_order({n: TASKS[n].pipeline_s for n in names},
+                           {n: TASKS[n].bench_s for n in names}, lanes,
+                           sum(spec.warm_s for spec in warm))
         if lanes > 1:
-            first = f"{WARM} of {', '.join(ahead)}'s kernels first, " if warm else ""
+            first = (f"{WARM} ({', '.join(spec.name for spec in warm)}) first, " if warm
+                     else "")
             print(f"{len(names)} slices in {lanes} lanes of {threads} thread(s), {first}in "
                   f"the order that ends first ({', '.join(order)}); each slice's log: "
                   f"{LOGS}/<slice>.log, printed when it ends", flush=True)

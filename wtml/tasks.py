@@ -40,22 +40,22 @@ class Task:
             sample measurements are made of (a :class:`wtml.exporters.matrix.MatrixTask`);
             ``""`` for one that reads recordings.
         pipeline_s: its slice of the main job's wall-clock seconds on one thread, its bench
-            included and no wait for another lane's bench (measured: the main job's stage
-            lines, 28 Nov 05:06, two lanes).
+            included, no wait for another lane's bench and its warm part done ahead (the
+            mean of three runs of the main job's stage lines, 29 Nov 11:23–11:58, two lanes;
+            onset's generation and texture's FEPA set, which the warm-up took over after
+            them, left out).
         bench_s: of those, its ``bench`` stage's (the slice's last). The main job's lanes
-            start the slices in the order these predict ends first (:mod:`wtml.lanes`).
-            Re-measured on 29 Nov (texture 318 s, its bench 199 s; radial 263 s) they start
-            onset and fluid first; tried in four runs and not kept: texture's bench then runs
-            beside radial's training, not beside radial's idle wait, and took 3 min 15 s to
-            4 min 03 s against 3 min 19–24 s, and the two peaked at 2.04–2.08 GB in three
-            runs (README, the main job).
-        warm: ``() -> None``, compiling the JIT kernels its slice would otherwise compile on
-            first use (into numba's cache on disk), which the main job runs ahead in a lane
-            of its own (:func:`wtml.pipeline.run_all`); ``""``: it compiles none.
-        warm_s: that warm-up's seconds on one core with a cold cache (29 Nov). The replay of
-            the lanes takes them off the slice's ``pipeline_s`` and ``bench_s`` (measured
-            cold), as if all were compiled in its bench: texture's are; of onset's, the
-            stepper's compile at its ``generate``.
+            start the slices in the order these predict ends first (:mod:`wtml.lanes`). An
+            order that starts onset and fluid before texture was tried on 29 Nov and not
+            kept: texture's bench then ran beside radial's training, not beside radial's idle
+            wait (3 min 15 s to 4 min 03 s against 3 min 19–24 s), and the pairs that met
+            peaked at 2.04–2.08 GB (README, the main job).
+        warm: ``() -> None``: the work its slice would otherwise do when it first needs it
+            that waits on nothing else (its JIT kernels compiled into numba's cache on disk,
+            datasets only it reads generated under :func:`wtml.pipeline.generate_locked`),
+            which the main job runs ahead in a lane of its own
+            (:func:`wtml.pipeline.run_all`); ``""``: none.
+        warm_s: that work's seconds on one core, with a cold cache (29 Nov).
     """
 
     name: str
@@ -94,25 +94,25 @@ TASKS = {t.name: t for t in (
          "wtml.exporters.fluid:export_fluid", "wtml.runtime.predict:predict_file",
          "wtml.pipeline:run_fluid",
          "wtml.bench.fluid:frontier_problem", evaluate="wtml.bench.fluid:evaluate_checkpoint",
-         measurement="wtml.exporters.fluid:FLUID", pipeline_s=53, bench_s=27),
+         measurement="wtml.exporters.fluid:FLUID", pipeline_s=42, bench_s=21),
     Task("radial", "a contact's distance from the tip along the whisker from Ze",
          "measurements", "wtml.scenes.radial:RadialScene", "wtml.decoders.radial:RadialDecoder",
          "wtml.exporters.radial:export_radial", "wtml.runtime.predict:predict_file",
          "wtml.pipeline:run_radial",
          "wtml.bench.radial:frontier_problem", evaluate="wtml.bench.radial:evaluate_checkpoint",
-         measurement="wtml.exporters.radial:RADIAL", pipeline_s=331, bench_s=66),
+         measurement="wtml.exporters.radial:RADIAL", pipeline_s=277, bench_s=55),
     Task("onset", "contact onsets, detachments and the wall's horizontal location from e, i",
          "recordings", "wtml.scenes.onset:OnsetScene", "wtml.decoders.onset:OnsetDecoder",
          "wtml.exporters.onset:export_onset", "wtml.runtime.onset:predict_records",
          "wtml.pipeline:run_onset",
-         "wtml.bench.onset:frontier_problem", pipeline_s=177, bench_s=52,
-         warm="wtml.pipeline:warm_onset", warm_s=15),
+         "wtml.bench.onset:frontier_problem", pipeline_s=121, bench_s=37,
+         warm="wtml.pipeline:warm_onset", warm_s=28),
     Task("texture", "a swept sandpaper's grade and grain size from e, i",
          "recordings", "wtml.scenes.texture:TextureScene",
          "wtml.decoders.texture:TextureDecoder", "wtml.exporters.texture:export_texture",
          "wtml.runtime.texture:predict_records", "wtml.pipeline:run_texture",
-         "wtml.bench.texture:frontier_problem", pipeline_s=286, bench_s=121,
-         warm="wtml.pipeline:warm_texture", warm_s=30),
+         "wtml.bench.texture:frontier_problem", pipeline_s=294, bench_s=180,
+         warm="wtml.pipeline:warm_texture", warm_s=39),
 )}
 """Every task, in the main job's order."""
 UNNAMED = "fluid"

@@ -722,15 +722,16 @@ def warm_onset() -> None:
 
 
 def warm_texture() -> None:
-    """The texture slice's work ahead: its MiniRocket peer compiled (aeon's kernels, by numba,
-    into its cache on disk: ~25 s on one core in a fresh environment), fitted and run on a
-    few random windows as its bench fits and runs it (float32 ``(n, 2, window)``), and the
-    unseen FEPA grades' dataset its bench reads generated (:func:`generate_locked`)."""
+    """The texture slice's work ahead: the unseen FEPA grades' dataset its bench reads
+    generated (:func:`generate_locked`; first: the slice reaches it within a minute), then
+    its MiniRocket peer compiled (aeon's kernels, by numba, into its cache on disk: ~25 s on
+    one core in a fresh environment), fitted and run on a few random windows as its bench
+    fits and runs it (float32 ``(n, 2, window)``)."""
     from wtml.baselines.texture_peers import MiniRocketPeer
 
+    generate_locked(FEPA_SCENE, Path("datasets/texture_fepa"))
     x = np.random.default_rng(0).standard_normal((10, 2, 256)).astype(np.float32)
     MiniRocketPeer(84).fit_stacked(x.copy(), np.arange(10) % 5).predict_stacked(x)
-    generate_locked(FEPA_SCENE, Path("datasets/texture_fepa"))
 
 
 def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LANES) -> str:
@@ -776,6 +777,7 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
         order = lane_order({n: TASKS[n].pipeline_s for n in names},
                            {n: TASKS[n].bench_s for n in names}, lanes,
                            sum(spec.warm_s for spec in warm))
+        warm.sort(key=lambda spec: order.index(spec.name))  # the first slice's work first
         if lanes > 1:
             first = (f"{WARM} ({', '.join(spec.name for spec in warm)}) first, " if warm
                      else "")

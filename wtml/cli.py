@@ -1070,8 +1070,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override the training configs' epochs (default: the configs')")
     pl.add_argument("--lanes", type=_number(1, 64, int), default=2,
                     help="slices run side by side, one thread each of the cores, after a "
-                         "warm-up that compiles their JIT kernels in one lane (default 2; 1: "
-                         "one after another on every core, printing as they go)")
+                         "warm-up in one lane that compiles their JIT kernels and generates "
+                         "the datasets only one slice reads (default 2; 1: one after another "
+                         "on every core, printing as they go)")
     pl.set_defaults(func=_pipeline)
     return parser
 

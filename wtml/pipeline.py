@@ -35,8 +35,9 @@ version: their benches' defaults are the full tables)."""
 INDEPENDENT_RECORDS = 4
 """Records of the independent simulator in the main job's onset transfer table."""
 ONSET_SCENE, FEPA_SCENE = "configs/scenes/onset.yaml", "configs/scenes/texture_fepa.yaml"
-"""Scenes of datasets the warm-up generates ahead (:func:`warm_onset`, :func:`warm_texture`)
-as well as their slices."""
+ONSET_DATA, FEPA_DATA = Path("datasets/onset"), Path("datasets/texture_fepa")
+"""Scenes and folders of the datasets the warm-up generates ahead (:func:`warm_onset`,
+:func:`warm_texture`) as well as their slices."""
 DEVICE_RECORDS = {"onset": 8, "texture": 16}
 """Fresh records per row of the main job's device-spread tables (texture's rows are paired:
 the same specimens and nuisance on every device)."""
@@ -422,7 +423,7 @@ def run_onset(stages: Stages, *, max_epochs: int | None = None) -> dict:
     from wtml.exporters.onset import calibration_file
     from wtml.runtime.onset import predict_records
 
-    data, model, bench = Path("datasets/onset"), Path("export/onset"), Path("runs/onset/bench")
+    data, model, bench = ONSET_DATA, Path("export/onset"), Path("runs/onset/bench")
     _generate(stages, "onset", ONSET_SCENE, data)
     ckpt = _train(stages, "onset", "configs/onset.yaml", data, max_epochs)
     test = _export_and_predict_records(stages, "onset", ckpt, model, data, predict_records,
@@ -519,7 +520,7 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
     from wtml.exporters.texture import calibration_file
     from wtml.runtime.texture import predict_records
 
-    data, fepa = Path("datasets/texture"), Path("datasets/texture_fepa")
+    data, fepa = Path("datasets/texture"), FEPA_DATA
     model, bench = Path("export/texture"), Path("runs/texture/bench")
     _generate(stages, "texture", "configs/scenes/texture.yaml", data)
     _generate(stages, "texture", FEPA_SCENE, fepa)
@@ -623,8 +624,8 @@ LANES = 2
 LOGS = Path("runs/pipeline")
 """Where each slice run in a lane writes its log (``<task>.log``)."""
 WARM = "warm-up"
-"""The job that compiles the slices' JIT kernels ahead (:func:`run_all`), its log
-``warm-up.log`` and its line of the summary."""
+"""The job that does the slices' warm parts ahead, their JIT kernels compiled and datasets
+generated (:func:`run_all`), its log ``warm-up.log`` and its line of the summary."""
 BENCH_LOCK = "bench.lock"
 """The file in :data:`LOGS` that the lanes' ``bench`` stages take turns on (:class:`Stages`):
 side by side, the texture and radial benches peaked at 3.1 GB together (27 Nov)."""
@@ -717,7 +718,7 @@ def warm_onset() -> None:
     from wtml.bench.onset_transfer import independent_variant
     from wtml.scenes import load_scene
 
-    generate_locked(ONSET_SCENE, Path("datasets/onset"))
+    generate_locked(ONSET_SCENE, ONSET_DATA)
     independent_variant(load_scene(ONSET_SCENE)).make(1, np.random.default_rng(0))
 
 
@@ -729,7 +730,7 @@ def warm_texture() -> None:
     fits and runs it (float32 ``(n, 2, window)``)."""
     from wtml.baselines.texture_peers import MiniRocketPeer
 
-    generate_locked(FEPA_SCENE, Path("datasets/texture_fepa"))
+    generate_locked(FEPA_SCENE, FEPA_DATA)
     x = np.random.default_rng(0).standard_normal((10, 2, 256)).astype(np.float32)
     MiniRocketPeer(84).fit_stacked(x.copy(), np.arange(10) % 5).predict_stacked(x)
 

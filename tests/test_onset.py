@@ -14,7 +14,7 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 
 from tests.conftest import ONSET_SMALL, ROOT
-from wtml.decoders.onset import TOUCH_LOOKBACK, asinh
+from wtml.decoders.onset import TOUCH_LOOKBACK, asinh, touch_spread
 from wtml.exporters.onset import calibration_file, record_inputs, thesis_pipeline
 from wtml.physics.spread import DeviceSpread
 from wtml.runtime.contacts import Timing, contacts_from, intervals
@@ -131,10 +131,13 @@ def test_exported_graphs_match_torch(onset_export, spread_scene):
     rec = scene.simulate(3, np.random.default_rng(5))
     assert len({complex(t) for t in rec["t_probe"][:, 0, 1]}) == 3  # three devices
     x = record_inputs(rec)
+    model = OnnxModel(onset_export["model"] / "model.onnx")
+    limit = model.meta.domain.self_check_limit
+    assert limit > 0
     with torch.no_grad():
-        ref = Gated(module.net, module.gate, (1,)).eval()(*tensors(rec))
+        ref = Gated(module.net, module.gate, (1,), check=limit).eval()(*tensors(rec))
         ref_cl = thesis_pipeline(scene)(*tensors(rec))
-    dec = OnnxModel(onset_export["model"] / "model.onnx").run(*x)
+    dec = model.run(*x)
     cl = OnnxModel(onset_export["model"] / "classical.onnx").run(*x)
     np.testing.assert_allclose(dec["gap"], ref[0].numpy(), rtol=1e-4, atol=1e-10)
     np.testing.assert_allclose(dec["contact"], ref[2].numpy(), atol=1e-4)
@@ -168,6 +171,76 @@ def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene
     np.testing.assert_array_equal(streamed["in_domain"], offline["in_domain"])
     with pytest.raises(InputError, match="do not split into chunks"):
         stream_record(stream, rec["e"][:, :-1], rec["i"][:, :-1], *record_inputs(rec)[2:])
+
+
+def test_the_whisk_cycles_agreement_is_their_weighted_distance_from_the_answer_in_sigma():
+    """touch_spread: two cycles of equal vote share at g ± d give d/σ; one cycle holding the
+    whole vote gives 0 whatever the other's (empty) sums; a record without a wall gives 0."""
+    g, sd, d = 5e-6, 0.2e-6, 0.3e-6
+    share = torch.tensor([[0.5, 0.5], [1.0, 0.0], [0.5, 0.5]])
+    sums = torch.tensor([[0.5 * (g - d), 0.5 * (g + d)], [g, 0.0], [0.5 * g, 0.5 * g]])
+    gap = torch.tensor([g, g, float("nan")])
+    out = touch_spread(share, sums, gap, torch.full((3,), sd))
+    np.testing.assert_allclose(out.numpy(), [d / sd, 0.0, 0.0], rtol=1e-5, atol=1e-6)
+
+
+def test_an_object_that_moves_between_whisk_cycles_is_flagged(onset_export, scene):
+    """Records spliced at the far end of the whisk (t = 1 s, u_L = -amp), their first cycle
+    from a wall at 0.25 of the amplitude and the second from one at 0.75, through the
+    fixture's net with an oracle's heads (votes on the frames in contact, |Zm| over 2e-4
+    N·s/m, each saying the reach there, σ 0.1 µm; the fixture's own 3 epochs find no wall):
+    the cycles' spread is the distance between their mean reaches over 2σ, past the limit,
+    and the graph flags the record, its domain score the spread over the limit; the records
+    it was spliced from stay near 0. The streaming form, fed 60 frames at a time, ends on the
+    same scores."""
+    from wtml.decoders.checkpoint import load_decoder
+    from wtml.decoders.domain import Gated
+    from wtml.decoders.onset import OnsetNet
+    from wtml.decoders.onset_stream import StreamingOnset
+
+    module = load_decoder(onset_export["run"] / "checkpoints/last.ckpt")
+    net = module.net
+
+    def oracle(h, f, step, per_volt):
+        p = OnsetNet.outputs(net, h, f, step, per_volt)
+        touching = (f[..., 1:3].norm(dim=-1) > 2e-4).float()  # |Zm| ~1.5e-3 N·s/m on a wall
+        log_sd = torch.full_like(touching, np.log(0.1e-6 / net.amp))
+        return p | {"contact": torch.full_like(touching, 20.0), "vote": 30 * touching,
+                    "est": p["reach"], "log_sd": log_sd}
+
+    net.outputs = oracle
+    exact = dataclasses.replace(scene, calibration_error=0.0)
+    amp = exact.whisk_amplitude_m()
+    rec = exact.simulate(2, np.random.default_rng(3), gaps=np.array([0.25, 0.75]) * amp)
+    half = exact.n_samples // 2
+    x = [torch.tensor(y) for y in record_inputs(rec)]
+    spliced = [torch.cat([y[:1, :half], y[1:, half:]], 1) for y in x[:2]] + [y[:1] for y in x[2:]]
+    graph = Gated(net, module.gate, (1,), check=1.0).eval()
+    with torch.no_grad():
+        whole, moved = net(*x)[-1], net(*spliced)[-1]
+        gated = graph(*spliced)
+        stream = StreamingOnset(net, module.gate, 1.0, chunk_frames=60).eval()
+        state = stream.initial_state(1)
+        chunk = stream.chunk_samples
+        assert exact.n_samples % chunk == 0
+        for k in range(0, exact.n_samples, chunk):
+            out = stream(spliced[0][:, k:k + chunk], spliced[1][:, k:k + chunk], *spliced[2:],
+                         state)
+            state = out[5]
+    assert np.all(whole.numpy() < 0.1), whole
+    # each cycle's location: its own record's mean reach over its frames in contact
+    with torch.no_grad():
+        f = net.frames(*x)
+    touching = f[..., 1:3].norm(dim=-1) > 2e-4
+    reach = net.reach(f, net.reach_per_volt(x[2], x[3]))
+    first = [reach[k][touching[k]][: int(touching[k].sum()) // 2].mean() for k in range(2)]
+    share = touching[0].sum() / 2 / (touching[0].sum() / 2 + touching[1].sum() / 2)
+    centre = share * first[0] + (1 - share) * first[1]
+    expect = torch.sqrt(share * (first[0] - centre) ** 2 + (1 - share) * (first[1] - centre) ** 2)
+    assert moved.item() == pytest.approx(expect.item() / 0.1e-6, rel=0.05)
+    assert moved.item() > 10
+    assert not gated[-2].item() and gated[-1].item() == pytest.approx(moved.item(), rel=1e-5)
+    assert not out[-2].item() and out[-1].item() == pytest.approx(gated[-1].item(), rel=1e-4)
 
 
 def test_timing_rule_finds_every_contact_from_zm_steps_and_the_detachment_level(scene):

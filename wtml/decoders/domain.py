@@ -166,18 +166,29 @@ class Gated(nn.Module):
     Where the net's ``features`` is the gate's own module and the net answers from features
     (``net.from_features``), the graph computes them once for both.
 
+    Where ``check`` is given, the net's last output is a self-check of its answer (the onset
+    net's :func:`~wtml.decoders.onset.touch_spread`): it leaves the graph's outputs, and the
+    domain score is the larger of the gate's and that check over its limit, so an answer whose
+    check passes the limit is out of domain.
+
     Args:
         net: the exported net, returning a tuple of ``(batch,)`` tensors.
         gate: its fitted :class:`DomainGate`.
         uncertain: indices of the outputs that are predicted uncertainties.
+        check: the limit of the net's last output (score 1 there), or None (no self-check).
     """
 
-    def __init__(self, net: nn.Module, gate: DomainGate, uncertain: tuple[int, ...] = ()
-                 ) -> None:
+    def __init__(self, net: nn.Module, gate: DomainGate, uncertain: tuple[int, ...] = (),
+                 check: float | None = None) -> None:
         super().__init__()
         self.net, self.gate, self.uncertain = net, gate, tuple(uncertain)
         self.shared = (getattr(net, "features", None) is gate.features
                        and hasattr(net, "from_features"))
+        self.checked = check is not None
+        if self.checked:
+            if not check > 0:
+                raise ValueError(f"check must be a limit > 0, got {check!r}")
+            self.register_buffer("check_limit", torch.tensor(float(check)))
 
     def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         if self.shared:
@@ -185,6 +196,9 @@ class Gated(nn.Module):
             outputs, score = tuple(self.net.from_features(x)), self.gate.score(x)
         else:
             outputs, score = tuple(self.net(*inputs)), self.gate(*inputs)
+        if self.checked:
+            *outputs, check = outputs
+            score = torch.maximum(score, check / self.check_limit)
         inside = (score <= 1.0) & self.gate.outputs_in_range(outputs)
         nan = torch.tensor(float("nan"))  # a constant, broadcast (no Shape and Expand)
         outputs = tuple(torch.where(inside, y, nan) if k in self.uncertain else y

@@ -53,7 +53,9 @@ offsets only (a device's own amplitude differs by a few %, its offsets by as lit
 Outputs (each ``(batch,)`` unless said): ``gap`` and ``sigma`` (m, NaN in a record without
 contact: :func:`answer` decides wall and contacts together), ``contact`` (``(batch,
 n_frames)``, probability per frame), ``detach_margin`` (m, ``(batch, n_frames)``; -1 m in a
-record without contact) and ``touch`` (``(batch, n_frames)``).
+record without contact), ``touch`` (``(batch, n_frames)``) and ``touch_spread`` (how far the
+whisk cycles' own locations of the wall lie apart, in σ: :func:`touch_spread`; the exported
+graphs fold it into the domain score, over a limit fitted on fresh records).
 Intervals come from these by :func:`wtml.runtime.contacts.contacts_from` plus the
 onset/detachment phases in the metadata (where in its frame a contact starts and ends,
 fitted on training labels).
@@ -391,6 +393,8 @@ class OnsetNet(nn.Module):
         probe_omega: ωH, rad/s (the free tip's probe amplitude per probe volt is
             ``1/(ωH |t12|)`` with each record's calibrated t12).
         channels, dilations, kernel: the temporal convolution.
+        cycle_frames: frames per whisk cycle (probe periods per whisking period).
+        cycles: whisk cycles in a record (a frame past the last belongs to it).
     """
 
     HEADS = 6
@@ -399,8 +403,13 @@ class OnsetNet(nn.Module):
 
     def __init__(self, frames: ProbeFrames, scale: torch.Tensor, zm_step: torch.Tensor,
                  touch_step: float, amp: float, probe_omega: float, channels: int,
-                 dilations: tuple[int, ...], kernel: int = 3, t12: float = 0.0) -> None:
+                 dilations: tuple[int, ...], *, cycle_frames: int, cycles: int,
+                 kernel: int = 3, t12: float = 0.0) -> None:
         super().__init__()
+        if cycle_frames < 1 or cycles < 1:
+            raise ValueError(f"cycle_frames and cycles must be >= 1, got {cycle_frames}, "
+                             f"{cycles}")
+        self.cycle_frames, self.cycles = int(cycle_frames), int(cycles)
         # the nominal device's |t12| at the probe (0: steps not rescaled; see :meth:`scaled`)
         self.per_volt_ref = 1.0 / (float(probe_omega) * t12) if t12 > 0 else 0.0
         self.frames = frames
@@ -496,6 +505,19 @@ class OnsetNet(nn.Module):
         off = (torch.softmax(p["vote_off"], -1) * p["est_off"]).sum(-1)
         return g, torch.sqrt(var), off
 
+    def cycle_of(self, frame: torch.Tensor) -> torch.Tensor:
+        """One-hot whisk cycle of each frame index (any shape ``s``, counted from the
+        record's start) -> ``(*s, cycles)`` float."""
+        k = torch.div(frame, self.cycle_frames, rounding_mode="floor").clamp(max=self.cycles - 1)
+        return (k[..., None] == torch.arange(self.cycles, dtype=k.dtype)).float()
+
+    def per_cycle(self, p: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        """g's vote share and Σ w·estimate (m) of each whisk cycle, ``(batch, cycles)`` each
+        (their sums over the cycles are 1 and :meth:`pooled`'s g)."""
+        w = torch.softmax(p["vote"], -1)
+        onehot = self.cycle_of(torch.arange(w.shape[1]))
+        return w @ onehot, (w * p["est"]) @ onehot
+
     def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
                 t_im: torch.Tensor, hue0: torch.Tensor) -> tuple[torch.Tensor, ...]:
         p = self.per_frame(e, i, t_re, t_im, hue0)
@@ -504,7 +526,7 @@ class OnsetNet(nn.Module):
         prob, _, _ = confirm(torch.sigmoid(p["contact"]), p["touch"],
                              torch.zeros(n, CONFIRM_FRAMES), torch.zeros(n))
         gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
-        return gap, sd, prob, off_margin, p["touch"]
+        return gap, sd, prob, off_margin, p["touch"], touch_spread(*self.per_cycle(p), gap, sd)
 
 
 CONFIRM_FRAMES = 4
@@ -534,6 +556,22 @@ def confirm(prob: torch.Tensor, touch: torch.Tensor, past: torch.Tensor, seen: t
     count = seen[:, None] + torch.cumsum(hit, 1)
     return (prob * (count > 0).to(prob.dtype), x[:, x.shape[1] - CONFIRM_FRAMES:],
             count[:, -1])
+
+
+def touch_spread(share: torch.Tensor, sums: torch.Tensor, gap: torch.Tensor, sd: torch.Tensor
+                 ) -> torch.Tensor:
+    """How far the whisk cycles' own locations of the wall lie from the record's, in its σ:
+    ``sqrt(Σ_c W_c (G_c − g)²) / σ``, ``(batch,)``, from each cycle's vote share ``W_c`` and
+    ``Σ w·estimate`` (``G_c`` their ratio; :meth:`OnsetNet.per_cycle`), g and σ (m; 0 where
+    the record has no contact, ``gap`` NaN). A still wall is met at one place in every cycle:
+    the cycles of the main job's decoder agree to ~0.2σ in its trained scene (|G_1 − G_2|,
+    median over 228 walls; at most 0.9σ, and 1.8σ on the Hertz mount alone), where an object
+    moving with the floor (0.8 µm rms, physics.md §12) is met 2.8σ apart (median) and the
+    location is off by what the floor moved. A graph compares it with a limit fitted on fresh
+    records of the trained scene (:class:`~wtml.decoders.domain.Gated`'s ``check``)."""
+    mean = sums / share.clamp_min(1e-30)
+    spread = torch.sqrt((share * (mean - gap[:, None]) ** 2).sum(-1)) / sd
+    return torch.where(torch.isfinite(gap), spread, torch.zeros_like(spread))
 
 
 def answer(g, sd, top, p: dict, off) -> tuple[torch.Tensor, ...]:
@@ -709,7 +747,9 @@ class OnsetDecoder(DecoderModule):
         return OnsetNet(self._frames(scene), scale,
                         torch.ones(2) if zm_step is None else zm_step, touch_step,
                         scene.whisk_amplitude_m(), 2 * np.pi * scene.drive.probe_hz,
-                        h.channels, tuple(h.dilations), t12=nominal_t12(scene))
+                        h.channels, tuple(h.dilations),
+                        cycle_frames=max(1, round(scene.drive.probe_hz / scene.drive.whisk_hz)),
+                        cycles=int(np.ceil(scene.drive.cycles - 1e-9)), t12=nominal_t12(scene))
 
     def build_net(self, scene, *tensors) -> nn.Module:
         *inputs, targets = tensors

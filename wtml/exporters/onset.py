@@ -17,7 +17,7 @@ import torch
 
 from wtml import __version__
 from wtml.baselines.onset_classical import ThesisOnset
-from wtml.decoders.domain import Gated
+from wtml.decoders.domain import QUANTILE, Gated
 from wtml.decoders.onset import TOUCH_LOOKBACK, frame_period
 from wtml.decoders.onset_stream import StreamingOnset
 from wtml.decoders.recalibration import Recalibrated, fit_uncertainty, metadata
@@ -60,6 +60,31 @@ simulated :data:`FRESH_CHUNK` at a time (~1.5 s each on the main job's scene).""
 FRESH_CHUNK = 64
 """Records simulated and answered at once among the :data:`FRESH_RECORDS` (each chunk its own
 seed; 128 had held ~0.19 GB more at the export's peak, its records' noise being drawn)."""
+SPREAD_QUANTILE = QUANTILE
+"""The fresh records' quantile of :func:`~wtml.decoders.onset.touch_spread` (over those with a
+wall) that the exported graphs take as its limit, as the domain gate takes its own."""
+
+
+SPREAD_MIN_WALLS = 20
+"""Fewer fresh records than this with a wall answered (a net trained a few epochs answers
+none): the limit is :data:`SPREAD_DEFAULT`."""
+SPREAD_DEFAULT = 1.0
+"""The limit (σ) without enough walls to fit it: cycles 2σ apart (the main job's decoder's
+fitted limit was 0.64σ)."""
+
+
+def spread_limit(spread: np.ndarray) -> float:
+    """The limit of the whisk cycles' disagreement (σ) from the fresh records with a wall
+    answered, ``(n,)``: their :data:`SPREAD_QUANTILE` (:data:`SPREAD_DEFAULT` with fewer
+    than :data:`SPREAD_MIN_WALLS`)."""
+    if not np.all(np.isfinite(spread)):
+        raise ValueError(f"touch_spread: {int(np.sum(~np.isfinite(spread)))} of {len(spread)} "
+                         "fresh answers with a wall are not finite")
+    if len(spread) < SPREAD_MIN_WALLS:
+        return SPREAD_DEFAULT
+    return max(float(np.quantile(spread, SPREAD_QUANTILE)), 1e-6)
+
+
 GAP_INTERVAL = {"sigma": "sigma", "value": "gap", "by": "gap", "log_value": False,
                 "stored": "std"}
 """The onset graphs' interval: σ, the std of the wall's location g (m)."""
@@ -111,15 +136,23 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
                     for s in range(0, len(fresh["gap"]), 32)]
         truth.append(fresh["gap"])
         del fresh, inputs  # not beside the next chunk's simulation
-    gap, sigma, inside = (torch.cat([a[k] for a in answers]) for k in (0, 1, -2))
+    gap, sigma, spread, inside = (torch.cat([a[k] for a in answers]) for k in (0, 1, 5, -2))
+    limit = spread_limit(spread[torch.isfinite(gap)].double().numpy())
     uncertainty = fit_uncertainty(
         {"gap": gap.double().numpy(), "sigma": sigma.double().numpy()},
         {"gap": np.concatenate(truth)}, [GAP_INTERVAL], 1,
         f"{FRESH_RECORDS} fresh records of the trained scene (seeds [{scene.seed}, 1000001, "
         f"k] for chunks from record k; not the training data)")
-    decoder = Gated(Recalibrated(module.net, DECODER_OUTPUTS, uncertainty), module.gate,
-                    (1,)).eval()
-    domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
+    decoder = Gated(Recalibrated(module.net, DECODER_OUTPUTS + ("touch_spread",), uncertainty),
+                    module.gate, (1,), check=limit).eval()
+    flagged = (inside & (spread <= limit)).logical_not().float().mean()
+    domain = domain_metadata(scene, float(flagged), FRESH_RECORDS) | {
+        "self_check": "touch_spread: how far the whisk cycles' own locations of the wall lie from "
+                 "the record's, in its sigma (a still wall is met at one place in every "
+                 f"cycle); its limit is the {SPREAD_QUANTILE} quantile over the fresh records "
+                 f"with a wall ({SPREAD_DEFAULT} with fewer than {SPREAD_MIN_WALLS}); the "
+                 "domain score is the larger of the gate's and it over the "
+                 "limit", "self_check_limit": limit}
     rate = scene.acquisition.sample_rate_hz
     period = frame_period(scene)
     merge = scene.merge_periods / scene.drive.probe_hz
@@ -151,7 +184,7 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
     export_graph(classical, scene.n_samples, paths["classical"],
             meta | samples | {"kind": "classical", "label": "thesis pipeline"}, ONSET_INPUTS,
             widths)
-    stream = StreamingOnset(module.net, module.gate, STREAM_CHUNK_FRAMES).eval()
+    stream = StreamingOnset(module.net, module.gate, limit, STREAM_CHUNK_FRAMES).eval()
     paths["stream"] = out / "stream.onnx"
     export_graph(Recalibrated(stream, STREAM_OUTPUTS + GATE_OUTPUTS, uncertainty).eval(),
             stream.chunk_samples, paths["stream"],

@@ -140,13 +140,18 @@ class OutputDomain:
 @dataclass(frozen=True)
 class Domain:
     """The trained domain as the metadata states it (``wtml.exporters.common.domain_metadata``);
-    ``outputs`` maps output names to :class:`OutputDomain`."""
+    ``outputs`` maps output names to :class:`OutputDomain`. A graph that also checks its own
+    answer (the onset decoder's whisk cycles' agreement) says what in ``self_check`` and the
+    limit at which its domain score reaches 1 in ``self_check_limit`` (empty and 0 without
+    one)."""
 
     score: str
     quantile: float = bounded(0.5, 1.0)
     false_alarm_fresh: float = bounded(0.0, 1.0)
     n_fresh: int = bounded(1, 10**9)
     outputs: dict = dataclasses.field(default_factory=dict)
+    self_check: str = ""
+    self_check_limit: float = bounded(0.0, 1e30, default=0.0)
 
     def check(self, path: str) -> None:
         built = {}

@@ -489,6 +489,22 @@ def test_a_decoder_trained_on_one_device_flags_the_others(onset_export, scene, s
     assert spread["domain_score"].min() > 100 * nominal["domain_score"].max()
 
 
+def test_predict_names_the_whisk_cycles_check_when_it_flags(onset_export, spread_scene,
+                                                            tmp_path):
+    """A record outside the domain is flagged by `wtml predict` with what the onset graph's
+    domain score holds beside the gate's inputs: the whisk cycles' agreement (the export
+    states its limit in the metadata's domain)."""
+    rec = spread_scene.simulate(1, np.random.default_rng(14))  # another device: outside
+    path = tmp_path / "rec.npz"
+    np.savez(path, e=rec["e"][0], i=rec["i"][0],
+             sample_rate_hz=spread_scene.acquisition.sample_rate_hz)
+    rows = predict_records(onset_export["model"], path,
+                           calibration=calibration_file(tmp_path / "cal.npz", spread_scene, rec))
+    decoder = [r for r in rows if r["method"] == "decoder"]
+    assert decoder and not any(r["in_domain"] for r in decoder)
+    assert all("whisk cycles' locations of the wall disagree" in r["flags"] for r in decoder)
+
+
 def test_a_missing_wall_passes_the_gates_range_check_only_where_absence_is_an_answer():
     """NaN (no wall) is in range for an output declared ``absent_ok`` (the onset scene's
     gap), out of range for any other; a finite answer outside the range fails either way."""

@@ -95,10 +95,13 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
         pred |= model.half_widths(pred)
         onset, detach = contacts_from(pred, Timing.of(model.meta))
         odd = impossible(model, pred)["gap"]
+        outside = ("outside the trained domain (its inputs, or its whisk cycles' locations of "
+                   "the wall disagree: an object that moves?)" if model.meta.domain.self_check
+                   else "outside the trained domain")
         for r in range(x.shape[1]):
             flags = []
             if not pred["in_domain"][r]:
-                flags.append("outside the trained domain" if pred["domain_score"][r] > 1
+                flags.append(outside if pred["domain_score"][r] > 1
                              else "answer outside the trained range")
             if odd[r] and np.isfinite(pred["gap"][r]):
                 flags.append("gap physically impossible")

@@ -184,53 +184,98 @@ def test_the_whisk_cycles_agreement_is_their_weighted_distance_from_the_answer_i
     np.testing.assert_allclose(out.numpy(), [d / sd, 0.0, 0.0], rtol=1e-5, atol=1e-6)
 
 
-def test_an_object_that_moves_between_whisk_cycles_is_flagged(onset_export, scene):
-    """Records spliced at the far end of the whisk (t = 1 s, u_L = -amp), their first cycle
-    from a wall at 0.25 of the amplitude and the second from one at 0.75, through the
-    fixture's net with an oracle's heads (votes on the frames in contact, |Zm| over 2e-4
-    N·s/m, each saying the reach there, σ 0.1 µm; the fixture's own 3 epochs find no wall):
-    the cycles' spread is the distance between their mean reaches over 2σ, past the limit,
-    and the graph flags the record, its domain score the spread over the limit; the records
-    it was spliced from stay near 0. The streaming form, fed 60 frames at a time, ends on the
-    same scores."""
+def _oracle(onset_export, uniform: bool = False):
+    """The fixture's checkpoint with an oracle's heads (its own 3 epochs find no wall): every
+    frame's contact logit 20 and σ 0.1 µm; g's vote 30 on the frames in contact (|Zm| over
+    2e-4 N·s/m; ~1.5e-3 on a wall), each estimating the frame's reach; or (``uniform``) the
+    same vote on every frame, each estimating the reach, 1 µm more in contact. Returns the
+    module (its ``net`` patched)."""
     from wtml.decoders.checkpoint import load_decoder
-    from wtml.decoders.domain import Gated
     from wtml.decoders.onset import OnsetNet
-    from wtml.decoders.onset_stream import StreamingOnset
 
     module = load_decoder(onset_export["run"] / "checkpoints/last.ckpt")
     net = module.net
 
-    def oracle(h, f, step, per_volt):
+    def outputs(h, f, step, per_volt):
         p = OnsetNet.outputs(net, h, f, step, per_volt)
-        touching = (f[..., 1:3].norm(dim=-1) > 2e-4).float()  # |Zm| ~1.5e-3 N·s/m on a wall
+        touching = (f[..., 1:3].norm(dim=-1) > 2e-4).float()
+        vote = torch.zeros_like(touching) if uniform else 30 * touching
+        est = p["reach"] + 1e-6 * touching if uniform else p["reach"]
         log_sd = torch.full_like(touching, np.log(0.1e-6 / net.amp))
-        return p | {"contact": torch.full_like(touching, 20.0), "vote": 30 * touching,
-                    "est": p["reach"], "log_sd": log_sd}
+        return p | {"contact": torch.full_like(touching, 20.0), "vote": vote, "est": est,
+                    "log_sd": log_sd}
 
-    net.outputs = oracle
+    net.outputs = outputs
+    return module
+
+
+def _spliced(scene) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """Two records of walls at 0.25 and 0.75 of the whisking amplitude (the nominal device, no
+    calibration error), and one spliced from them at the far end of the whisk (t = 1 s, u_L =
+    -amp): its first cycle from the first wall, its second from the second."""
     exact = dataclasses.replace(scene, calibration_error=0.0)
     amp = exact.whisk_amplitude_m()
     rec = exact.simulate(2, np.random.default_rng(3), gaps=np.array([0.25, 0.75]) * amp)
     half = exact.n_samples // 2
     x = [torch.tensor(y) for y in record_inputs(rec)]
-    spliced = [torch.cat([y[:1, :half], y[1:, half:]], 1) for y in x[:2]] + [y[:1] for y in x[2:]]
-    graph = Gated(net, module.gate, (1,), check=1.0).eval()
+    return x, [torch.cat([y[:1, :half], y[1:, half:]], 1) for y in x[:2]] + [y[:1] for y in x[2:]]
+
+
+def _streamed(stream, inputs: list[torch.Tensor]) -> tuple[torch.Tensor, ...]:
+    """The streaming graph's outputs after the record's last chunk (torch)."""
+    state = stream.initial_state(len(inputs[0]))
+    chunk, n = stream.chunk_samples, inputs[0].shape[1]
+    assert n % chunk == 0
+    with torch.no_grad():
+        for k in range(0, n, chunk):
+            out = stream(inputs[0][:, k:k + chunk], inputs[1][:, k:k + chunk], *inputs[2:], state)
+            state = out[5]
+    return out
+
+
+def _onnx(graph, path, outputs: tuple[str, ...], inputs: tuple[str, ...], widths):
+    """``graph`` written by the exporter's own :func:`export_graph`, as an onnxruntime
+    session."""
+    import onnxruntime as ort
+
+    from wtml.exporters.graphs import export_graph
+
+    export_graph(graph, widths[0], path, {"outputs": json.dumps(list(outputs))}, inputs, widths)
+    return ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+
+
+def test_the_whisk_cycle_of_a_frame_counts_from_the_records_start(onset_export):
+    """Frames 0-419 are the first whisk cycle (420 probe periods of the 1 Hz whisk), 420-839
+    the second; a frame past the record's cycles belongs to its last."""
+    module = _oracle(onset_export)
+    assert (module.net.cycle_frames, module.net.cycles) == (420, 2)
+    got = module.net.cycle_of(torch.tensor([0.0, 419.0, 420.0, 839.0, 900.0]))
+    np.testing.assert_array_equal(got.numpy(), [[1, 0], [1, 0], [0, 1], [0, 1], [0, 1]])
+
+
+def test_an_object_that_moves_between_whisk_cycles_is_flagged(onset_export, scene, tmp_path):
+    """The spliced record (:func:`_spliced`) through the oracle's heads (votes on the frames
+    in contact): the cycles' spread is the distance between their mean reaches in contact over
+    2σ, and the graph flags the record, its domain score the spread over the limit (0.5); the
+    records it was spliced from stay near 0. The streaming form, fed 56 frames at a time (the
+    cycles' edge, frame 420, inside a chunk), ends on the same score, and so do both as ONNX
+    graphs."""
+    from wtml.decoders.domain import Gated
+    from wtml.decoders.onset_stream import StreamingOnset
+    from wtml.runtime.metadata import DECODER_OUTPUTS, ONSET_INPUTS, STREAM_INPUTS, STREAM_OUTPUTS
+
+    module = _oracle(onset_export)
+    net = module.net
+    x, spliced = _spliced(scene)
+    graph = Gated(net, module.gate, (1,), check=0.5).eval()
+    stream = StreamingOnset(net, module.gate, 56, check_limit=0.5).eval()
     with torch.no_grad():
         whole, moved = net(*x)[-1], net(*spliced)[-1]
         gated = graph(*spliced)
-        stream = StreamingOnset(net, module.gate, 1.0, chunk_frames=60).eval()
-        state = stream.initial_state(1)
-        chunk = stream.chunk_samples
-        assert exact.n_samples % chunk == 0
-        for k in range(0, exact.n_samples, chunk):
-            out = stream(spliced[0][:, k:k + chunk], spliced[1][:, k:k + chunk], *spliced[2:],
-                         state)
-            state = out[5]
+        f = net.frames(*x)
+    out = _streamed(stream, spliced)
     assert np.all(whole.numpy() < 0.1), whole
     # each cycle's location: its own record's mean reach over its frames in contact
-    with torch.no_grad():
-        f = net.frames(*x)
     touching = f[..., 1:3].norm(dim=-1) > 2e-4
     reach = net.reach(f, net.reach_per_volt(x[2], x[3]))
     first = [reach[k][touching[k]][: int(touching[k].sum()) // 2].mean() for k in range(2)]
@@ -239,8 +284,41 @@ def test_an_object_that_moves_between_whisk_cycles_is_flagged(onset_export, scen
     expect = torch.sqrt(share * (first[0] - centre) ** 2 + (1 - share) * (first[1] - centre) ** 2)
     assert moved.item() == pytest.approx(expect.item() / 0.1e-6, rel=0.05)
     assert moved.item() > 10
-    assert not gated[-2].item() and gated[-1].item() == pytest.approx(moved.item(), rel=1e-5)
+    assert not gated[-2].item() and gated[-1].item() == pytest.approx(moved.item() / 0.5, rel=1e-5)
     assert not out[-2].item() and out[-1].item() == pytest.approx(gated[-1].item(), rel=1e-4)
+    n = scene.n_samples
+    offline = _onnx(graph, tmp_path / "model.onnx", DECODER_OUTPUTS, ONSET_INPUTS,
+                    (n, n, 4, 4, ()))
+    got = offline.run(None, dict(zip(ONSET_INPUTS, (y.numpy() for y in spliced), strict=True)))
+    assert not got[-2].item() and got[-1].item() == pytest.approx(gated[-1].item(), rel=1e-4)
+    chunked = _onnx(stream, tmp_path / "stream.onnx", STREAM_OUTPUTS, STREAM_INPUTS,
+                    (stream.chunk_samples,) * 2 + (4, 4, (), stream.state_size))
+    state = np.zeros((1, stream.state_size), np.float32)
+    for k in range(0, n, stream.chunk_samples):
+        part = [y[:, k:k + stream.chunk_samples].numpy() for y in spliced[:2]]
+        res = chunked.run(None, dict(zip(STREAM_INPUTS, (*part, *(y.numpy() for y in spliced[2:]),
+                                                         state), strict=True)))
+        state = res[5]
+    assert not res[-2].item() and res[-1].item() == pytest.approx(gated[-1].item(), rel=1e-3)
+
+
+def test_the_streamed_cycles_are_the_offline_ones_where_every_frame_votes(onset_export, scene):
+    """With every frame voting alike, the spliced record's cycles differ by their share of
+    frames in contact (~0.2 µm), and a frame given to the wrong cycle would move that cycle's
+    estimate by ~30 nm (the reach at the cycles' edge is -12.6 µm): the streaming form, fed 56
+    frames at a time (the edge inside a chunk) and 60 (on a chunk's edge), ends on the offline
+    spread, read through a limit small enough that it alone makes the score."""
+    from wtml.decoders.onset_stream import StreamingOnset
+
+    module = _oracle(onset_export, uniform=True)
+    _, spliced = _spliced(scene)
+    with torch.no_grad():
+        offline = module.net(*spliced)[-1].item()
+    assert offline > 0.3
+    for frames in (56, 60):
+        stream = StreamingOnset(module.net, module.gate, frames, check_limit=1e-6).eval()
+        score = _streamed(stream, spliced)[-1].item()
+        assert score * 1e-6 == pytest.approx(offline, rel=1e-3), frames
 
 
 def test_timing_rule_finds_every_contact_from_zm_steps_and_the_detachment_level(scene):
@@ -491,9 +569,11 @@ def test_a_decoder_trained_on_one_device_flags_the_others(onset_export, scene, s
 
 def test_predict_names_the_whisk_cycles_check_when_it_flags(onset_export, spread_scene,
                                                             tmp_path):
-    """A record outside the domain is flagged by `wtml predict` with what the onset graph's
-    domain score holds beside the gate's inputs: the whisk cycles' agreement (the export
-    states its limit in the metadata's domain)."""
+    """A record outside the domain is flagged by `wtml predict` with what the onset decoder's
+    domain score holds beside the gate's inputs where it answers a wall: the whisk cycles'
+    agreement (the export states its limit in the decoder's metadata; the classical graph,
+    without the check, states none and is flagged plainly). A row without a wall (the
+    fixture's net answers none) is flagged plainly too: the check is 0 there."""
     rec = spread_scene.simulate(1, np.random.default_rng(14))  # another device: outside
     path = tmp_path / "rec.npz"
     np.savez(path, e=rec["e"][0], i=rec["i"][0],
@@ -501,8 +581,14 @@ def test_predict_names_the_whisk_cycles_check_when_it_flags(onset_export, spread
     rows = predict_records(onset_export["model"], path,
                            calibration=calibration_file(tmp_path / "cal.npz", spread_scene, rec))
     decoder = [r for r in rows if r["method"] == "decoder"]
-    assert decoder and not any(r["in_domain"] for r in decoder)
-    assert all("whisk cycles' locations of the wall disagree" in r["flags"] for r in decoder)
+    classical = [r for r in rows if r["method"] == "classical"]
+    assert decoder and not any(r["in_domain"] for r in decoder + classical)
+    hint = "whisk cycles' locations of the wall disagree"
+    # the decoder's graph holds the check where it answers a wall; the classical one has none
+    assert all((hint in r["flags"]) == np.isfinite(r["gap (m)"]) for r in decoder)
+    assert all(r["flags"] == "outside the trained domain" for r in classical)
+    assert OnnxModel(onset_export["model"] / "model.onnx").meta.domain.self_check_limit > 0
+    assert OnnxModel(onset_export["model"] / "classical.onnx").meta.domain.self_check_limit == 0
 
 
 def test_a_missing_wall_passes_the_gates_range_check_only_where_absence_is_an_answer():

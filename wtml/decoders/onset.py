@@ -381,7 +381,7 @@ class CausalConv(nn.Module):
 
 class OnsetNet(nn.Module):
     """Frames -> (gap m, sigma m, contact probability per frame, detachment margin per frame
-    m); see the module docstring.
+    m, touch per frame, the whisk cycles' spread in σ); see the module docstring.
 
     Args:
         frames: the feature layer.
@@ -526,7 +526,15 @@ class OnsetNet(nn.Module):
         prob, _, _ = confirm(torch.sigmoid(p["contact"]), p["touch"],
                              torch.zeros(n, CONFIRM_FRAMES), torch.zeros(n))
         gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
-        return gap, sd, prob, off_margin, p["touch"], touch_spread(*self.per_cycle(p), gap, sd)
+        return gap, sd, prob, off_margin, p["touch"], self.agreement(*self.per_cycle(p), gap, sd)
+
+    def agreement(self, share: torch.Tensor, sums: torch.Tensor, gap: torch.Tensor,
+                  sd: torch.Tensor) -> torch.Tensor:
+        """:func:`touch_spread` of the cycles' ``share`` and ``sums`` ``(batch, cycles)``;
+        0 for records of one whisk cycle (nothing to compare: only rounding would show)."""
+        if self.cycles == 1:
+            return torch.zeros_like(gap)
+        return touch_spread(share, sums, gap, sd)
 
 
 CONFIRM_FRAMES = 4
@@ -563,11 +571,12 @@ def touch_spread(share: torch.Tensor, sums: torch.Tensor, gap: torch.Tensor, sd:
     """How far the whisk cycles' own locations of the wall lie from the record's, in its σ:
     ``sqrt(Σ_c W_c (G_c − g)²) / σ``, ``(batch,)``, from each cycle's vote share ``W_c`` and
     ``Σ w·estimate`` (``G_c`` their ratio; :meth:`OnsetNet.per_cycle`), g and σ (m; 0 where
-    the record has no contact, ``gap`` NaN). A still wall is met at one place in every cycle:
-    the cycles of the main job's decoder agree to ~0.2σ in its trained scene (|G_1 − G_2|,
-    median over 228 walls; at most 0.9σ, and 1.8σ on the Hertz mount alone), where an object
-    moving with the floor (0.8 µm rms, physics.md §12) is met 2.8σ apart (median) and the
-    location is off by what the floor moved. A graph compares it with a limit fitted on fresh
+    the record has no contact, ``gap`` NaN); for two cycles of equal share it is
+    ``|G_1 − G_2| / 2σ``. A still wall is met at one place in every cycle: the cycles of the
+    main job's decoder lie ``|G_1 − G_2|`` ~0.2σ apart in its trained scene (median over 228
+    walls; at most 0.9σ, and 1.8σ on the Hertz mount alone), where an object moving with the
+    floor (0.8 µm rms, physics.md §12) is met 2.8σ apart (median) and the location is off by
+    what the floor moved. A graph compares it with a limit fitted on fresh
     records of the trained scene (:class:`~wtml.decoders.domain.Gated`'s ``check``)."""
     mean = sums / share.clamp_min(1e-30)
     spread = torch.sqrt((share * (mean - gap[:, None]) ** 2).sum(-1)) / sd

@@ -38,15 +38,14 @@ from wtml.decoders.onset import (
     RecordSummary,
     answer,
     confirm,
-    touch_spread,
 )
 
 POOLS = (("vote", "est", "log_sd", 0), ("vote_off", "est_off", None, 4))
 """The two softmax poolings: vote, estimate, (for g) the log std, and where their running
 sums start in the pooled state (13 values: the poolings' (max, Σ exp, Σ exp·x[, Σ exp·σ²]),
 then the top contact probability, the frame count, Σ(|E_H| − level), max u_L, min u_L,
-Σ(|I_H| − level), the levels the gate's training means); after them, per whisk cycle, g's
-(Σ exp, Σ exp·x) on the same running max."""
+Σ(|I_H| − level), the levels the gate's training means); after them g's Σ exp of each whisk
+cycle, then its Σ exp·x of each, on the same running max."""
 
 
 class StreamingOnset(nn.Module):
@@ -68,8 +67,8 @@ class StreamingOnset(nn.Module):
     ``(batch,)``.
     """
 
-    def __init__(self, net: OnsetNet, gate: DomainGate, check_limit: float,
-                 chunk_frames: int = 1) -> None:
+    def __init__(self, net: OnsetNet, gate: DomainGate, chunk_frames: int = 1, *,
+                 check_limit: float) -> None:
         super().__init__()
         if chunk_frames < 1:
             raise ValueError(f"chunk_frames must be >= 1, got {chunk_frames}")
@@ -162,7 +161,7 @@ class StreamingOnset(nn.Module):
         # this chunk's margin uses the level so far and the contact seen so far
         gap, sd, off_margin = answer(*pooled[:2], top, p, pooled[2])
         score = torch.maximum(self.gate.score(summary),
-                              touch_spread(share, cycle_sums, gap, sd) / self.check_limit)
+                              net.agreement(share, cycle_sums, gap, sd) / self.check_limit)
         inside = (score <= 1.0) & self.gate.outputs_in_range((gap, sd))
         sd = torch.where(inside, sd, torch.full_like(sd, float("nan")))
         new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i], -1)

@@ -76,13 +76,12 @@ fitted limit was 0.64σ)."""
 def spread_limit(spread: np.ndarray) -> float:
     """The limit of the whisk cycles' disagreement (σ) from the fresh records with a wall
     answered, ``(n,)``: their :data:`SPREAD_QUANTILE` (:data:`SPREAD_DEFAULT` with fewer
-    than :data:`SPREAD_MIN_WALLS`)."""
+    than :data:`SPREAD_MIN_WALLS`, or where they are all 0: records of one whisk cycle)."""
     if not np.all(np.isfinite(spread)):
         raise ValueError(f"touch_spread: {int(np.sum(~np.isfinite(spread)))} of {len(spread)} "
                          "fresh answers with a wall are not finite")
-    if len(spread) < SPREAD_MIN_WALLS:
-        return SPREAD_DEFAULT
-    return max(float(np.quantile(spread, SPREAD_QUANTILE)), 1e-6)
+    limit = float(np.quantile(spread, SPREAD_QUANTILE)) if len(spread) >= SPREAD_MIN_WALLS else 0
+    return limit if limit > 0 else SPREAD_DEFAULT  # 0: a record of one cycle, no check
 
 
 GAP_INTERVAL = {"sigma": "sigma", "value": "gap", "by": "gap", "log_value": False,
@@ -143,16 +142,21 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
         {"gap": np.concatenate(truth)}, [GAP_INTERVAL], 1,
         f"{FRESH_RECORDS} fresh records of the trained scene (seeds [{scene.seed}, 1000001, "
         f"k] for chunks from record k; not the training data)")
-    decoder = Gated(Recalibrated(module.net, DECODER_OUTPUTS + ("touch_spread",), uncertainty),
-                    module.gate, (1,), check=limit).eval()
-    flagged = (inside & (spread <= limit)).logical_not().float().mean()
-    domain = domain_metadata(scene, float(flagged), FRESH_RECORDS) | {
-        "self_check": "touch_spread: how far the whisk cycles' own locations of the wall lie from "
-                 "the record's, in its sigma (a still wall is met at one place in every "
-                 f"cycle); its limit is the {SPREAD_QUANTILE} quantile over the fresh records "
-                 f"with a wall ({SPREAD_DEFAULT} with fewer than {SPREAD_MIN_WALLS}); the "
-                 "domain score is the larger of the gate's and it over the "
-                 "limit", "self_check_limit": limit}
+    calibrated = Recalibrated(module.net, DECODER_OUTPUTS + ("touch_spread",), uncertainty)
+    if calibrated.outputs[-1] != "touch_spread":  # Gated takes the last output as the check
+        raise ValueError(f"the onset graph's last output must be touch_spread, got "
+                         f"{calibrated.outputs}")
+    decoder = Gated(calibrated, module.gate, (1,), check=limit).eval()
+    # the classical graph has the gate alone; the decoder's and the stream's also the check
+    domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
+    checked = {"domain": json.dumps(domain | {
+        "false_alarm_fresh": float((inside & (spread <= limit)).logical_not().float().mean()),
+        "self_check": "touch_spread: how far the whisk cycles' own locations of the wall lie "
+                      "from the record's, in its sigma (a still wall is met at one place in "
+                      f"every cycle); its limit is the {SPREAD_QUANTILE} quantile over the "
+                      f"fresh records with a wall ({SPREAD_DEFAULT} with fewer than "
+                      f"{SPREAD_MIN_WALLS}); the domain score is the larger of the gate's and it "
+                      "over the limit", "self_check_limit": limit})}
     rate = scene.acquisition.sample_rate_hz
     period = frame_period(scene)
     merge = scene.merge_periods / scene.drive.probe_hz
@@ -177,18 +181,20 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
                "detach_offset_s": "0.0"}
     widths = (scene.n_samples,) * 2 + (4, 4, ())
     export_graph(decoder, scene.n_samples, paths["decoder"],
-            meta | frames | recalibrated | {"kind": "decoder", "label": "decoder",
+            meta | frames | recalibrated | checked | {"kind": "decoder", "label": "decoder",
                                             "outputs": json.dumps(list(DECODER_OUTPUTS))},
             ONSET_INPUTS, widths)
     classical = Gated(thesis_pipeline(scene), module.gate.inputs_only()).eval()
     export_graph(classical, scene.n_samples, paths["classical"],
             meta | samples | {"kind": "classical", "label": "thesis pipeline"}, ONSET_INPUTS,
             widths)
-    stream = StreamingOnset(module.net, module.gate, limit, STREAM_CHUNK_FRAMES).eval()
+    stream = StreamingOnset(module.net, module.gate, STREAM_CHUNK_FRAMES,
+                            check_limit=limit).eval()
     paths["stream"] = out / "stream.onnx"
     export_graph(Recalibrated(stream, STREAM_OUTPUTS + GATE_OUTPUTS, uncertainty).eval(),
             stream.chunk_samples, paths["stream"],
-            meta | frames | recalibrated | {"kind": "stream", "label": "decoder (streaming)",
+            meta | frames | recalibrated | checked | {"kind": "stream",
+                                                      "label": "decoder (streaming)",
                              "outputs": json.dumps(list(STREAM_OUTPUTS)),
                              "inputs": json.dumps(list(STREAM_INPUTS)),
                              "chunk_samples": json.dumps(stream.chunk_samples),

@@ -101,7 +101,9 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
         for r in range(x.shape[1]):
             flags = []
             if not pred["in_domain"][r]:
-                flags.append(outside if pred["domain_score"][r] > 1
+                # the cycles' check speaks only where a wall was answered (else it is 0)
+                flags.append(("outside the trained domain" if np.isnan(pred["gap"][r])
+                              else outside) if pred["domain_score"][r] > 1
                              else "answer outside the trained range")
             if odd[r] and np.isfinite(pred["gap"][r]):
                 flags.append("gap physically impossible")

@@ -57,10 +57,10 @@ class StreamingOnset(nn.Module):
     Args:
         net: a trained onset net.
         gate: its domain gate (features: :class:`~wtml.decoders.onset.RecordSummary`).
-        check_limit: the limit of the whisk cycles' agreement
-            (:func:`~wtml.decoders.onset.touch_spread`, σ), as the offline graph's.
         chunk_frames: probe periods per chunk (the chunk is ``chunk_frames × period``
             samples of each channel).
+        check_limit: the limit of the whisk cycles' agreement
+            (:func:`~wtml.decoders.onset.touch_spread`, σ), as the offline graph's.
 
     Shapes: ``e``, ``i`` ``(batch, chunk_samples)`` V and A; ``state`` ``(batch,
     state_size)``; ``contact``, the margin and ``touch`` ``(batch, chunk_frames)``; the rest

@@ -40,15 +40,11 @@ def makespan(order: list[str], work_s: dict[str, float], bench_s: dict[str, floa
         heapq.heappush(events, (t + work_s[name] - bench_s[name], count, "bench", name))
         count += 1
 
-    free = [0.0] * lanes
-    if warm_s > 0:
-        free[0] = warm_s
-    for t in sorted(free):
-        if t > 0:  # the warm-up's lane: the job lasts at least as long
-            heapq.heappush(events, (t, count, "free", ""))
-            count += 1
-        elif pending:
-            start(pending.pop(0), 0.0)
+    for _ in range(min(lanes - (warm_s > 0), len(pending))):
+        start(pending.pop(0), 0.0)
+    if warm_s > 0:  # the warm-up's lane frees then: the job lasts at least as long
+        heapq.heappush(events, (warm_s, count, "free", ""))
+        count += 1
     holder, waiting, end = None, [], 0.0
     while events:
         t, _, kind, name = heapq.heappop(events)

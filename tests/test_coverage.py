@@ -16,6 +16,7 @@ from torch import nn
 from wtml.bench.coverage import (
     by_range,
     chance_misses,
+    class_table,
     coverage_cell,
     ece_floor,
     exact_hits,
@@ -206,6 +207,47 @@ def test_ece_of_a_calibrated_classifier_is_near_zero_and_of_an_overconfident_one
     assert ece < ece_floor(p.max(1), draws=50)[1] * 2
     sharp, labels = synthetic_classifier(rng, 50000, sharpen=3.0)
     assert expected_calibration_error(sharp, labels)[0] > 0.05
+
+
+def test_class_table_judges_the_in_domain_windows_against_the_target(rng):
+    """The ECE is of the answers the classifier gives in its domain (flagged ones claim
+    nothing, as a flagged σ), ✗ only above both the 2 % target and a calibrated classifier's
+    95th percentile on as many answers; ? above the target within that percentile."""
+    p, labels = synthetic_classifier(rng, 40000)
+    wrong = np.zeros_like(p)
+    wrong[np.arange(len(p)), (labels + 1) % 5] = 1.0  # sure and wrong
+    flagged = np.arange(len(p)) % 4 == 0
+    mixed = np.where(flagged[:, None], wrong, p)
+    sharp, sharp_labels = synthetic_classifier(rng, 40000, sharpen=3.0)
+    rows = [{"name": "calibrated, its flagged quarter sure and wrong", "kind": "test shard",
+             "labels": labels, "before": mixed, "after": mixed, "inside": ~flagged,
+             "flagged": 0.25},
+            {"name": "over-confident", "kind": "held out", "labels": sharp_labels,
+             "before": sharp, "after": sharp, "inside": np.ones(len(sharp), bool),
+             "flagged": 0.0},
+            {"name": "calibrated, 60 windows", "kind": "held out", "labels": labels[:60],
+             "before": p[:60], "after": p[:60], "inside": np.ones(60, bool), "flagged": 0.0}]
+    lines, out = class_table(rows, 1.0)
+    assert [r["verdict"] for r in out] == ["ok", "miss", "?"]
+    assert out[0]["windows"] == 30000 and out[0]["ece"] < 0.01
+    assert expected_calibration_error(mixed, labels)[0] > 0.2  # what counting them would say
+    assert out[1]["ece"] > 0.05 and out[2]["ece"] > 0.02
+    assert "✗" in lines[3] and "?" in lines[4] and "25.0 %" in lines[2]
+
+
+def test_a_calibrated_classifier_is_called_a_miss_about_one_time_in_twenty():
+    """The floor is drawn from the answers' own top probabilities, below 0.5 too (five
+    classes): 200 calibrated classifiers of 60 answers are called ✗ about 5 % of the time
+    (a floor drawn as two classes had called 25 %)."""
+    verdicts = []
+    for seed in range(200):
+        p, labels = synthetic_classifier(np.random.default_rng(seed), 60)
+        assert (p.max(1) < 0.5).mean() > 0.2
+        verdicts.append(class_table([{"name": "calibrated", "kind": "test shard",
+                                      "labels": labels, "before": p, "after": p,
+                                      "inside": np.ones(60, bool), "flagged": 0.0}],
+                                    1.0)[1][0]["verdict"])
+    assert 2 <= verdicts.count("miss") <= 22 and verdicts.count("ok") == 0
 
 
 def test_temperature_scaling_lowers_the_ece_of_an_overconfident_classifier(rng):

@@ -74,6 +74,21 @@ def test_texture_rows_hold_out_lugre_and_step_it_finely_enough():
     assert len(acq) == 1 + len(on)
 
 
+def test_texture_rows_draw_each_record_its_own_specimen():
+    """A held-out row's records are independent draws of the specimen population: n records,
+    n specimens, every grade n / 5 times (the scene's own 8 specimens per grade would make
+    1600 records worth about 40 specimens)."""
+    scene = load_scene(ROOT / "configs/scenes/texture.yaml")
+    short = dataclasses.replace(scene, specimens_per_grade=2, drive=dataclasses.replace(
+        scene.drive, record_s=0.02, lead_s=0.05))  # 10 specimens of its own
+    rows = {v.name: v for v in texture_variants(short)}
+    for name in ("the trained scene (in family)", "friction law coulomb alone",
+                 "ideal acquisition (no effect)"):
+        rec = rows[name].make(20, np.random.default_rng(4))
+        assert len(np.unique(rec["specimen"])) == 20, name
+        assert np.bincount(rec["grade"]).tolist() == [4] * 5, name
+
+
 def test_texture_device_rows_are_the_nominal_device_the_spread_and_each_class_alone():
     """The device-spread table's rows: the nominal device, the trained spread (the issue's
     tolerances in the shipped scene), then one class of parameter alone per row; every row's

@@ -117,8 +117,8 @@ def modal_cost(model_dir: str | Path, *, records: int = 32, counts=MODE_COUNTS,
     scene = scene_from_dict(decoder.meta.scene)
     if "n_modes" not in {f.name for f in dataclasses.fields(scene)}:
         raise ValueError(f"{model_dir}: a {scene.task} scene has no modal model")
-    if hasattr(scene, "specimens_per_grade"):  # every grade among the records
-        scene = dataclasses.replace(scene, specimens_per_grade=max(1, records // 5))
+    if hasattr(scene, "one_specimen_each"):  # every grade among the records
+        scene = scene.one_specimen_each(records)
     auto = AutoModes()
     n_auto, auto_errors, band = auto.count(scene)
     counts = sorted({*counts, scene.n_modes, n_auto})

@@ -299,6 +299,7 @@ def onset(model_dir: Path, threads: int) -> Suite:
 
 def texture(model_dir: Path, threads: int) -> Suite:
     """The texture task's suite (module docstring)."""
+    from wtml.bench.texture_transfer import independent
     from wtml.runtime.texture import run_windows, windows
 
     decoder, classical = load_export(model_dir, threads=threads)
@@ -319,11 +320,8 @@ def texture(model_dir: Path, threads: int) -> Suite:
                                              whisk_hz=values["whisk_hz"]),
             contact=dataclasses.replace(c, normal_force=values["normal_force"]))
 
-    def make(s):
-        def simulate(n: int, rng: np.random.Generator) -> dict:  # every grade, n // 5 each
-            per = max(1, n // len(s.grade_table))
-            return dataclasses.replace(s, specimens_per_grade=per).simulate(n, rng)
-        return simulate
+    def make(s):  # every grade, each record its own specimen
+        return lambda n, rng: independent(s, n, rng)
 
     def label(name: str, pair: tuple[float, float], where: str) -> str:
         unit, factor = units[name]

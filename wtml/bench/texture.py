@@ -439,13 +439,14 @@ def _windows(records: dict, window_s: float, rate: float) -> tuple[np.ndarray, .
 
 
 def _ablation(scene, methods: dict, window_s: float, n: int) -> list[dict]:
-    """The methods on fresh held-out specimens (one seed: the same specimens and nuisance in
-    every variant) with both cues, asperities only and mean friction only."""
+    """The methods on fresh held-out specimens, one per record (one seed: the same specimens
+    and nuisance in every variant) with both cues, asperities only and mean friction only."""
     rows = []
     variants = (("both cues", {}), ("asperities only", {"mean_friction": False}),
                 ("mean friction only", {"asperities": False}))
     for label, kwargs in variants:
-        data = scene.simulate(n, np.random.default_rng([scene.seed, 2**20 + 3]), **kwargs)
+        data = scene.one_specimen_each(n).simulate(
+            n, np.random.default_rng([scene.seed, 2**20 + 3]), **kwargs)
         e, i, owner, t = _cut(data, window_s, scene.acquisition.sample_rate_hz)
         row = {"variant": label}
         for name, run in methods.items():

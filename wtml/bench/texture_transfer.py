@@ -39,20 +39,27 @@ def _with_law(scene, law: str):
         scene.friction, law={law: 1.0}))
 
 
+def independent(scene, n: int, rng: np.random.Generator) -> dict:
+    """``n`` records of the texture ``scene``, each its own specimen
+    (:meth:`~wtml.scenes.texture.TextureScene.one_specimen_each`)."""
+    return scene.one_specimen_each(n).simulate(n, rng)
+
+
 def texture_variants(scene) -> list[Variant]:
     """The rows: the scene as trained, each friction law alone, each acquisition effect
-    alone."""
-    rows = [Variant("the trained scene (in family)", "in family", scene.simulate)]
-    rows += member_variants(scene, LAWS, scene.friction.law, _with_law, "friction law")
-    return rows + acquisition_variants(scene)
+    alone; every row's records each their own specimen (:func:`independent`)."""
+    rows = [Variant("the trained scene (in family)", "in family",
+                    lambda n, rng: independent(scene, n, rng))]
+    rows += member_variants(scene, LAWS, scene.friction.law, _with_law, "friction law",
+                            independent)
+    return rows + acquisition_variants(scene, draw=independent)
 
 
 def device_variants(scene) -> list[Variant]:
     """The device-spread table's rows: the nominal device, the trained spread, and each class
     of :data:`~wtml.physics.spread.CLASSES` alone at the trained width (issue 21's,
-    :data:`REFERENCE_SPREAD`, where the scene trains on none). A row of n records has n // 5
-    specimens of each grade (the scene's own count would give a few records the first grades
-    only)."""
+    :data:`REFERENCE_SPREAD`, where the scene trains on none); each record its own specimen
+    (:func:`independent`)."""
     spread = REFERENCE_SPREAD if scene.spread.none else scene.spread
     sets = [("nominal device", DeviceSpread(devices=spread.devices)),
             ("devices of the trained spread" if not scene.spread.none
@@ -61,13 +68,8 @@ def device_variants(scene) -> list[Variant]:
               DeviceSpread(devices=spread.devices, **{cls: getattr(spread, cls)}))
              for cls in CLASSES if getattr(spread, cls) > 0]
     scenes = [(label, dataclasses.replace(scene, spread=device)) for label, device in sets]
-
-    def make(s, n: int, rng):  # n // 5 specimens per grade: every grade, each record its own
-        per = max(1, n // len(s.grade_table))
-        return dataclasses.replace(s, specimens_per_grade=per).simulate(n, rng)
-
     return [Variant(label, "nominal" if s.spread.none else "spread",
-                    lambda n, rng, s=s: make(s, n, rng)) for label, s in scenes]
+                    lambda n, rng, s=s: independent(s, n, rng)) for label, s in scenes]
 
 
 def scorer(methods: dict[str, Callable], windows: Callable[[dict], tuple]

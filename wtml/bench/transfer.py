@@ -51,26 +51,40 @@ def mixture_members(mixture: dict[str, float], family: tuple[str, ...]) -> tuple
     return trained, [m for m in family if m not in trained]
 
 
+def simulated(scene, n: int, rng: np.random.Generator) -> dict:
+    """``n`` records of ``scene`` (its own ``simulate``): how a variant's records are drawn
+    unless a task draws them its own way."""
+    return scene.simulate(n, rng)
+
+
+Draw = Callable[[object, int, np.random.Generator], dict]
+"""``draw(scene, n, rng)``: a variant's ``n`` records of ``scene`` (:func:`simulated`, or a
+task's own way, e.g. texture's one specimen per record)."""
+
+
 def member_variants(scene, family: tuple[str, ...], mixture: dict[str, float],
-                    with_member: Callable[[object, str], object], label: str) -> list[Variant]:
+                    with_member: Callable[[object, str], object], label: str,
+                    draw: Draw = simulated) -> list[Variant]:
     """One variant per member of a model-form ``family``: the scene with only that member
     (``with_member(scene, member)``), marked held out where the training ``mixture`` leaves it
-    out. ``label`` names the family in the rows (e.g. "contact law")."""
+    out. ``label`` names the family in the rows (e.g. "contact law"); ``draw`` makes a row's
+    records."""
     trained, held = mixture_members(mixture, family)
     out = []
     for member in family:
         alone = with_member(scene, member)
         kind = "in family" if member in trained else "held out"
         out.append(Variant(f"{label} {member} alone" + (" (held out)" if member in held else ""),
-                           kind, lambda n, rng, alone=alone: alone.simulate(n, rng)))
+                           kind, lambda n, rng, alone=alone: draw(alone, n, rng)))
     return out
 
 
-def acquisition_variants(scene, extra: tuple[tuple[str, dict], ...] = ()) -> list[Variant]:
+def acquisition_variants(scene, extra: tuple[tuple[str, dict], ...] = (),
+                         draw: Draw = simulated) -> list[Variant]:
     """The scene with an ideal acquisition (no effect), then with each effect alone at the
     scene's level (those the scene leaves off in training marked so; the base motion only
     through ``extra``), then each ``extra`` effect alone at the level given (``(effect,
-    {field: value})``, e.g. the base motion at two levels)."""
+    {field: value})``, e.g. the base motion at two levels); ``draw`` makes a row's records."""
     fx: AcquisitionEffects = scene.acquisition.effects
 
     def with_effects(new: AcquisitionEffects):
@@ -88,7 +102,7 @@ def acquisition_variants(scene, extra: tuple[tuple[str, dict], ...] = ()) -> lis
               with_effects(alone(name))) for name in fx.NAMES if name != "base"]
     rows += [(f"{EFFECT_NAMES[name]} alone ({_level(fields)})", with_effects(alone(name, **fields)))
              for name, fields in extra]
-    return [Variant(label, "acquisition", lambda n, rng, s=s: s.simulate(n, rng))
+    return [Variant(label, "acquisition", lambda n, rng, s=s: draw(s, n, rng))
             for label, s in rows]
 
 

@@ -148,7 +148,14 @@ def expected_calibration_error(probabilities: np.ndarray, labels: np.ndarray,
     curve: per bin ``confidence`` (mean), ``accuracy`` and ``count``, each ``(bins,)`` (NaN
     in an empty bin)."""
     p = np.asarray(probabilities, float)
-    conf, hit = p.max(1), (p.argmax(1) == np.asarray(labels)).astype(float)
+    return binned_calibration(p.max(1), p.argmax(1) == np.asarray(labels), bins)
+
+
+def binned_calibration(confidence: np.ndarray, hit: np.ndarray, bins: int = ECE_BINS
+                       ) -> tuple[float, dict[str, np.ndarray]]:
+    """:func:`expected_calibration_error` of answers given as their ``confidence`` (the top
+    probability, ``(n,)``) and whether each was right (``hit``, ``(n,)`` bool)."""
+    conf, hit = np.asarray(confidence, float), np.asarray(hit, float)
     which = np.clip(np.ceil(conf * bins).astype(int) - 1, 0, bins - 1)
     count = np.bincount(which, minlength=bins).astype(float)
     with np.errstate(invalid="ignore"):

@@ -24,15 +24,16 @@ TEXTURE_REFERENCES = {"calibration": "the device's calibrated T (the macro WT wi
                                      "tip free) at calibration_hz, measured with the "
                                      "calibration loads of physics.md §4: inputs t_re, t_im"}
 FRESH_RECORDS = 100
-"""Fresh records of the scene (its own seed, not the training data) on which the classical
-path is fitted and the exported decoder's false-alarm rate is measured."""
+"""Fresh records of the scene (its own seed, not the training data; each record its own
+specimen, :meth:`~wtml.scenes.texture.TextureScene.one_specimen_each`) on which the
+classical path is fitted and the exported decoder's false-alarm rate is measured."""
 CALIBRATION_RECORDS = 300
-"""Fresh records more (another seed) on whose every whole window, with the
-:data:`FRESH_RECORDS`', the decoder's probabilities and grain σ are recalibrated
-(:mod:`wtml.decoders.recalibration`: a temperature, one scale and one 95 % width). On 100
-records alone (40 specimens, whose windows are not independent) the temperature of the main
-job's decoder ranged 0.65–1.07 between draws, and the test shard's ECE 3.1–7.1 %; on 400,
-0.94 and 3.2 %."""
+"""Fresh records more (another seed, each its own specimen) on whose every whole window,
+with the :data:`FRESH_RECORDS`', the decoder's probabilities and grain σ are recalibrated
+(:mod:`wtml.decoders.recalibration`: a temperature, one scale and one 95 % width): 400
+specimens. Until 29 Nov each draw of records swept the scene's own 40 specimens (8 per
+grade): on 100 records the main job's temperature ranged 0.65–1.07 between draws; on 400
+(240 specimens) it was 1.06, and 1.03 on 400 specimens."""
 CHUNK_RECORDS = 60
 """The calibration records are simulated and run this many at a time: all 300 at once took
 the main job's texture slice to 2.2 GB."""
@@ -77,12 +78,14 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
     cues)."""
     window = module._n
     raw = Gated(module.net, module.gate, (1,)).eval()
-    fresh = scene.simulate(FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
+    fresh = scene.one_specimen_each(FRESH_RECORDS).simulate(
+        FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
     parts = [_window_answers(module, raw, fresh)]
     for k, start in enumerate(range(0, CALIBRATION_RECORDS, CHUNK_RECORDS)):
         # a chunk at a time: the records' windows as tensors are ~6 MB a record
-        more = scene.simulate(min(CHUNK_RECORDS, CALIBRATION_RECORDS - start),
-                              np.random.default_rng([scene.seed, 10**6 + 3, k]))
+        n = min(CHUNK_RECORDS, CALIBRATION_RECORDS - start)
+        more = scene.one_specimen_each(n).simulate(
+            n, np.random.default_rng([scene.seed, 10**6 + 3, k]))
         parts.append(_window_answers(module, raw, more))
         del more
     per = parts[0][-1]

@@ -301,6 +301,15 @@ class TextureScene:
         """Grade name -> mean grain size, µm, of this scene's specimens."""
         return THESIS_GRADES if self.grades == "thesis" else FEPA_GRADES
 
+    def one_specimen_each(self, n: int) -> TextureScene:
+        """This scene with ``n // grades`` specimens of each grade (at least one), so that
+        ``n`` records of it are each their own specimen, every grade as often: independent
+        draws of the specimen population, where the scene's own few specimens per shard (8 of
+        each grade in the shipped scene) make many records worth about as many specimens.
+        Held-out sets draw so: on 1600 fresh records of one shard's 40 specimens the main
+        job's texture decoder's ECE read 2.2 %, on 1600 specimens 0.9 % (29 Nov)."""
+        return replace(self, specimens_per_grade=max(1, n // len(self.grade_table)))
+
     def output_ranges(self) -> dict[str, OutputRange]:
         """The grain size over the thesis's five grades (15.3-52.2 µm), 15 % of its log span
         beyond still in domain (a factor 1.2: about twice the decoder's own RMS error, so a

@@ -250,6 +250,25 @@ def test_a_calibrated_classifier_is_called_a_miss_about_one_time_in_twenty():
     assert 2 <= verdicts.count("miss") <= 22 and verdicts.count("ok") == 0
 
 
+def test_an_ece_floor_counts_windows_that_share_their_answer_as_one():
+    """60 calibrated answers each copied to 8 windows (a specimen's windows failing
+    together): judged as 480 independent windows every one is called ✗; as what they are
+    worth (their groups), about one in twenty."""
+    verdicts = {False: [], True: []}
+    for seed in range(100):
+        p, labels = synthetic_classifier(np.random.default_rng(seed), 60)
+        row = {"name": "copied", "kind": "test shard", "labels": np.repeat(labels, 8),
+               "before": np.repeat(p, 8, 0), "after": np.repeat(p, 8, 0),
+               "inside": np.ones(480, bool), "flagged": 0.0}
+        for grouped in (False, True):
+            out = class_table([row | ({"groups": np.repeat(np.arange(60), 8)} if grouped
+                                      else {})], 1.0)[1][0]
+            verdicts[grouped].append(out["verdict"])
+    assert out["worth"] == pytest.approx(60, rel=0.05)  # G / (G − 1): 59
+    assert verdicts[False].count("miss") > 90
+    assert 1 <= verdicts[True].count("miss") <= 15
+
+
 def test_temperature_scaling_lowers_the_ece_of_an_overconfident_classifier(rng):
     p, labels = synthetic_classifier(rng, 20000, sharpen=3.0)
     t = fit_temperature(p[:10000], labels[:10000])

@@ -198,13 +198,22 @@ def chance_misses(covered: np.ndarray, truth: np.ndarray, edges: np.ndarray,
                      for _ in range(draws)], int)
 
 
-def ece_floor(confidence: np.ndarray, draws: int = 400, seed: int = 0) -> tuple[float, float]:
+def ece_floor(confidence: np.ndarray, draws: int = 400, seed: int = 0,
+              worth: float | None = None) -> tuple[float, float]:
     """The expected calibration error of a perfectly calibrated classifier with these
     ``confidence`` values ``(n,)``: each answer right with probability its confidence; the
-    median and the 95th percentile over ``draws`` draws (what sampling alone gives)."""
+    median and the 95th percentile over ``draws`` draws (what sampling alone gives). ``worth``:
+    how many independent answers the n are worth where they share their errors
+    (:func:`~wtml.bench.resampling.effective_count`); each draw then judges that many of
+    them, drawn at random (an ECE's sampling error shrinks with the answers' worth, not their
+    count)."""
     rng = np.random.default_rng(seed)
     conf = np.asarray(confidence, float)
-    eces = [binned_calibration(conf, rng.random(len(conf)) < conf)[0] for _ in range(draws)]
+    take = len(conf) if worth is None else int(np.clip(round(worth), 1, len(conf)))
+    eces = []
+    for _ in range(draws):
+        c = conf if take == len(conf) else rng.choice(conf, take, replace=False)
+        eces.append(binned_calibration(c, rng.random(take) < c)[0])
     return float(np.median(eces)), float(np.quantile(eces, 0.95))
 
 
@@ -232,7 +241,7 @@ def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progre
     export's 95 % width in σ per answer (``wide``; the raw σ's is 1.96), per set; and for a
     classifier its probabilities. Returns ``{"intervals": {sigma name: [per set {"name",
     "kind", "truth", "err", "groups", "sigma", "wide", "raw", "flagged"}]}, "classes": [per set
-    {"name", "kind", "labels", "after", "before", "inside", "flagged"}]}``."""
+    {"name", "kind", "labels", "after", "before", "inside", "groups", "flagged"}]}``."""
     u = decoder.uncertainty
     out = {"intervals": {r.sigma: [] for r in u.intervals}, "classes": []}
     for s in sets:
@@ -259,7 +268,7 @@ def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progre
                                    "labels": truth[u.probabilities],
                                    "after": after[u.probabilities],
                                    "before": before[u.probabilities], "inside": inside,
-                                   "flagged": flagged})
+                                   "groups": truth.get("groups"), "flagged": flagged})
     return out
 
 
@@ -494,7 +503,9 @@ def ece_verdict(ece: float, floor_high: float) -> str:
 
 def class_table(rows: list[dict], temperature: float) -> tuple[list[str], list]:
     """Markdown lines of the classifier's calibration per set, on its in-domain windows
-    (``row["inside"]``), and its rows as dicts."""
+    (``row["inside"]``), and its rows as dicts. Where a row's answers come in ``"groups"``
+    that share their errors (a specimen's windows), its floor is drawn on what they are worth
+    (:func:`ece_floor`'s ``worth``: the effective count of its right answers)."""
     marks = {"ok": "", "miss": " ✗", "?": " ?"}
     lines = ["| records | kind | windows in domain | flagged | accuracy | ECE raw | ECE tempered "
              f"(T = {temperature:.3g}) | ECE of a calibrated classifier (median, 95th pct) |",
@@ -506,16 +517,20 @@ def class_table(rows: list[dict], temperature: float) -> tuple[list[str], list]:
         after = np.asarray(row["after"])[inside]
         raw, _ = expected_calibration_error(np.asarray(row["before"])[inside], labels)
         ece, _ = expected_calibration_error(after, labels)
-        floor = ece_floor(after.max(1))
+        groups = row.get("groups")
+        worth = (None if groups is None or not len(labels) else
+                 effective_count(after.argmax(1) == labels, np.asarray(groups)[inside]))
+        floor = ece_floor(after.max(1), worth=worth)
         verdict = ece_verdict(ece, floor[1])
         acc = float(np.mean(after.argmax(1) == labels))
-        lines.append(f"| {row['name']} | {row['kind']} | {len(labels)} | "
+        worth_text = "" if worth is None else f" (worth {worth:.0f})"
+        lines.append(f"| {row['name']} | {row['kind']} | {len(labels)}{worth_text} | "
                      f"{100 * row['flagged']:.1f} % | {100 * acc:.1f} % | {100 * raw:.1f} % | "
                      f"{100 * ece:.1f} %{marks[verdict]} | {100 * floor[0]:.1f} %, "
                      f"{100 * floor[1]:.1f} % |")
         out.append({"name": row["name"], "kind": row["kind"], "windows": len(labels),
                     "accuracy": acc, "ece_raw": raw, "ece": ece, "ece_floor": floor,
-                    "verdict": verdict, "flagged": row["flagged"]})
+                    "worth": worth, "verdict": verdict, "flagged": row["flagged"]})
     return lines, out
 
 

@@ -20,6 +20,7 @@ from wtml.bench.coverage import (
     coverage_cell,
     ece_floor,
     exact_hits,
+    fluid_sets,
     hits,
     wilson,
 )
@@ -233,6 +234,21 @@ def test_class_table_judges_the_in_domain_windows_against_the_target(rng):
     assert expected_calibration_error(mixed, labels)[0] > 0.2  # what counting them would say
     assert out[1]["ece"] > 0.05 and out[2]["ece"] > 0.02
     assert "✗" in lines[3] and "?" in lines[4] and "25.0 %" in lines[2]
+
+
+def test_fluid_device_rows_are_held_out_only_where_they_leave_the_trained_spread():
+    """The default scene measures its sphere: issue 21's spread and the radius alone are off
+    its physics. For a decoder trained with the radius declared issue 21's spread is its own
+    scene; the radius alone (a narrower prior than it trained on) stays held out."""
+    from pathlib import Path
+
+    from wtml.scenes import load_scene
+
+    configs = Path(__file__).resolve().parents[1] / "configs/scenes"
+    kinds = {name: [r.kind for r in fluid_sets({"data": "unused"}, load_scene(
+        configs / f"{name}.yaml"), None, {"fluid": 10}, 0)[2:]]
+        for name in ("fluid", "fluid_radius")}
+    assert kinds == {"fluid": ["held out"] * 2, "fluid_radius": ["in family", "held out"]}
 
 
 def test_a_calibrated_classifier_is_called_a_miss_about_one_time_in_twenty():

@@ -520,12 +520,13 @@ def class_table(rows: list[dict], temperature: float) -> tuple[list[str], list]:
         after = np.asarray(row["after"])[inside]
         raw, _ = expected_calibration_error(np.asarray(row["before"])[inside], labels)
         ece, _ = expected_calibration_error(after, labels)
+        hit = after.argmax(1) == labels
         groups = row.get("groups")
         worth = (None if groups is None or not len(labels) else
-                 effective_count(after.argmax(1) == labels, np.asarray(groups)[inside]))
+                 effective_count(hit, np.asarray(groups)[inside]))
         floor = ece_floor(after.max(1), worth=worth)
         verdict = ece_verdict(ece, floor[1])
-        acc = float(np.mean(after.argmax(1) == labels))
+        acc = float(np.mean(hit))
         worth_text = "" if worth is None else f" (worth {worth:.0f})"
         lines.append(f"| {row['name']} | {row['kind']} | {len(labels)}{worth_text} | "
                      f"{100 * row['flagged']:.1f} % | {100 * acc:.1f} % | {100 * raw:.1f} % | "

@@ -299,7 +299,6 @@ def onset(model_dir: Path, threads: int) -> Suite:
 
 def texture(model_dir: Path, threads: int) -> Suite:
     """The texture task's suite (module docstring)."""
-    from wtml.bench.texture_transfer import independent
     from wtml.runtime.texture import run_windows, windows
 
     decoder, classical = load_export(model_dir, threads=threads)
@@ -321,7 +320,7 @@ def texture(model_dir: Path, threads: int) -> Suite:
             contact=dataclasses.replace(c, normal_force=values["normal_force"]))
 
     def make(s):  # every grade, each record its own specimen
-        return lambda n, rng: independent(s, n, rng)
+        return s.simulate_independent
 
     def label(name: str, pair: tuple[float, float], where: str) -> str:
         unit, factor = units[name]

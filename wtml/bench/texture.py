@@ -445,8 +445,8 @@ def _ablation(scene, methods: dict, window_s: float, n: int) -> list[dict]:
     variants = (("both cues", {}), ("asperities only", {"mean_friction": False}),
                 ("mean friction only", {"asperities": False}))
     for label, kwargs in variants:
-        data = scene.one_specimen_each(n).simulate(
-            n, np.random.default_rng([scene.seed, 2**20 + 3]), **kwargs)
+        data = scene.simulate_independent(n, np.random.default_rng([scene.seed, 2**20 + 3]),
+                                          **kwargs)
         e, i, owner, t = _cut(data, window_s, scene.acquisition.sample_rate_hz)
         row = {"variant": label}
         for name, run in methods.items():

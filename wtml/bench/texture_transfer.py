@@ -20,7 +20,7 @@ from wtml.bench.resampling import group_interval
 from wtml.bench.transfer import Variant, acquisition_variants, member_variants
 from wtml.physics.friction import LAWS
 from wtml.physics.spread import CLASSES, DeviceSpread
-from wtml.scenes.texture import LUGRE_OVERSAMPLE
+from wtml.scenes.texture import LUGRE_OVERSAMPLE, TextureScene
 
 REFERENCE_SPREAD = DeviceSpread(length=0.005, thickness=0.005, modulus=0.03, loss_factor=0.25,
                                 tan_delta=0.25, coupling=0.03)
@@ -39,27 +39,21 @@ def _with_law(scene, law: str):
         scene.friction, law={law: 1.0}))
 
 
-def independent(scene, n: int, rng: np.random.Generator) -> dict:
-    """``n`` records of the texture ``scene``, each its own specimen
-    (:meth:`~wtml.scenes.texture.TextureScene.one_specimen_each`)."""
-    return scene.one_specimen_each(n).simulate(n, rng)
-
-
 def texture_variants(scene) -> list[Variant]:
     """The rows: the scene as trained, each friction law alone, each acquisition effect
-    alone; every row's records each their own specimen (:func:`independent`)."""
-    rows = [Variant("the trained scene (in family)", "in family",
-                    lambda n, rng: independent(scene, n, rng))]
-    rows += member_variants(scene, LAWS, scene.friction.law, _with_law, "friction law",
-                            independent)
-    return rows + acquisition_variants(scene, draw=independent)
+    alone; every row's records each their own specimen
+    (:meth:`~wtml.scenes.texture.TextureScene.simulate_independent`)."""
+    draw = TextureScene.simulate_independent
+    rows = [Variant("the trained scene (in family)", "in family", scene.simulate_independent)]
+    rows += member_variants(scene, LAWS, scene.friction.law, _with_law, "friction law", draw)
+    return rows + acquisition_variants(scene, draw=draw)
 
 
 def device_variants(scene) -> list[Variant]:
     """The device-spread table's rows: the nominal device, the trained spread, and each class
     of :data:`~wtml.physics.spread.CLASSES` alone at the trained width (issue 21's,
     :data:`REFERENCE_SPREAD`, where the scene trains on none); each record its own specimen
-    (:func:`independent`)."""
+    (:meth:`~wtml.scenes.texture.TextureScene.simulate_independent`)."""
     spread = REFERENCE_SPREAD if scene.spread.none else scene.spread
     sets = [("nominal device", DeviceSpread(devices=spread.devices)),
             ("devices of the trained spread" if not scene.spread.none
@@ -69,7 +63,7 @@ def device_variants(scene) -> list[Variant]:
              for cls in CLASSES if getattr(spread, cls) > 0]
     scenes = [(label, dataclasses.replace(scene, spread=device)) for label, device in sets]
     return [Variant(label, "nominal" if s.spread.none else "spread",
-                    lambda n, rng, s=s: independent(s, n, rng)) for label, s in scenes]
+                    s.simulate_independent) for label, s in scenes]
 
 
 def scorer(methods: dict[str, Callable], windows: Callable[[dict], tuple]

@@ -25,7 +25,7 @@ TEXTURE_REFERENCES = {"calibration": "the device's calibrated T (the macro WT wi
                                      "calibration loads of physics.md §4: inputs t_re, t_im"}
 FRESH_RECORDS = 100
 """Fresh records of the scene (its own seed, not the training data; each record its own
-specimen, :meth:`~wtml.scenes.texture.TextureScene.one_specimen_each`) on which the
+specimen, :meth:`~wtml.scenes.texture.TextureScene.simulate_independent`) on which the
 classical path is fitted and the exported decoder's false-alarm rate is measured."""
 CALIBRATION_RECORDS = 300
 """Fresh records more (another seed, each its own specimen) on whose every whole window,
@@ -83,14 +83,13 @@ def export_texture(module, scene, out: Path) -> dict[str, Path]:
     cues)."""
     window = module._n
     raw = Gated(module.net, module.gate, (1,)).eval()
-    fresh = scene.one_specimen_each(FRESH_RECORDS).simulate(
-        FRESH_RECORDS, np.random.default_rng([scene.seed, 10**6 + 1]))
+    fresh = scene.simulate_independent(FRESH_RECORDS,
+                                       np.random.default_rng([scene.seed, 10**6 + 1]))
     parts = [_window_answers(module, raw, fresh)]
     for k, start in enumerate(range(0, CALIBRATION_RECORDS, CHUNK_RECORDS)):
         # a chunk at a time: the records' windows as tensors are ~6 MB a record
-        n = min(CHUNK_RECORDS, CALIBRATION_RECORDS - start)
-        more = scene.one_specimen_each(n).simulate(
-            n, np.random.default_rng([scene.seed, 10**6 + 3, k]))
+        more = scene.simulate_independent(min(CHUNK_RECORDS, CALIBRATION_RECORDS - start),
+                                          np.random.default_rng([scene.seed, 10**6 + 3, k]))
         parts.append(_window_answers(module, raw, more))
         del more
     per = parts[0][-1]

@@ -130,6 +130,67 @@ def test_band_features_are_the_residuals_power_over_the_force(scene):
                                x[0, :cut], atol=1e-6)
 
 
+def test_the_high_branch_reads_nothing_below_its_band(scene):
+    """The decoder's second branch reads the whisk cues and the bands from ``high_band_hz``
+    up: a 2 kHz tone added to the current (what a friction law's own ringing adds below the
+    asperities' band) moves the columns of the low bands by orders of magnitude and leaves
+    the high branch's columns within float32 rounding."""
+    from wtml.decoders.texture import TextureDecoder
+
+    rate = scene.acquisition.sample_rate_hz
+    n = 12800
+    t = np.arange(n) / rate
+    w = 2 * np.pi * 35.7
+    e = 9 * np.sin(w * t + 0.3)
+    base = 2e-5 * np.cos(w * t + 1.0) + 1e-7 * np.random.default_rng(2).standard_normal(n)
+    ring = 3e-6 * np.sin(2 * np.pi * 2000.0 * t)
+    t_re, t_im = (torch.tensor(np.stack([p] * 2)) for p in
+                  flat_parts(scene.calibrated_t(scene.transducer())))
+    decoder = TextureDecoder()
+    feats = decoder.feature_layer(scene)
+    cues, first = decoder.high_columns(feats)
+    assert cues == WhiskFeatures.CUE_COLUMNS == 11
+    assert feats.bands.edges[first - WhiskFeatures.N_FEATURES] == pytest.approx(
+        25600 / 2 ** (21 / 8))  # 4.15 kHz: the first band edge at or above 4 kHz
+    x = feats(torch.tensor(np.stack([e, e]), dtype=torch.float32),
+              torch.tensor(np.stack([base, base + ring]), dtype=torch.float32),
+              t_re, t_im).double().numpy()
+    high = np.r_[0:cues, first:x.shape[1]]
+    np.testing.assert_allclose(x[1, high], x[0, high], atol=2e-3)
+    at = WhiskFeatures.N_FEATURES + np.searchsorted(feats.bands.edges, 2000.0) - 1
+    assert x[1, at] - x[0, at] > 5  # the tone's band: its power e^5 times the noise's
+    assert TextureDecoder(high_band_hz=None).high_columns(feats) is None
+
+
+def test_two_branches_answer_as_the_geometric_mean_and_the_mixture(scene):
+    """With its high branch the net's probabilities are the normalised geometric mean of the
+    two branches', and its ln grain the equal mixture's mean and std; a branch trained alone
+    (its own loss) leaves the other's gradients at zero."""
+    from wtml.decoders.texture import TextureDecoder
+
+    decoder = TextureDecoder(hidden=[8])
+    feats = decoder.feature_layer(scene)
+    torch.manual_seed(0)
+    x = torch.randn(6, feats.n_features)
+    net = decoder.net_on(feats, x, torch.tensor([[k % 5, 3e-5] for k in range(6)]))
+    decoder.net = net
+    (la, ma, sa), (lb, mb, sb) = (tuple(v.detach().double() for v in b)
+                                  for b in net.branches(x))
+    grain, log_sd, prob = (v.detach().double() for v in net.from_features(x))
+    want = torch.sqrt(torch.softmax(la, -1) * torch.softmax(lb, -1))
+    torch.testing.assert_close(prob, want / want.sum(-1, keepdim=True))
+    torch.testing.assert_close(torch.log(grain), (ma + mb) / 2)
+    var = (torch.exp(2 * sa) + torch.exp(2 * sb)) / 2 + ((ma - mb) / 2) ** 2
+    torch.testing.assert_close(log_sd, torch.log(var) / 2)
+    decoder.feature_loss(x, torch.tensor([[k % 5, 3e-5] for k in range(6)])).backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in net.high.parameters())
+    net.zero_grad()
+    logits, mu, lsd = net.branches(x)[1]
+    (logits.sum() + mu.sum() + lsd.sum()).backward()
+    assert all(p.grad is None or p.grad.abs().sum() == 0
+               for m in (net.body, net.classes, net.grain) for p in m.parameters())
+
+
 @pytest.mark.parametrize("dynamo", [False, True], ids=["torchscript", "torch.export"])
 def test_band_powers_export_to_onnx_as_torch_computes_them(scene, tmp_path, dynamo):
     """The band block alone through each of torch's exporters (the TorchScript one that
@@ -436,10 +497,11 @@ def test_a_texture_export_with_edited_metadata_is_one_line(texture_export, scene
                       "--calibration", str(cal)], "classical.onnx: " + needle)
 
 
-def test_a_checkpoint_keeps_its_band_frame_and_one_from_before_has_none():
-    """The net's shape carries its band frame (samples), so a checkpoint is rebuilt as it was
-    trained; one saved before the band powers existed (no frame in its shape) is rebuilt
-    without them, whatever the decoder's default."""
+def test_a_checkpoint_keeps_its_band_frame_and_high_branch_and_one_from_before_has_none():
+    """The net's shape carries its band frame (samples) and its high branch's frequency, so a
+    checkpoint is rebuilt as it was trained; one saved before the band powers existed (no
+    frame in its shape) is rebuilt without them, and one saved before the high branch
+    without it, whatever the decoder's defaults."""
     from wtml.decoders.texture import TextureDecoder
     from wtml.schema import to_dict
 
@@ -449,9 +511,16 @@ def test_a_checkpoint_keeps_its_band_frame_and_one_from_before_has_none():
     old.build_from_checkpoint({"window": 12800})
     assert old.net.features.bands is None
     assert old.net.features.n_features == WhiskFeatures.N_FEATURES
-    assert old.net_shape() == {"window": 12800, "band_frame": None}
-    new = TextureDecoder(band_frame_s=None)
+    assert old.net.high is None
+    assert old.net_shape() == {"window": 12800, "band_frame": None, "high_band_hz": None}
+    banded = TextureDecoder(band_frame_s=None)
+    banded.scene = scene
+    banded.build_from_checkpoint({"window": 12800, "band_frame": 512})
+    assert banded.net.features.bands.frame == 512 and banded.net.high is None
+    assert banded.net_shape() == {"window": 12800, "band_frame": 512, "high_band_hz": None}
+    new = TextureDecoder(high_band_hz=None)
     new.scene = scene
-    new.build_from_checkpoint({"window": 12800, "band_frame": 512})
-    assert new.net.features.bands.frame == 512
-    assert new.net_shape() == {"window": 12800, "band_frame": 512}
+    new.build_from_checkpoint({"window": 12800, "band_frame": 512, "high_band_hz": 4000.0})
+    start = new.net.features.bands.edges[new.net.high_columns[1] - WhiskFeatures.N_FEATURES]
+    assert new.net.high is not None and 4000.0 <= start < 4000.0 * 2 ** (1 / 8)
+    assert new.net_shape()["high_band_hz"] == 4000.0

@@ -20,7 +20,10 @@ its own features, so a device feeds it what its ADC gives:
    The grade lives in the asperity impulses (4-33 kHz, physics.md §11): the lags' coarse
    spectrum left the decoder behind band powers read by gradient boosting (issue 25 §3).
 2. A standardised MLP with two heads: grade logits (the thesis's five grades) and the mean
-   and log std of ln(grain size / 1 m).
+   and log std of ln(grain size / 1 m); and, with ``high_band_hz``, a second such MLP that
+   reads the whisk cues and the bands from that frequency up alone, the two answering as an
+   ensemble (:class:`TextureNet`): what a friction law does by itself (LuGre's bristle at
+   the reversals, held out of training) shows in the residual below the asperities' band.
 
 Outputs (each ``(batch,)`` unless said): ``grain`` (m), ``log_sigma`` (the std of ln grain),
 ``probabilities`` ``(batch, 5)``.
@@ -221,7 +224,9 @@ class WhiskFeatures(nn.Module):
             peers and the thesis's cues read the first columns alone).
     """
 
-    N_FEATURES = 7 + 2 * (HARMONICS - 1) + 1 + len(LAGS)
+    CUE_COLUMNS = 7 + 2 * (HARMONICS - 1)
+    """The whisk cues' columns: ω to the harmonics."""
+    N_FEATURES = CUE_COLUMNS + 1 + len(LAGS)
     Z_REF = 1e-3
     W_REF = 2 * np.pi * 36.0
 
@@ -332,29 +337,65 @@ def crop(e: torch.Tensor, i: torch.Tensor, start: torch.Tensor, n: int,
 
 
 class TextureNet(nn.Module):
-    """Features -> standardised MLP -> (grain m, log std, probabilities ``(batch, 5)``)."""
+    """Features -> standardised MLP -> (grain m, log std, probabilities ``(batch, 5)``).
+
+    With ``high_columns`` ``(cues, first)`` a second MLP of the same widths, with its own
+    heads, reads the first ``cues`` feature columns and those from ``first`` on alone, and the
+    net answers for the pair (:meth:`heads`); each is trained on its own loss, as members of an
+    ensemble (:meth:`branches`).
+    """
 
     def __init__(self, features: WhiskFeatures, scale: torch.Tensor, hidden: list[int],
-                 n_classes: int = 5) -> None:
+                 n_classes: int = 5, high_columns: tuple[int, int] | None = None) -> None:
         super().__init__()
         self.features = features
         self.register_buffer("scale", scale)  # (2, n_features): mean, std
-        layers, width = [], features.n_features
+        self.high_columns = high_columns
+        self.body, self.classes, self.grain = self._mlp(features.n_features, hidden, n_classes)
+        self.high = None
+        if high_columns is not None:
+            cues, first = high_columns
+            self.high = nn.ModuleList(self._mlp(cues + features.n_features - first, hidden,
+                                                n_classes))
+        self.register_buffer("log_grain", torch.tensor([np.log(30e-6), 0.5]))  # mean, spread
+
+    @staticmethod
+    def _mlp(width: int, hidden: list[int], n_classes: int) -> tuple[nn.Module, ...]:
+        """A branch: its body, class head and grain head (mean, log std)."""
+        layers = []
         for h in hidden:
             layers += [nn.Linear(width, h), nn.GELU()]
             width = h
-        self.body = nn.Sequential(*layers)
-        self.classes = nn.Linear(width, n_classes)
-        self.grain = nn.Linear(width, 2)
-        self.register_buffer("log_grain", torch.tensor([np.log(30e-6), 0.5]))  # mean, spread
+        return nn.Sequential(*layers), nn.Linear(width, n_classes), nn.Linear(width, 2)
+
+    def branches(self, x: torch.Tensor) -> list[tuple[torch.Tensor, ...]]:
+        """Features ``(batch, n_features)`` -> per branch (the full columns first, then the
+        high ones): logits ``(batch, 5)``, ln grain mean and log std ``(batch,)``."""
+        z = (x - self.scale[0]) / self.scale[1]
+        pairs = [((self.body, self.classes, self.grain), z)]
+        if self.high is not None:
+            cues, first = self.high_columns
+            pairs.append((self.high, torch.cat([z[:, :cues], z[:, first:]], 1)))
+        out = []
+        for (body, classes, grain), zb in pairs:
+            h = body(zb)
+            g = grain(h)
+            out.append((classes(h), self.log_grain[0] + self.log_grain[1] * g[:, 0],
+                        g[:, 1] + torch.log(self.log_grain[1])))
+        return out
 
     def heads(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """Features ``(batch, n_features)`` -> logits ``(batch, 5)``, ln grain mean and
-        log std ``(batch,)``."""
-        h = self.body((x - self.scale[0]) / self.scale[1])
-        g = self.grain(h)
-        return (self.classes(h), self.log_grain[0] + self.log_grain[1] * g[:, 0],
-                g[:, 1] + torch.log(self.log_grain[1]))
+        log std ``(batch,)``. Two branches answer together: the mean of their log
+        probabilities as logits (the normalised geometric mean of their probabilities), and
+        the moments of the equal mixture of their ln-grain Gaussians."""
+        out = self.branches(x)
+        if len(out) == 1:
+            return out[0]
+        (la, ma, sa), (lb, mb, sb) = out
+        logits = 0.5 * (fn.log_softmax(la, -1) + fn.log_softmax(lb, -1))
+        var = 0.5 * (torch.exp(2 * sa) + torch.exp(2 * sb)) + 0.25 * (ma - mb) ** 2
+        return logits, 0.5 * (ma + mb), 0.5 * torch.log(var)
 
     def from_features(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """The outputs from features ``(batch, n_features)`` already computed."""
@@ -379,6 +420,15 @@ class TextureDecoder(DecoderModule):
             issue 25 §3). Measured on 240 held-out specimens of the texture scene, 640
             training (per window, 0.25 s): none 86.1 %, 10 ms 89.3 %, 20 ms 89.3 %, 40 ms
             89.2 %; 10 ms costs the least (half the multiply-adds of 20 ms).
+        high_band_hz: a second branch (:class:`TextureNet`) reads the whisk cues and the band
+            powers whose bands start at or above this frequency, Hz, alone (not the residual's
+            RMS, its lags or the lower bands), and the decoder answers for both branches: the
+            asperities' impulses arrive at 4-33 kHz (physics.md §11), and what a friction law
+            adds on its own (LuGre's bristle rings on the tip at its reversals) lies lower.
+            Measured by a features + MLP proxy of the main job's decoder (29 Nov; 300 held-out
+            specimens of each row, 1280 training): the full branch alone 88.7 % in family,
+            73.6 % on LuGre (held out); the high branch alone 86.0 % and 83.3 %; both 88.5 %
+            and 83.2 %. None, or no band powers: one branch (the decoder before 29 Nov).
         lr, weight_decay: as every decoder.
     """
 
@@ -386,6 +436,7 @@ class TextureDecoder(DecoderModule):
 
     def __init__(self, hidden: list[int] | None = None, window_s: float = 0.25,
                  grain_weight: float = 0.5, band_frame_s: float | None = 0.01,
+                 high_band_hz: float | None = 4000.0,
                  lr: float = 3e-3, weight_decay: float = 1e-4) -> None:
         super().__init__(lr, weight_decay)
         hidden = [64, 64] if hidden is None else list(hidden)
@@ -394,6 +445,8 @@ class TextureDecoder(DecoderModule):
         check_positive("model.grain_weight", grain_weight, 1e6)
         if band_frame_s is not None:
             check_positive("model.band_frame_s", band_frame_s, 100.0)
+        if high_band_hz is not None:
+            check_positive("model.high_band_hz", high_band_hz, 1e7)
         self.save_hyperparameters()
 
     def feature_layer(self, scene) -> WhiskFeatures:
@@ -447,10 +500,29 @@ class TextureDecoder(DecoderModule):
         (the features of the first window of every training record), its ln-grain prior
         from the targets ``(n, 2)`` (grade, grain m); its weights drawn from torch's RNG."""
         scale = torch.stack([x.mean(0), x.std(0).clamp_min(1e-6)])
-        net = TextureNet(feats, scale, list(self.hparams.hidden))
+        net = TextureNet(feats, scale, list(self.hparams.hidden),
+                         high_columns=self.high_columns(feats))
         logd = torch.log(targets[:, 1])
         net.log_grain.copy_(torch.stack([logd.mean(), logd.std().clamp_min(1e-3)]))
         return net
+
+    def high_columns(self, feats: WhiskFeatures) -> tuple[int, int] | None:
+        """The high branch's columns of ``feats`` (:class:`TextureNet`'s ``high_columns``):
+        the whisk cues and the first band starting at or above ``high_band_hz``; None without
+        that branch (or without band powers).
+
+        Raises:
+            ConfigError: no band starts at or above ``high_band_hz`` at the scene's rate."""
+        top = self.hparams.high_band_hz
+        if top is None or feats.bands is None:
+            return None
+        starts = feats.bands.edges[:-1]
+        above = np.flatnonzero(starts >= top * (1 - 1e-9))
+        if not len(above):
+            raise ConfigError(f"model.high_band_hz must leave a band below the Nyquist "
+                              f"({starts[-1]:g} Hz at {feats.rate:g} S/s is the last band's "
+                              f"start), got {top:g}")
+        return WhiskFeatures.CUE_COLUMNS, WhiskFeatures.N_FEATURES + int(above[0])
 
     def gate_inputs(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
                     t_im: torch.Tensor) -> tuple[torch.Tensor, ...]:
@@ -463,11 +535,13 @@ class TextureDecoder(DecoderModule):
 
     def net_shape(self) -> dict:
         bands = self.net.features.bands
-        return {"window": self._n, "band_frame": None if bands is None else bands.frame}
+        return {"window": self._n, "band_frame": None if bands is None else bands.frame,
+                "high_band_hz": self.hparams.high_band_hz}
 
     def build_from_checkpoint(self, shape: dict) -> None:
-        """The net's shape as trained: its window and its band frame (samples; a checkpoint
-        from before the band powers has none, and is rebuilt without them)."""
+        """The net's shape as trained: its window, its band frame (samples; a checkpoint
+        from before the band powers has none, and is rebuilt without them) and its high
+        branch (a checkpoint from before 29 Nov has none)."""
         from wtml.scenes import scene_from_dict
 
         scene = scene_from_dict(self.scene)
@@ -475,8 +549,10 @@ class TextureDecoder(DecoderModule):
         frame = shape.get("band_frame")
         if frame is None:
             self.hparams.band_frame_s = None
+        self.hparams.high_band_hz = shape.get("high_band_hz")
         feats = WhiskFeatures(scene.calibration_hz, scene.acquisition.sample_rate_hz, frame)
-        self.net = TextureNet(feats, torch.ones(2, feats.n_features), list(self.hparams.hidden))
+        self.net = TextureNet(feats, torch.ones(2, feats.n_features), list(self.hparams.hidden),
+                              high_columns=self.high_columns(feats))
 
     def loss(self, batch) -> torch.Tensor:
         """Training: a random window of every record (uniform start, from torch's RNG);
@@ -492,9 +568,12 @@ class TextureDecoder(DecoderModule):
     def feature_loss(self, x: torch.Tensor, targets: torch.Tensor) -> torch.Tensor:
         """The loss of the windows' features ``x`` ``(batch, n_features)`` against their
         targets ``(batch, 2)`` (grade, grain m): the grade's cross-entropy plus
-        ``grain_weight`` times the Gaussian NLL of ln grain."""
-        logits, mu, log_sd = self.net.heads(x)
-        ce = fn.cross_entropy(logits, targets[:, 0].long())
-        z = (torch.log(targets[:, 1]) - mu) / torch.exp(log_sd)
-        nll = (0.5 * z**2 + log_sd).mean()
-        return ce + self.hparams.grain_weight * nll
+        ``grain_weight`` times the Gaussian NLL of ln grain, summed over the net's branches
+        (each learns alone, as an ensemble's members do)."""
+        total = 0.0
+        for logits, mu, log_sd in self.net.branches(x):
+            ce = fn.cross_entropy(logits, targets[:, 0].long())
+            z = (torch.log(targets[:, 1]) - mu) / torch.exp(log_sd)
+            nll = (0.5 * z**2 + log_sd).mean()
+            total = total + ce + self.hparams.grain_weight * nll
+        return total

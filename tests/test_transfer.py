@@ -13,6 +13,7 @@ from wtml.bench.texture_transfer import (
     device_table,
     device_variants,
     device_verdict,
+    presliding,
     texture_variants,
 )
 from wtml.bench.transfer import mixture_members, run_variants
@@ -72,6 +73,29 @@ def test_texture_rows_hold_out_lugre_and_step_it_finely_enough():
     on = [n for n in scene.acquisition.effects.NAMES
           if getattr(scene.acquisition.effects, n).enabled]
     assert len(acq) == 1 + len(on)
+
+
+def test_texture_rows_hold_out_a_presliding_compliance_stepped_stably():
+    """Beside the laws, a held-out row whose specimens each turn their force over at their own
+    v_r in [v_r/4, v_r] (sharper reversals than trained), stepped as finely as its least v_r
+    needs (the scene's own check passes, where the trained step would refuse it); a scene that
+    trains on that span already has the row in family, and a wider span keeps its own."""
+    from wtml.scenes import SceneError
+
+    scene = load_scene(ROOT / "configs/scenes/texture.yaml")
+    rows = {v.name: v for v in texture_variants(scene)}
+    name = "pre-sliding: each specimen's v_r in [v_r/4, v_r] (held out)"
+    assert rows[name].kind == "held out"
+    spanned = presliding(scene)
+    assert (spanned.friction.slip_span, spanned.oversample) == (4.0, 4)
+    spanned.check("")
+    with pytest.raises(SceneError, match="friction.slip_span"):
+        dataclasses.replace(spanned, oversample=scene.oversample).check("")
+    kinds = {v.name: v.kind for v in texture_variants(spanned)}
+    assert kinds["pre-sliding: each specimen's v_r in [v_r/4, v_r]"] == "in family"
+    wide = presliding(dataclasses.replace(scene, oversample=8, friction=dataclasses.replace(
+        scene.friction, slip_span=8.0)))
+    assert (wide.friction.slip_span, wide.oversample) == (8.0, 8)
 
 
 def test_texture_rows_draw_each_record_its_own_specimen():

@@ -425,10 +425,12 @@ class TextureDecoder(DecoderModule):
             RMS, its lags or the lower bands), and the decoder answers for both branches: the
             asperities' impulses arrive at 4-33 kHz (physics.md §11), and what a friction law
             adds on its own (LuGre's bristle rings on the tip at its reversals) lies lower.
-            Measured by a features + MLP proxy of the main job's decoder (29 Nov; 300 held-out
-            specimens of each row, 1280 training): the full branch alone 88.7 % in family,
-            73.6 % on LuGre (held out); the high branch alone 86.0 % and 83.3 %; both 88.5 %
-            and 83.2 %. None, or no band powers: one branch (the decoder before 29 Nov).
+            ``configs/texture.yaml`` trained on 1280 specimens (29 Nov; windows of 300
+            held-out specimens a row): one branch 87.3 % in family, 69.5 % on LuGre (held
+            out), 80.2 % with a pre-sliding compliance (held out); two 88.5, 80.6 and 85.7 %.
+            A stand-in (the features, sklearn's MLP) read the high branch alone at 86.0 % in
+            family: alone it would cost. None, or no band powers: one branch (the decoder
+            before 29 Nov).
         lr, weight_decay: as every decoder.
     """
 

@@ -178,3 +178,24 @@ def test_location_scores_count_coverage_flags_and_misses():
     assert s["within_2sigma"] == 1.0
     assert location_scores(gap, truth)["missed"] == 1 and "flagged" not in location_scores(
         gap, truth)
+
+
+def test_the_main_jobs_texture_line_judges_every_held_out_row():
+    """The main job's texture transfer line names each friction law and every other held-out
+    row (the pre-sliding compliance), each held-out one judged against the in-family accuracy
+    less 3 points; acquisition rows stay in the report."""
+    from wtml.pipeline import _texture_transfer_lines
+
+    def row(name, kind, acc):
+        return {"name": name, "kind": kind, "records": 4, "methods": [{"accuracy": acc}]}
+
+    line = _texture_transfer_lines([
+        row("the trained scene (in family)", "in family", 0.90),
+        row("friction law coulomb alone", "in family", 0.91),
+        row("friction law lugre alone (held out)", "held out", 0.80),
+        row("pre-sliding: each specimen's v_r in [v_r/4, v_r] (held out)", "held out", 0.88),
+        row("ideal acquisition (no effect)", "acquisition", 0.50)])[0]
+    assert "coulomb 91.0 %" in line and "lugre (held out) 80.0 %" in line
+    assert "friction law lugre alone (held out): MISSED" in line
+    assert "pre-sliding: each specimen's v_r in [v_r/4, v_r] (held out): met" in line
+    assert "ideal acquisition" not in line

@@ -14,10 +14,11 @@ them), grain size on the unseen FEPA grades (interpolated and extrapolated, with
 domain gate flags), and an ablation: fresh held-out specimens simulated with both cues, with
 asperities only (every grade the middle grade's mean friction) and with mean friction only
 (no grains). And the transfer table (:mod:`wtml.bench.texture_transfer`): every method on fresh
-records of each friction law alone (those the training mixture leaves out held out) and of
-each acquisition effect alone; and the device-spread table (the same module): every method on
-fresh records of the nominal device, of devices drawn from the trained spread and of each
-class of parameter alone, each record through its own device's calibrated T. Writes
+records of each friction law alone (those the training mixture leaves out held out), of a
+pre-sliding compliance (held out) and of each acquisition effect alone; and the
+device-spread table (the same module): every method on fresh records of the nominal device,
+of devices drawn from the trained spread and of each class of parameter alone, each record
+through its own device's calibrated T. Writes
 ``report.md``, ``summary.json`` and PNGs.
 """
 
@@ -538,9 +539,10 @@ def _report(s: dict) -> str:
         lines.append(f"| {r['variant']} | " + " | ".join(_pct(r[c]) for c in cols) + " |")
     lines += ["", "## Transfer: held-out physics", "",
               "Fresh held-out specimens per row: the trained scene, each friction law alone "
-              "(a law the training mixture leaves out is held out), an ideal acquisition and "
-              "each acquisition effect alone. Window accuracy (and the share the domain gate "
-              "flags).", ""]
+              "(a law the training mixture leaves out is held out), a pre-sliding compliance "
+              "(each specimen's own v_r, sharper reversals than trained: held out), an ideal "
+              "acquisition and each acquisition effect alone. Window accuracy (and the share "
+              "the domain gate flags).", ""]
     lines += transfer_table(s["transfer"])
     v = s["device_verdict"]
     lines += ["", "## Device spread", "",

@@ -79,7 +79,8 @@ def test_texture_rows_hold_out_a_presliding_compliance_stepped_stably():
     """Beside the laws, a held-out row whose specimens each turn their force over at their own
     v_r in [v_r/4, v_r] (sharper reversals than trained), stepped as finely as its least v_r
     needs (the scene's own check passes, where the trained step would refuse it); a scene that
-    trains on that span already has the row in family, and a wider span keeps its own."""
+    trains on that span already has the row in family, a wider span keeps its own, and a span
+    the finest step (oversample 16) cannot hold is narrowed to what it can."""
     from wtml.scenes import SceneError
 
     scene = load_scene(ROOT / "configs/scenes/texture.yaml")
@@ -96,6 +97,9 @@ def test_texture_rows_hold_out_a_presliding_compliance_stepped_stably():
     wide = presliding(dataclasses.replace(scene, oversample=8, friction=dataclasses.replace(
         scene.friction, slip_span=8.0)))
     assert (wide.friction.slip_span, wide.oversample) == (8.0, 8)
+    slow = presliding(dataclasses.replace(scene, friction=dataclasses.replace(
+        scene.friction, slip_speed=2e-3)))  # span 4 would need a step finer than 16
+    assert slow.oversample == 16 and slow.friction.slip_span == pytest.approx(16 / 4.3)
 
 
 def test_texture_rows_draw_each_record_its_own_specimen():

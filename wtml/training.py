@@ -139,6 +139,7 @@ class WtmlCLI(LightningCLI):
         hparams.pop("_instantiator", None)
         hparams.pop("_class_path", None)
         if hparams:
+            hparams = resumed_arguments(_model_class(config), hparams)
             try:
                 self.config = self.parser.parse_object({sub: {"model": {
                     "class_path": config["model"]["class_path"], "init_args": hparams}}},
@@ -262,6 +263,13 @@ class WtmlCLI(LightningCLI):
             key = next((k for pattern in (r"[`(]{}\b|\b{}=", r"\b{}\b") for k in names
                         if re.search(pattern.format(k, k), text)), None)
             raise ConfigError(f"trainer{'.' + key if key else ''}: {text[:300]}") from None
+
+
+def resumed_arguments(cls: type, hparams: dict) -> dict:
+    """The model arguments of a run resumed from a checkpoint whose ``hyper_parameters`` are
+    ``hparams``: those, and for an argument the decoder gained after the checkpoint was saved
+    the value it was trained without (``cls.LEGACY_HPARAMS``), not the config's default."""
+    return {**getattr(cls, "LEGACY_HPARAMS", {}), **hparams}
 
 
 def _model_class(config) -> type:

@@ -1,6 +1,7 @@
 """The texture bench's transfer table: its methods on each friction law alone (the laws left
-out of the training mixture held out) and on each acquisition effect alone. Per row and
-method: window accuracy, and for a method with a domain flag the flagged share.
+out of the training mixture held out), on a pre-sliding compliance (:func:`presliding`, held
+out) and on each acquisition effect alone. Per row and method: window accuracy, and for a
+method with a domain flag the flagged share.
 
 And its device-spread table (issue 21 §1): the methods on records of the nominal device, of
 devices drawn from the trained spread and of each class of parameter alone at its width
@@ -40,6 +41,8 @@ def _with_law(scene, law: str):
         scene.friction, law={law: 1.0}))
 
 
+MAX_OVERSAMPLE = 16
+"""The finest step a texture scene takes (``TextureScene.oversample``'s bound)."""
 PRESLIDING_SPAN = 4.0
 """The held-out pre-sliding row's ``friction.slip_span``: each specimen turns its force over
 at its own v_r, log-uniform in [v_r/4, v_r] (2.5-10 mm/s at the shipped v_r), sharper
@@ -48,11 +51,15 @@ mm/s. Not what the texture decoder's high branch was chosen on (LuGre was)."""
 
 
 def presliding(scene):
-    """The scene with :data:`PRESLIDING_SPAN` (its own span where wider), stepped as finely
-    as the least v_r needs (the explicit friction step's stability, ``SLIP_SPEED_AT_2``)."""
-    span = max(scene.friction.slip_span, PRESLIDING_SPAN)
-    least = scene.friction.slip_speed / span
-    step = max(scene.oversample, math.ceil(2 * SLIP_SPEED_AT_2 / least))
+    """The scene with :data:`PRESLIDING_SPAN` (its own span where wider; narrower where the
+    finest step a scene takes, ``oversample`` 16, could not hold the least v_r), stepped as
+    finely as the least v_r needs (the explicit friction step's stability,
+    ``SLIP_SPEED_AT_2``)."""
+    f = scene.friction
+    finest = f.slip_speed * MAX_OVERSAMPLE / (2 * SLIP_SPEED_AT_2)
+    span = max(f.slip_span, min(PRESLIDING_SPAN, finest))
+    least = f.slip_speed / span
+    step = max(scene.oversample, math.ceil(2 * SLIP_SPEED_AT_2 / least - 1e-9))
     return dataclasses.replace(scene, oversample=step, friction=dataclasses.replace(
         scene.friction, slip_span=span))
 

@@ -68,6 +68,10 @@ class DecoderModule(L.LightningModule, ABC):
     """
 
     TASK = ""
+    LEGACY_HPARAMS: dict = {}
+    """Model arguments that a checkpoint saved before they existed was trained without, and
+    the value that rebuilds it so (``{argument: value}``): a run resumed from such a
+    checkpoint takes these, not the config's (:func:`wtml.training.resumed_arguments`)."""
 
     def __init__(self, lr: float, weight_decay: float) -> None:
         super().__init__()

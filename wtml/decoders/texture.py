@@ -22,8 +22,9 @@ its own features, so a device feeds it what its ADC gives:
 2. A standardised MLP with two heads: grade logits (the thesis's five grades) and the mean
    and log std of ln(grain size / 1 m); and, with ``high_band_hz``, a second such MLP that
    reads the whisk cues and the bands from that frequency up alone, the two answering as an
-   ensemble (:class:`TextureNet`): what a friction law does by itself (LuGre's bristle at
-   the reversals, held out of training) shows in the residual below the asperities' band.
+   ensemble (:class:`TextureNet`): held-out LuGre moved the residual's RMS, its lags and its
+   bands below ~3 kHz most (a bristle that rings at the reversals, 1.4-14 kHz over the
+   prior, much of it below the asperities' 4-33 kHz).
 
 Outputs (each ``(batch,)`` unless said): ``grain`` (m), ``log_sigma`` (the std of ln grain),
 ``probabilities`` ``(batch, 5)``.
@@ -423,8 +424,9 @@ class TextureDecoder(DecoderModule):
         high_band_hz: a second branch (:class:`TextureNet`) reads the whisk cues and the band
             powers whose bands start at or above this frequency, Hz, alone (not the residual's
             RMS, its lags or the lower bands), and the decoder answers for both branches: the
-            asperities' impulses arrive at 4-33 kHz (physics.md §11), and what a friction law
-            adds on its own (LuGre's bristle rings on the tip at its reversals) lies lower.
+            asperities' impulses arrive at 4-33 kHz (physics.md §11), and held-out LuGre
+            moved the residual's RMS, lags and bands below ~3 kHz most (its bristle rings at
+            the reversals at 1.4-14 kHz over the prior, much of it lower).
             ``configs/texture.yaml`` trained on 1280 specimens (29 Nov; windows of 300
             held-out specimens a row): one branch 87.3 % in family, 69.5 % on LuGre (held
             out), 80.2 % with a pre-sliding compliance (held out); two 88.5, 80.6 and 85.7 %.
@@ -435,6 +437,7 @@ class TextureDecoder(DecoderModule):
     """
 
     TASK = "texture"
+    LEGACY_HPARAMS = {"band_frame_s": None, "high_band_hz": None}
 
     def __init__(self, hidden: list[int] | None = None, window_s: float = 0.25,
                  grain_weight: float = 0.5, band_frame_s: float | None = 0.01,

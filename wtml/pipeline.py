@@ -610,11 +610,11 @@ def _texture_transfer_lines(rows: list[dict]) -> list[str]:
     acc = {r["name"]: r["methods"][0]["accuracy"] for r in rows}
     n = rows[0]["records"]
     family = acc["the trained scene (in family)"]
-    laws = [r for r in rows if r["name"].startswith("friction law") or r["kind"] == "held out"]
-    held = [r for r in laws if r["kind"] == "held out"]
+    shown = [r for r in rows if r["name"].startswith("friction law") or r["kind"] == "held out"]
+    held = [r for r in shown if r["kind"] == "held out"]
     line = (f"  transfer ({n} fresh records per row): in family {100 * family:.1f} %; "
             + ", ".join(f"{r['name'].removeprefix('friction law ').replace(' alone', '')} "
-                        f"{100 * acc[r['name']]:.1f} %" for r in laws))
+                        f"{100 * acc[r['name']]:.1f} %" for r in shown))
     verdicts = [f"{r['name']}: {_met(acc[r['name']] >= family - 0.03)}" for r in held]
     return [line + (f" (target: held out within 3 points: {'; '.join(verdicts)})"
                     if verdicts else "")]

@@ -56,6 +56,12 @@ def bounded(low: float, high: float, *, default: Any = dataclasses.MISSING) -> A
     return dataclasses.field(default=default, metadata={"range": (low, high)})
 
 
+def field_range(cls: Any, name: str) -> tuple[float, float]:
+    """The ``(low, high)`` of dataclass ``cls``'s (or an instance's) :func:`bounded` field
+    ``name``."""
+    return next(f for f in dataclasses.fields(cls) if f.name == name).metadata["range"]
+
+
 def one_of(*choices: str, default: Any = dataclasses.MISSING) -> Any:
     """A string field restricted to ``choices``."""
     return dataclasses.field(default=default, metadata={"choices": choices})

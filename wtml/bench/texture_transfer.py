@@ -22,7 +22,8 @@ from wtml.bench.resampling import group_interval
 from wtml.bench.transfer import Variant, acquisition_variants, member_variants
 from wtml.physics.friction import LAWS
 from wtml.physics.spread import CLASSES, DeviceSpread
-from wtml.scenes.texture import LUGRE_OVERSAMPLE, SLIP_SPEED_AT_2, TextureScene
+from wtml.scenes.texture import LUGRE_OVERSAMPLE, TextureScene, least_slip_speed
+from wtml.schema import field_range
 
 REFERENCE_SPREAD = DeviceSpread(length=0.005, thickness=0.005, modulus=0.03, loss_factor=0.25,
                                 tan_delta=0.25, coupling=0.03)
@@ -41,8 +42,6 @@ def _with_law(scene, law: str):
         scene.friction, law={law: 1.0}))
 
 
-MAX_OVERSAMPLE = 16
-"""The finest step a texture scene takes (``TextureScene.oversample``'s bound)."""
 PRESLIDING_SPAN = 4.0
 """The held-out pre-sliding row's ``friction.slip_span``: each specimen turns its force over
 at its own v_r, log-uniform in [v_r/4, v_r] (2.5-10 mm/s at the shipped v_r), sharper
@@ -52,14 +51,14 @@ mm/s. Not what the texture decoder's high branch was chosen on (LuGre was)."""
 
 def presliding(scene):
     """The scene with :data:`PRESLIDING_SPAN` (its own span where wider; narrower where the
-    finest step a scene takes, ``oversample`` 16, could not hold the least v_r), stepped as
-    finely as the least v_r needs (the explicit friction step's stability,
-    ``SLIP_SPEED_AT_2``)."""
+    finest step a scene takes, ``oversample``'s upper bound, could not hold the least v_r),
+    stepped as finely as the least v_r needs (the explicit friction step's stability,
+    :func:`~wtml.scenes.texture.least_slip_speed`)."""
     f = scene.friction
-    finest = f.slip_speed * MAX_OVERSAMPLE / (2 * SLIP_SPEED_AT_2)
-    span = max(f.slip_span, min(PRESLIDING_SPAN, finest))
+    finest = field_range(scene, "oversample")[1]
+    span = max(f.slip_span, min(PRESLIDING_SPAN, f.slip_speed / least_slip_speed(finest)))
     least = f.slip_speed / span
-    step = max(scene.oversample, math.ceil(2 * SLIP_SPEED_AT_2 / least - 1e-9))
+    step = max(scene.oversample, math.ceil(least_slip_speed(1) / least - 1e-9))
     return dataclasses.replace(scene, oversample=step, friction=dataclasses.replace(
         scene.friction, slip_span=span))
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wtml.schema import SceneError, bounded, build
+from wtml.schema import SceneError, bounded, build, field_range
 
 DEFAULT_TOLERANCE = 0.01
 """``modes_tolerance`` when a scene says ``n_modes: auto`` alone: 1 % of Ze, within the
@@ -105,7 +105,7 @@ def with_auto_modes(scene, request: AutoModes, path: str = ""):
             range): loosen ``modes_tolerance`` or narrow ``modes_band_hz``.
     """
     n, errors, band = request.count(scene)
-    high = next(f for f in dataclasses.fields(scene) if f.name == "n_modes").metadata["range"][1]
+    high = field_range(scene, "n_modes")[1]
     if n > high:
         raise SceneError(f"{path + '.' if path else ''}n_modes: auto needs {n} modes to keep Ze "
                          f"within {request.modes_tolerance:g} over {band[0]:g}-{band[1]:g} Hz, "

@@ -139,6 +139,12 @@ times ``dt Σφb²`` below 1 (:mod:`wtml.physics.friction`) at the scene's worst
 (the macro WT's 14 modes), dt = 9.77 µs: ``4.3e-3 / v_r``."""
 
 
+def least_slip_speed(oversample: int) -> float:
+    """The least regularisation v_r (m/s) that the explicit Coulomb/Stribeck step holds at
+    ``oversample`` × the sampling rate (:data:`SLIP_SPEED_AT_2` scaled by 2/oversample)."""
+    return SLIP_SPEED_AT_2 * 2 / oversample
+
+
 @dataclass(frozen=True)
 class FrictionLaw:
     """The friction law against grain size (see the module docstring) and each specimen's
@@ -281,7 +287,7 @@ class TextureScene:
             raise SceneError(f"{pre}oversample: LuGre friction (friction.law.lugre > 0) needs "
                              f"oversample >= {LUGRE_OVERSAMPLE} (its bristle resolved), got "
                              f"{self.oversample}")
-        least, f = SLIP_SPEED_AT_2 * 2 / self.oversample, self.friction
+        least, f = least_slip_speed(self.oversample), self.friction
         if f.slip_span > 1 and f.slip_speed / f.slip_span < least:
             raise SceneError(f"{pre}friction.slip_span: the least v_r, slip_speed/slip_span = "
                              f"{f.slip_speed / f.slip_span:g} m/s, must be "

@@ -30,10 +30,12 @@ from wtml.decoders.recalibration import (
     NOMINAL,
     Recalibrated,
     conformal_quantile,
+    coverage,
     expected_calibration_error,
     fit_scales,
     fit_temperature,
     fit_uncertainty,
+    interval,
     level_widths,
     metadata,
     tempered,
@@ -473,6 +475,24 @@ def test_the_conformal_quantile_is_the_finite_sample_rank_and_the_widths_hold_it
     rule = {"sigma": "s", "value": "v", "by": "v", "log_value": False, "stored": "none",
             "scales": [scale], "widths": [width]}
     assert build(md.IntervalRecalibration, rule).wide(np.zeros(1))[0] == width
+
+
+def test_the_stated_coverage_finds_each_answers_range_as_the_graph_does(rng):
+    """Answers that float32 rounds onto a range's edge fall in the upper range in the graph
+    (``by >= edge`` in float32) and so in ``coverage_after``, which would be another share if
+    it were found in float64 (each half's errors are of another size)."""
+    by = 1.0 + np.arange(-200, 200) * 1e-12  # every one 1.0 in float32
+    err = np.r_[rng.normal(0, 3.0, 200), rng.normal(0, 1.0, 200)]
+    spec = {"sigma": "s", "value": "v", "by": "v", "log_value": False, "stored": "none"}
+    fitted = interval(spec, {"v": by, "s": np.ones(400)}, by - err, n_ranges=2)
+    assert len(fitted.edges) == 1 and by[199] < fitted.edges[0] <= by[200]
+    assert np.float32(fitted.edges[0]) == np.float32(1.0)
+    assert np.all(fitted.range_of(by) == 1)
+    upper = coverage(err, np.full(400, fitted.scales[1]), fitted.widths[1])
+    assert fitted.coverage_after == pytest.approx(upper)
+    split = np.r_[np.zeros(200, int), np.ones(200, int)]
+    apart = coverage(err, np.asarray(fitted.scales)[split], np.asarray(fitted.widths)[split])
+    assert abs(apart[0] - upper[0]) > 0.05
 
 
 def test_the_coverage_table_scores_the_recalibrated_95_percent_interval_with_its_width(rng):

@@ -498,12 +498,13 @@ class OnsetNet(nn.Module):
                 "touch": torch.sqrt((zm * zm).sum(-1)) / self.touch_step}
 
     def pooled(self, p: dict[str, torch.Tensor]) -> tuple[torch.Tensor, ...]:
-        """``(g, sd, detachment level)``, m, each ``(batch,)``."""
+        """``(g, sd, detachment level)``, m, each ``(batch,)``, and the frames' votes for g
+        ``(batch, n)`` (softmax, summing to 1; :meth:`per_cycle` splits them by cycle)."""
         w = torch.softmax(p["vote"], -1)
         g = (w * p["est"]).sum(-1)
         var = (w * torch.exp(2 * p["log_sd"])).sum(-1) * self.amp**2
         off = (torch.softmax(p["vote_off"], -1) * p["est_off"]).sum(-1)
-        return g, torch.sqrt(var), off
+        return g, torch.sqrt(var), off, w
 
     def cycle_of(self, frame: torch.Tensor) -> torch.Tensor:
         """One-hot whisk cycle of each frame index (any shape ``s``, counted from the
@@ -511,22 +512,23 @@ class OnsetNet(nn.Module):
         k = torch.div(frame, self.cycle_frames, rounding_mode="floor").clamp(max=self.cycles - 1)
         return (k[..., None] == torch.arange(self.cycles, dtype=k.dtype)).float()
 
-    def per_cycle(self, p: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    def per_cycle(self, w: torch.Tensor, est: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """g's vote share and Σ w·estimate (m) of each whisk cycle, ``(batch, cycles)`` each
-        (their sums over the cycles are 1 and :meth:`pooled`'s g)."""
-        w = torch.softmax(p["vote"], -1)
+        (their sums over the cycles are 1 and :meth:`pooled`'s g), from the frames' votes
+        ``w`` (:meth:`pooled`'s) and estimates ``est`` (m), ``(batch, n)`` each."""
         onehot = self.cycle_of(torch.arange(w.shape[1]))
-        return w @ onehot, (w * p["est"]) @ onehot
+        return w @ onehot, (w * est) @ onehot
 
     def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor,
                 t_im: torch.Tensor, hue0: torch.Tensor) -> tuple[torch.Tensor, ...]:
         p = self.per_frame(e, i, t_re, t_im, hue0)
-        g, sd, off = self.pooled(p)
+        g, sd, off, w = self.pooled(p)
         n = e.shape[0]
         prob, _, _ = confirm(torch.sigmoid(p["contact"]), p["touch"],
                              torch.zeros(n, CONFIRM_FRAMES), torch.zeros(n))
         gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
-        return gap, sd, prob, off_margin, p["touch"], self.agreement(*self.per_cycle(p), gap, sd)
+        spread = self.agreement(*self.per_cycle(w, p["est"]), gap, sd)
+        return gap, sd, prob, off_margin, p["touch"], spread
 
     def agreement(self, share: torch.Tensor, sums: torch.Tensor, gap: torch.Tensor,
                   sd: torch.Tensor) -> torch.Tensor:
@@ -812,7 +814,7 @@ class OnsetDecoder(DecoderModule):
                                                               self._max_contacts)
         bce = self.hparams.contact_weight * fn.binary_cross_entropy_with_logits(
             p["contact"], labels, weight=weight)
-        g, sd, off = self.net.pooled(p)
+        g, sd, off, _ = self.net.pooled(p)
         has = torch.isfinite(targets[:, 0])
         if not has.any():
             return bce

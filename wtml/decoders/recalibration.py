@@ -30,6 +30,7 @@ predict``'s ``<σ>_95`` columns); a graph's σ output is the 68 % half-width.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -188,15 +189,17 @@ def interval(spec: dict, outputs: dict[str, np.ndarray], truth: np.ndarray, n_ra
     err = errors(outputs[spec["value"]], truth, spec["log_value"])
     sigma = raw_sigma(spec, outputs, len(err))
     edges, scales, widths = fit_scales(err, sigma, outputs[spec["by"]], n_ranges)
-    which = np.searchsorted(edges, np.nan_to_num(outputs[spec["by"]], nan=-np.inf),
-                            side="right")
     used = np.isfinite(err) & np.isfinite(sigma)
     before = () if spec["stored"] == "none" or not used.any() else coverage(err, sigma)
-    after = coverage(err, sigma * scales[which], widths[which]) if used.any() else ()
-    return IntervalRecalibration(**spec, edges=tuple(map(float, edges)),
-                                 scales=tuple(map(float, scales)),
-                                 widths=tuple(map(float, widths)), n=int(used.sum()),
-                                 coverage_before=before, coverage_after=after)
+    fitted = IntervalRecalibration(**spec, edges=tuple(map(float, edges)),
+                                   scales=tuple(map(float, scales)),
+                                   widths=tuple(map(float, widths)), n=int(used.sum()),
+                                   coverage_before=before)
+    if not used.any():
+        return fitted
+    which = fitted.range_of(outputs[spec["by"]])  # as the graph and the runtime find it
+    return dataclasses.replace(fitted, coverage_after=coverage(
+        err, sigma * scales[which], widths[which]))
 
 
 def fit_uncertainty(outputs: dict[str, np.ndarray], truth: dict[str, np.ndarray],

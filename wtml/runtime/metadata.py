@@ -208,24 +208,25 @@ class IntervalRecalibration:
         widths = np.asarray(self.widths or (WIDE,) * len(self.scales), float)
         return edges, widths, np.log(widths)
 
-    def _range(self, by: np.ndarray) -> np.ndarray:
-        """Each answer's range, found as the graph finds it: ``by >= edges`` counted in
-        float32 (a NaN answer compares false: the first range)."""
+    def range_of(self, by: np.ndarray) -> np.ndarray:
+        """Each answer's range index (``by``'s shape, ints in [0, len(edges)]), found as the
+        graph finds it: ``by >= edges`` counted in float32 (a NaN answer compares false: the
+        first range)."""
         with np.errstate(over="ignore"):  # beyond float32: ±inf, as in the graph
             by = np.asarray(by, np.float32)
         return (by[..., None] >= self._lookup[0]).sum(-1)
 
     def wide(self, by: np.ndarray) -> np.ndarray:
         """The 95 % interval's half-width in σ for answers ``by`` (any shape, ``(n,)``) of
-        output ``by``, in that shape: its range's width (:meth:`_range`)."""
-        return self._lookup[1][self._range(by)]
+        output ``by``, in that shape: its range's width (:meth:`range_of`)."""
+        return self._lookup[1][self.range_of(by)]
 
     def half_width(self, sigma: np.ndarray, by: np.ndarray) -> np.ndarray:
         """The 95 % interval's half-width ``(n,)`` in the σ output's own form and unit (a log
         std where ``stored`` is ``"log_std"``) from that output ``sigma`` and output ``by``,
         each ``(n,)``: ``wide·σ``, or ``log σ + ln wide``. A few µs per call at batch 1
         (``wtml.runtime.predict.OnnxModel.half_widths`` calls it where answers are printed)."""
-        which = self._range(by)
+        which = self.range_of(by)
         if self.stored == "log_std":
             return np.asarray(sigma, float) + self._lookup[2][which]
         return np.asarray(sigma, float) * self._lookup[1][which]

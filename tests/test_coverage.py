@@ -3,6 +3,7 @@
 ``wtml.decoders.recalibration``, and the recalibrated graphs: ONNX against torch, and old
 exports refused."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -26,6 +27,7 @@ from wtml.bench.coverage import (
 )
 from wtml.decoders.domain import DomainGate, Gated, ZeParts
 from wtml.decoders.recalibration import (
+    KEEP,
     MAX_WIDTH,
     NOMINAL,
     Recalibrated,
@@ -34,11 +36,14 @@ from wtml.decoders.recalibration import (
     expected_calibration_error,
     fit_scales,
     fit_temperature,
+    fit_top_label,
     fit_uncertainty,
     interval,
     level_widths,
     metadata,
+    recalibrated,
     tempered,
+    top_label,
 )
 from wtml.exporters.graphs import export_graph
 from wtml.runtime import metadata as md
@@ -230,7 +235,7 @@ def test_class_table_judges_the_in_domain_windows_against_the_target(rng):
              "flagged": 0.0},
             {"name": "calibrated, 60 windows", "kind": "held out", "labels": labels[:60],
              "before": p[:60], "after": p[:60], "inside": np.ones(60, bool), "flagged": 0.0}]
-    lines, out = class_table(rows, 1.0)
+    lines, out = class_table(rows, "T = 1")
     assert [r["verdict"] for r in out] == ["ok", "miss", "?"]
     assert out[0]["windows"] == 30000 and out[0]["ece"] < 0.01
     assert expected_calibration_error(mixed, labels)[0] > 0.2  # what counting them would say
@@ -297,6 +302,68 @@ def test_temperature_scaling_lowers_the_ece_of_an_overconfident_classifier(rng):
     assert np.array_equal(tempered(p, t).argmax(1), p.argmax(1))  # the answer stays
 
 
+def stated_and_true(rng, n: int, slope: float, bias: float):
+    """Five-class answers whose top probability t is uniform on [0.3, 0.999] (the other four
+    (1 - t)/4 each) and right with probability sigmoid(slope·logit t + bias)."""
+    t = rng.uniform(0.3, 0.999, n)
+    top = rng.integers(0, 5, n)
+    p = np.repeat(((1 - t) / 4)[:, None], 5, 1)
+    p[np.arange(n), top] = t
+    right = rng.random(n) < 1 / (1 + np.exp(-(slope * np.log(t / (1 - t)) + bias)))
+    labels = np.where(right, top, (top + rng.integers(1, 5, n)) % 5)
+    return p, labels
+
+
+def test_the_top_labels_map_takes_a_shape_that_one_temperature_cannot(rng):
+    """Answers right less often than stated in the middle and as often near certainty (a
+    bias on the top label's logit): a temperature leaves an ECE over 2 %, the map after it
+    under 1 % on fresh answers; the map keeps the likeliest class and sums to 1, and on a
+    calibrated classifier it is near the identity."""
+    p, labels = stated_and_true(rng, 40000, 1.0, -0.6)
+    fresh, fresh_labels = stated_and_true(rng, 40000, 1.0, -0.6)
+    t = fit_temperature(p, labels)
+    slope, bias = fit_top_label(tempered(p, t), labels)
+    tempered_only = expected_calibration_error(tempered(fresh, t), fresh_labels)[0]
+    mapped = top_label(tempered(fresh, t), slope, bias)
+    assert tempered_only > 0.02 and expected_calibration_error(mapped, fresh_labels)[0] < 0.01
+    assert np.array_equal(mapped.argmax(1), fresh.argmax(1))
+    np.testing.assert_allclose(mapped.sum(1), 1.0, rtol=1e-12)
+    # the others keep their proportions
+    others = np.delete(mapped, fresh.argmax(1)[:, None] + 5 * np.arange(40000)[:, None])
+    np.testing.assert_allclose(others.reshape(-1, 4).std(1), 0.0, atol=1e-12)
+    calibrated, labels = synthetic_classifier(rng, 40000)
+    slope, bias = fit_top_label(calibrated, labels)
+    assert abs(slope - 1) < 0.05 and abs(bias) < 0.05
+    ranked = np.sort(calibrated, 1)
+    apart = np.log(ranked[:, -1] / ranked[:, -2]) > 2 * KEEP  # the identity, but for near-ties
+    np.testing.assert_allclose(top_label(calibrated, 1.0, 0.0)[apart], calibrated[apart],
+                               atol=1e-12)
+    np.testing.assert_allclose(top_label(calibrated, 1.0, 0.0), calibrated, atol=1e-4)
+    lowered = top_label(calibrated, 1.0, -5.0)  # would sink the top below the second
+    assert np.array_equal(lowered.argmax(1), calibrated.argmax(1))
+    np.testing.assert_allclose(top_label(np.full((3, 5), 0.2), 2.0, 1.0), 0.2)  # all tied
+    assert fit_top_label(p[:200][p[:200].argmax(1) == labels[:200]],
+                         labels[:200][p[:200].argmax(1) == labels[:200]]) == (1.0, 0.0)
+
+
+def test_the_top_labels_map_is_stated_with_its_temperature_and_an_older_export_has_none():
+    """``top_slope`` and ``top_bias`` come together and only beside a temperature; an
+    export's metadata without them (before the map) reads as tempered only."""
+    base = {"fitted_on": "x", "probabilities": "p", "temperature": 1.2}
+    old = build(md.Uncertainty, base)
+    assert old.top_slope is None
+    p = np.array([[0.7, 0.2, 0.1]])
+    np.testing.assert_allclose(recalibrated(p, old), tempered(p, 1.2))
+    both = build(md.Uncertainty, base | {"top_slope": 1.1, "top_bias": -0.2})
+    np.testing.assert_allclose(recalibrated(p, both), top_label(tempered(p, 1.2), 1.1, -0.2))
+    with pytest.raises(SchemaError, match="top_bias"):
+        build(md.Uncertainty, base | {"top_slope": 1.1})
+    with pytest.raises(SchemaError, match="top_slope"):
+        build(md.Uncertainty, {"fitted_on": "x", "top_slope": 1.1, "top_bias": 0.0})
+    with pytest.raises(SchemaError, match="top_slope"):
+        build(md.Uncertainty, base | {"top_slope": 0.0, "top_bias": 0.0})
+
+
 class Toy(nn.Module):
     """A stand-in decoder: a value, its std, a log std and class probabilities from
     ``(x, y)`` ``(batch, 3)``."""
@@ -327,6 +394,8 @@ def test_a_recalibrated_graph_gives_the_same_sigmas_and_probabilities_in_onnx_an
     labels = (out["probabilities"].cumsum(1) < rng.random(4000)[:, None]).sum(1)
     u = fit_uncertainty(out, truth, specs, 3, "synthetic", "probabilities", labels)
     assert len(u.intervals[0].scales) == 3 and u.temperature is not None
+    assert u.top_slope is not None
+    u = dataclasses.replace(u, top_slope=1.3, top_bias=-0.5)  # a map far from the identity
     assert build(md.Uncertainty, json.loads(metadata(u))) == u  # what the export writes
     graph = Recalibrated(net, names, u).eval()
     assert graph.outputs == (*names, "value_sigma")
@@ -355,8 +424,8 @@ def test_a_recalibrated_graph_gives_the_same_sigmas_and_probabilities_in_onnx_an
                                    np.searchsorted(log_rule.edges, out["value"], "right")],
                                atol=1e-6)
     assert all(abs(w - 1.96) < 0.2 for w in r.widths)
-    np.testing.assert_allclose(got[3], tempered(out["probabilities"], u.temperature),
-                               atol=2e-5)
+    np.testing.assert_allclose(got[3], recalibrated(out["probabilities"], u), atol=2e-5)
+    assert np.abs(got[3] - tempered(out["probabilities"], u.temperature)).max() > 0.02
 
 
 def test_the_bayes_rows_score_the_exact_posterior_on_the_in_family_sets_only():

@@ -387,7 +387,7 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     from wtml.baselines.texture_classical import ClassicalTexture
     from wtml.decoders.checkpoint import load_decoder
     from wtml.decoders.domain import Gated
-    from wtml.decoders.recalibration import tempered
+    from wtml.decoders.recalibration import recalibrated
     from wtml.runtime.predict import OnnxModel
 
     module = load_decoder(texture_export["run"] / "checkpoints/last.ckpt")
@@ -416,9 +416,9 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
                                spread.calibration_hz)
     dec = onnx.run(e, i, t_re, t_im)
     np.testing.assert_allclose(dec["grain"], grain.numpy(), rtol=1e-4)
-    # the export tempers the net's probabilities (issue 25 §4)
+    # the export recalibrates the net's probabilities (issue 25 §4)
     np.testing.assert_allclose(dec["probabilities"],
-                               tempered(prob.numpy(), onnx.uncertainty.temperature), atol=2e-5)
+                               recalibrated(prob.numpy(), onnx.uncertainty), atol=2e-5)
     np.testing.assert_allclose(dec["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
     assert OnnxModel(texture_export["model"] / "classical.onnx").metadata["kind"] == "classical"
 

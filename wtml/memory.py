@@ -2,7 +2,7 @@
 
 glibc's allocator keeps what a process frees on its heaps for reuse, and raises its threshold
 for fresh mappings each time a large block is freed, so after one heavy step (MiniRocket's
-fit: +0.43 GB, a texture export's 400 fresh records) a process goes on holding that memory
+fit: +0.43 GB, a texture export's fresh records) a process goes on holding that memory
 through every later step: the main job's texture slice began its bench at 1.15 GB PSS, left
 by its export. :func:`release_memory` returns it (``malloc_trim``) where the C library is glibc.
 A fixed mapping threshold (``MALLOC_MMAP_THRESHOLD_``) would return every large block at once

@@ -25,10 +25,11 @@ the physics it was trained on and on the rest beside what an exact interval earn
 on the same cells (:func:`chance_misses`): more than its 95th percentile is more than chance.
 
 For the texture classifier: the expected calibration error (15 equal-width confidence bins)
-before and after its temperature on its in-domain windows (as the intervals: a flagged answer
-claims nothing), beside the ECE that a perfectly calibrated classifier shows on as many
-windows with the same confidences (its sampling floor, :func:`ece_floor`), judged against
-:data:`ECE_TARGET` (:func:`ece_verdict`), and the reliability curve (``reliability.png``).
+before and after its recalibration (a temperature, then the top label's map) on its
+in-domain windows (as the intervals: a flagged answer claims nothing), beside the ECE that
+a perfectly calibrated classifier shows on as many windows with the same confidences (its
+sampling floor, :func:`ece_floor`), judged against :data:`ECE_TARGET` (:func:`ece_verdict`),
+and the reliability curve (``reliability.png``).
 
 Writes ``report.md``, ``summary.json`` and ``reliability.png``.
 """
@@ -504,14 +505,24 @@ def ece_verdict(ece: float, floor_high: float) -> str:
     return "miss" if ece > floor_high else "?"
 
 
-def class_table(rows: list[dict], temperature: float) -> tuple[list[str], list]:
+def recalibration_text(u) -> str:
+    """A classifier's recalibration (:class:`~wtml.runtime.metadata.Uncertainty`) in words:
+    its temperature, and its top label's slope and bias where it has them."""
+    text = f"T = {u.temperature:.3g}"
+    if u.top_slope is None:
+        return text
+    return text + f", top label: slope {u.top_slope:.3g}, bias {u.top_bias:+.3g}"
+
+
+def class_table(rows: list[dict], how: str) -> tuple[list[str], list]:
     """Markdown lines of the classifier's calibration per set, on its in-domain windows
+    (``how``: the recalibration's parameters, :func:`recalibration_text`)
     (``row["inside"]``), and its rows as dicts. Where a row's answers come in ``"groups"``
     that share their errors (a specimen's windows), its floor is drawn on what they are worth
     (:func:`ece_floor`'s ``worth``: the effective count of its right answers)."""
     marks = {"ok": "", "miss": " ✗", "?": " ?"}
-    lines = ["| records | kind | windows in domain | flagged | accuracy | ECE raw | ECE tempered "
-             f"(T = {temperature:.3g}) | ECE of a calibrated classifier (median, 95th pct) |",
+    lines = ["| records | kind | windows in domain | flagged | accuracy | ECE raw | ECE "
+             f"recalibrated ({how}) | ECE of a calibrated classifier (median, 95th pct) |",
              "|---" * 8 + "|"]
     out = []
     for row in rows:
@@ -644,16 +655,18 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
             entry["intervals"][r.sigma] = {"recalibration": dataclasses.asdict(r),
                                            "rows": rows}
         if scored["classes"]:
-            table, rows = class_table(scored["classes"], u.temperature)
+            table, rows = class_table(scored["classes"], recalibration_text(u))
             lines += [f"### {task}: class probabilities (expected calibration error, 15 bins, "
                       f"in-domain windows; target ≤ {100 * ECE_TARGET:.0f} %: ✗ above it and "
                       "above a calibrated classifier's 95th percentile, ? above it but within)",
                       "", *table, "",
-                      f"Temperature {u.temperature:.3g} fitted on the held-out windows: ECE "
+                      f"Recalibration ({recalibration_text(u)}) fitted on the held-out "
+                      f"windows: ECE "
                       f"{100 * u.ece_before:.1f} % → {100 * u.ece_after:.1f} % there. "
                       "Reliability curve of the test shard: `reliability.png`.", ""]
             reliability_plot(scored["classes"][0], out / "reliability.png")
-            entry["classes"] = {"temperature": u.temperature, "rows": rows}
+            entry["classes"] = {"temperature": u.temperature, "top_slope": u.top_slope,
+                                "top_bias": u.top_bias, "rows": rows}
         summary["tasks"][task] = entry
     if sbi is not None:
         lines += sbi["report"]

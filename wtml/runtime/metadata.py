@@ -236,14 +236,18 @@ class IntervalRecalibration:
 class Uncertainty:
     """How a decoder graph's uncertainties were recalibrated after training, on data it did
     not train on (``fitted_on`` says which): its σ outputs (``intervals``) and, for a
-    classifier, its ``probabilities`` output tempered by ``temperature``, with the expected
-    calibration error on those data before and after. The parameters are constants of the
-    graph (its outputs are the recalibrated values); the metadata states them."""
+    classifier, its ``probabilities`` output tempered by ``temperature``, then its top
+    label's probability mapped by ``sigmoid(top_slope·logit + top_bias)`` (none in an export
+    made before that map: tempered only), with the expected calibration error on those data
+    before and after. The parameters are constants of the graph (its outputs are the
+    recalibrated values); the metadata states them."""
 
     fitted_on: str
     intervals: tuple[IntervalRecalibration, ...] = ()
     probabilities: str | None = None
     temperature: float | None = bounded(1e-3, 1e3, default=None)
+    top_slope: float | None = bounded(1e-3, 1e3, default=None)
+    top_bias: float | None = bounded(-1e3, 1e3, default=None)
     ece_before: float | None = bounded(0.0, 1.0, default=None)
     ece_after: float | None = bounded(0.0, 1.0, default=None)
 
@@ -251,6 +255,11 @@ class Uncertainty:
         if (self.probabilities is None) != (self.temperature is None):
             raise _fail(f"{path}.temperature", "must be given with probabilities (the output "
                         "it tempers), and only then")
+        if (self.top_slope is None) != (self.top_bias is None):
+            raise _fail(f"{path}.top_bias", "must be given with top_slope, and only then")
+        if self.top_slope is not None and self.temperature is None:
+            raise _fail(f"{path}.top_slope", "must be given with a temperature (it maps the "
+                        "tempered probabilities), and only then")
 
 
 @dataclass(frozen=True)

@@ -551,7 +551,7 @@ def class_table(rows: list[dict], how: str) -> tuple[list[str], list]:
 
 def reliability_plot(row: dict, path: Path) -> None:
     """The reliability curve (accuracy against confidence per bin) of one set's in-domain
-    windows, raw and tempered, with the diagonal."""
+    windows, raw and recalibrated, with the diagonal."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -561,7 +561,7 @@ def reliability_plot(row: dict, path: Path) -> None:
     labels = np.asarray(row["labels"], int)[inside]
     fig, ax = plt.subplots(figsize=(5, 5))
     ax.plot([0, 1], [0, 1], color="0.6", lw=1, label="calibrated")
-    for key, label in (("before", "raw"), ("after", "tempered")):
+    for key, label in (("before", "raw"), ("after", "recalibrated")):
         ece, curve = expected_calibration_error(np.asarray(row[key])[inside], labels)
         ok = curve["count"] > 0
         ax.plot(curve["confidence"][ok], curve["accuracy"][ok], "o-",

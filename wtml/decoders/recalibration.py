@@ -156,7 +156,8 @@ TOP_MIN = 10
 logistic fit runs off to an infinite slope): the identity (slope 1, bias 0) otherwise."""
 EXCLUDE = 1e4
 """Subtracted from the top class's log probability to leave it out of the others' log sum
-(finite, unlike -inf, so no NaN in float32; the others' are above -1e3 after ``TINY``)."""
+(finite, unlike -inf, so no NaN in float32; after ``TINY`` and a temperature T the others'
+are above ln(TINY)/T, -6908 at the fit's least T of 0.01)."""
 
 
 KEEP = 1e-4
@@ -169,13 +170,15 @@ def _softplus(x: np.ndarray) -> np.ndarray:
 
 
 def _top_parts(probabilities: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Of probabilities ``(n, C)``: their normalised logs ``(n, C)``, the top one's mask
-    ``(n, C)`` (every tie), the top log, the log of the others' sum and the second class's
-    log, each ``(n, 1)``, float64, as :class:`Recalibrated`'s graph computes them."""
+    """Of probabilities ``(n, C)``: their normalised logs ``(n, C)``, the top class's mask
+    ``(n, C)`` (one class: the first of a tie, as argmax), the top log, the log of the
+    others' sum and the second class's log, each ``(n, 1)``, float64, as
+    :class:`Recalibrated`'s graph computes them (a tie is then a second class as likely,
+    which the :data:`KEEP` floor sets just below the top: the map is continuous there)."""
     lp = np.log(np.clip(np.asarray(probabilities, float), TINY, 1.0))
     lp = lp - np.logaddexp.reduce(lp, -1, keepdims=True)
+    is_top = np.arange(lp.shape[-1]) == lp.argmax(-1)[..., None]
     top = lp.max(-1, keepdims=True)
-    is_top = lp >= top
     others = lp - EXCLUDE * is_top
     rest = np.logaddexp.reduce(others, -1, keepdims=True)
     return lp, is_top, top, rest, others.max(-1, keepdims=True)
@@ -185,7 +188,7 @@ def top_label(probabilities: np.ndarray, slope: float, bias: float) -> np.ndarra
     """Top-label Platt scaling of ``probabilities`` ``(n, C)``, float64 (what the graph
     does): the likeliest class's ``t`` becomes ``sigmoid(slope·logit t + bias)``, but never
     less than keeps it the likeliest (:data:`KEEP`), and the others share ``1 -`` that in
-    their proportions; renormalised (ties share alike)."""
+    their proportions; renormalised."""
     lp, is_top, top, rest, second = _top_parts(probabilities)
     s = np.maximum(slope * (top - rest) + bias, second - rest + KEEP)
     out = np.exp(np.where(is_top, -_softplus(-s), lp - rest - _softplus(s)))
@@ -202,6 +205,8 @@ def fit_top_label(probabilities: np.ndarray, labels: np.ndarray) -> tuple[float,
     _, _, top, rest, _ = _top_parts(probabilities)
     logit = (top - rest)[:, 0]
     sign = np.where(np.asarray(probabilities).argmax(-1) == np.asarray(labels), 1.0, -1.0)
+    ok = np.isfinite(logit)  # a row of NaN probabilities tells nothing
+    logit, sign = logit[ok], sign[ok]
     if min(np.sum(sign > 0), np.sum(sign < 0)) < TOP_MIN:
         return 1.0, 0.0
 
@@ -309,6 +314,8 @@ def fit_uncertainty(outputs: dict[str, np.ndarray], truth: dict[str, np.ndarray]
     p = np.asarray(outputs[probabilities], float)
     temperature = fit_temperature(p, labels)
     slope, bias = fit_top_label(tempered(p, temperature), labels)
+    if (slope, bias) == (1.0, 0.0):  # nothing fitted: no map (the floor would still move ties)
+        slope = bias = None
     fitted = Uncertainty(fitted_on=fitted_on, intervals=intervals, probabilities=probabilities,
                          temperature=temperature, top_slope=slope, top_bias=bias,
                          ece_before=expected_calibration_error(p, labels)[0])
@@ -425,7 +432,8 @@ class Recalibrated(nn.Module):
         """Tempered log probabilities ``(batch, C)`` -> probabilities with the top label's
         map (:func:`top_label`, whose float64 twin this is)."""
         top = lp.amax(-1, keepdim=True)
-        is_top = (lp >= top).to(lp.dtype)
+        classes = torch.arange(lp.shape[-1], device=lp.device)
+        is_top = (classes == lp.argmax(-1, keepdim=True)).to(lp.dtype)  # the first of a tie
         others = lp - EXCLUDE * is_top
         rest = torch.logsumexp(others, -1, keepdim=True)
         s = torch.maximum(self.top_slope * (top - rest) + self.top_bias,

@@ -37,8 +37,8 @@ specimens, 29 Nov) and the ECE on the other specimens reached 2.4 % in one draw 
 and 3.1 % at worst; on 800, 0.95–1.08, 2.3 % and 2.4 %. Until 29 Nov each draw of records
 swept the scene's own 40 specimens (8 per grade)."""
 CHUNK_RECORDS = 60
-"""The calibration records are simulated and run this many at a time: all 300 at once took
-the main job's texture slice to 2.2 GB."""
+"""The calibration records are simulated and run this many at a time: 300 at once took the
+main job's texture slice to 2.2 GB."""
 GRAIN_INTERVAL = {"sigma": "log_sigma", "value": "grain", "by": "grain", "log_value": True,
                   "stored": "log_std"}
 """The texture decoder's interval: ``log_sigma``, the log of the std of ln grain size."""
@@ -71,15 +71,15 @@ def _window_answers(module, raw, records: dict) -> tuple:
 
 def decoder_graph(module, outputs: tuple[str, ...], uncertainty) -> Gated:
     """The decoder's graph as ``model.onnx`` holds it: ``module``'s net with its recalibration
-    (``uncertainty``: the grain σ's scale, the probabilities' temperature) behind its domain
-    gate, in eval mode; ``(e, i, t_re, t_im) -> (grain, log_sigma, probabilities, in_domain)``
-    at any window length. ``outputs``: the net's outputs' names."""
+    (``uncertainty``: the grain σ's scales, the probabilities' temperature and top-label map)
+    behind its domain gate, in eval mode; ``(e, i, t_re, t_im) -> (grain, log_sigma,
+    probabilities, in_domain)`` at any window length. ``outputs``: the net's outputs' names."""
     return Gated(Recalibrated(module.net, outputs, uncertainty), module.gate, (1,)).eval()
 
 
 @torch.no_grad()
 def export_texture(module, scene, out: Path) -> dict[str, Path]:
-    """Write ``out/model.onnx`` (decoder; its probabilities tempered and its grain σ scaled,
+    """Write ``out/model.onnx`` (decoder; its probabilities recalibrated and its grain σ scaled,
     both fitted on the fresh records' windows) and ``out/classical.onnx`` (the thesis's
     cues)."""
     window = module._n

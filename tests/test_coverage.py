@@ -23,6 +23,7 @@ from wtml.bench.coverage import (
     exact_hits,
     fluid_sets,
     hits,
+    recalibration_text,
     wilson,
 )
 from wtml.decoders.domain import DomainGate, Gated, ZeParts
@@ -363,6 +364,8 @@ def test_the_top_labels_map_is_stated_with_its_temperature_and_an_older_export_h
     np.testing.assert_allclose(recalibrated(p, old), tempered(p, 1.2))
     both = build(md.Uncertainty, base | {"top_slope": 1.1, "top_bias": -0.2})
     np.testing.assert_allclose(recalibrated(p, both), top_label(tempered(p, 1.2), 1.1, -0.2))
+    assert recalibration_text(old) == "T = 1.2"  # the coverage bench's words for each
+    assert recalibration_text(both) == "T = 1.2, top label: slope 1.1, bias -0.2"
     with pytest.raises(SchemaError, match="top_bias"):
         build(md.Uncertainty, base | {"top_slope": 1.1})
     with pytest.raises(SchemaError, match="top_slope"):

@@ -202,9 +202,10 @@ def fit_top_label(probabilities: np.ndarray, labels: np.ndarray) -> tuple[float,
     :data:`TOP_MIN` answers are right or wrong, or the fit is not increasing."""
     from scipy.optimize import minimize
 
-    _, _, top, rest, _ = _top_parts(probabilities)
+    _, is_top, top, rest, _ = _top_parts(probabilities)
     logit = (top - rest)[:, 0]
-    sign = np.where(np.asarray(probabilities).argmax(-1) == np.asarray(labels), 1.0, -1.0)
+    labels = np.asarray(labels)
+    sign = np.where(is_top[np.arange(len(labels)), labels], 1.0, -1.0)
     ok = np.isfinite(logit)  # a row of NaN probabilities tells nothing
     logit, sign = logit[ok], sign[ok]
     if min(np.sum(sign > 0), np.sum(sign < 0)) < TOP_MIN:

@@ -85,7 +85,7 @@ def auto_request(cls: type, data: Mapping, path: str = "") -> tuple[dict, AutoMo
         raise SceneError(f"{pre}{key}: unknown key; allowed keys here: {sorted(fields)}")
     if isinstance(value, str):
         if value != AUTO:
-            low, high = fields["n_modes"].metadata["range"]
+            low, high = field_range(cls, "n_modes")
             raise SceneError(f"{pre}n_modes: must be an integer in [{low:g}, {high:g}] or "
                              f"'{AUTO}', got {value!r:.80}")
         rest = {k: v for k, v in data.items() if k != "n_modes" and k not in extra}

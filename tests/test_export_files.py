@@ -134,8 +134,9 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
         "no decoder": json.dumps(manifest | {"files": manifest["files"][1:]}),
         "size a string": json.dumps(manifest | {"files": [
             manifest["files"][0] | {"bytes": "12"}, manifest["files"][1]]}),
-        "format 3": json.dumps(manifest | {"format": 3}),
+        "format 4": json.dumps(manifest | {"format": 4, "wtml_version": "9.1"}),
         "format 1": json.dumps(manifest | {"format": 1}),
+        "format 0": json.dumps(manifest | {"format": 0}),
         "no device": json.dumps({k: v for k, v in manifest.items() if k != "device"}),
         "another device": json.dumps(manifest | {"device": manifest["device"]
                                                  | {"sha256": "0" * 64}}),
@@ -143,7 +144,10 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
     needles = {"missing": "manifest.json: missing", "not json": "not valid JSON",
                "a list": "must be a mapping", "no files": "files: missing",
                "a path": "files[0].name", "no decoder": "files: must list one 'decoder'",
-               "size a string": "files[0].bytes", "format 3": "format: must be in [2, 2]",
+               "size a string": "files[0].bytes",
+               "format 4": f"format: 4, exported by a newer wtml (9.1) than this one "
+                           f"({__version__}, reads formats 2-3): install that wtml's runtime",
+               "format 0": "format: must be in [2, 3]",
                "format 1": "format: 1, exported by an older wtml (it names no device)",
                "no device": "device: missing",
                "another device": "metadata scene's device is not manifest.json's fluid-lumped"}
@@ -153,8 +157,47 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
         else:
             (folder / "manifest.json").write_text(text)
         one_line(capsys, _predict(folder, data, cal), "manifest.json", needles[name])
+    (folder / "manifest.json").write_text(json.dumps(manifest | {"format": 2}))
+    assert main(_predict(folder, data, cal)) == 0  # an export made before format 3 loads
     (folder / "manifest.json").write_text(good)
     assert main(_predict(folder, data, cal)) == 0
+
+
+def _schema_keys(cls, path: str = "") -> dict[str, str]:
+    """Every key a metadata dataclass reads, nested ones by their dotted path, with its type
+    and range: what an older runtime's schema would refuse if it changed."""
+    import dataclasses
+    import typing
+
+    keys, hints = {}, typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        hint = hints[f.name]
+        keys[path + f.name] = f"{hint} {f.metadata.get('range', '')}{f.metadata.get('choices', '')}"
+        for inner in (hint, *typing.get_args(hint)):
+            if dataclasses.is_dataclass(inner):
+                keys |= _schema_keys(inner, f"{path}{f.name}.")
+    return keys
+
+
+SCHEMA_FINGERPRINT = {3: "5d8526f5737ac65375ed007e55ccbf896434378a236d6fdc515106d91d128ea6"}
+"""Per export format, the sha256 of every key the runtime's metadata schemas read
+(:func:`_schema_keys` of the manifest and each task's graph metadata)."""
+
+
+def test_a_change_to_the_metadata_schema_comes_with_a_new_export_format():
+    """An older runtime refuses a key it does not know: a schema that gains, loses or narrows a
+    key must raise ``MANIFEST_FORMAT`` so that the older runtime says "exported by a newer
+    wtml" instead (and this test records the new format's fingerprint)."""
+    import hashlib
+
+    keys = _schema_keys(md.ExportManifest) | _schema_keys(md.OutputDomain, "domain.outputs.*.") | {
+        f"{task}.{k}": v for task, cls in md.SCHEMAS.items() for k, v in _schema_keys(cls).items()}
+    text = json.dumps(keys, sort_keys=True)
+    assert "texture.uncertainty.top_slope" in keys and "texture.domain.quantile" in keys
+    assert SCHEMA_FINGERPRINT.get(md.MANIFEST_FORMAT) == hashlib.sha256(
+        text.encode()).hexdigest(), (
+        f"the export metadata's schema is not format {md.MANIFEST_FORMAT}'s: raise "
+        f"MANIFEST_FORMAT and record its fingerprint here")
 
 
 def test_predict_refuses_an_export_of_another_device(fluid_copy, tmp_path, capsys):

@@ -28,14 +28,20 @@ from typing import Any
 
 import numpy as np
 
-from wtml import tasks
+from wtml import __version__, tasks
 from wtml.devices import DeviceIdentity, physical_hash
 from wtml.files import FileError, inside, parse_json, read_json, regular_file, sha256
 from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
 from wtml.tasks import UNNAMED
 
 MANIFEST = "manifest.json"
-MANIFEST_FORMAT = 2
+MANIFEST_FORMAT = 3
+"""The export format this wtml writes. Raised whenever a graph's metadata or the manifest
+gains a key that an older runtime's schema would refuse (3: the texture decoder's
+``uncertainty.top_slope``, ``top_bias``, 29 Nov), so that an older runtime refuses a newer
+export by its format, not by the first key it does not know."""
+OLDEST_FORMAT = 2
+"""The oldest export format this runtime reads (1 named no device)."""
 MODEL_MAX_BYTES = 512 * 1024**2
 """Bytes: the largest graph or sample file an export folder may hold."""
 REDO = "export it again with `wtml export --checkpoint <last.ckpt> --out <folder>`"
@@ -558,7 +564,7 @@ class ExportFile:
 class ExportManifest:
     """``manifest.json`` of an export folder (:func:`write_manifest`)."""
 
-    format: int = bounded(MANIFEST_FORMAT, MANIFEST_FORMAT)
+    format: int = bounded(OLDEST_FORMAT, MANIFEST_FORMAT)
     wtml_version: str
     task: str = one_of(*TASKS)
     scene_hash: str
@@ -634,7 +640,8 @@ def read_manifest(folder: str | Path) -> ExportManifest:
 
     Raises:
         FileError: no manifest (a folder from an older wtml: export it again), not a regular
-            small file, not strict JSON.
+            small file, not strict JSON; a format older than :data:`OLDEST_FORMAT` (export it
+            again) or newer than :data:`MANIFEST_FORMAT` (update this wtml).
         SchemaError: a key missing, of the wrong type or out of range (naming it).
     """
     path = Path(folder) / MANIFEST
@@ -642,9 +649,16 @@ def read_manifest(folder: str | Path) -> ExportManifest:
         raise FileError(f"{path}: missing: not an export folder of this wtml (made by an "
                         f"older one, or not by `wtml export`, or an export interrupted); {REDO}")
     data = read_json(path, what="export manifest")
-    if isinstance(data, dict) and data.get("format") == 1:
+    fmt = data.get("format") if isinstance(data, dict) else None
+    if fmt == 1:
         raise FileError(f"{path}: format: 1, exported by an older wtml (it names no device); "
                         f"{REDO}")
+    if isinstance(fmt, int) and not isinstance(fmt, bool) and fmt > MANIFEST_FORMAT:
+        made = data.get("wtml_version")
+        raise FileError(f"{path}: format: {fmt}, exported by a newer wtml"
+                        f"{f' ({made:.40})' if isinstance(made, str) else ''} than this one "
+                        f"({__version__}, reads formats {OLDEST_FORMAT}-{MANIFEST_FORMAT}): "
+                        f"install that wtml's runtime on this device, or export with this one")
     try:
         return build(ExportManifest, data)
     except SchemaError as err:

@@ -182,3 +182,84 @@ def test_fidelity_figure_5_22_is_a_line_through_the_origin():
     assert r["found"] == 15
     assert r["r2"] > 0.95 and abs(r["slope"] - 1) < 0.1
     assert r["rmse"] < 0.1 * np.ptp(r["actual"])
+
+
+def _answers(draws: int, seed: int = 0) -> tuple[dict, dict]:
+    """Answers shaped as :func:`wtml.bench.texture.oracles` gives them (its fits take ~20 s
+    at any number of draws)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for extra in ({}, {"sweep_mm": [4.52, 4.16, 3.49, 2.97, 2.70]}):
+        y, pred = rng.integers(0, 5, draws), rng.integers(0, 5, draws)
+        out.append({"accuracy": float(np.mean(y == pred)), "confusion": confusion(y, pred, 5),
+                    "n": draws} | extra)
+    return out[0], out[1]
+
+
+def test_the_oracles_kept_ahead_are_read_back_as_computed(scene, tmp_path, monkeypatch):
+    """The main job's warm-up computes the bench's oracles ahead into a file
+    (``cached_oracles``): the bench reads back exactly the answers :func:`oracles` gave (the
+    confusion as counts again), and computes them again, replacing the file, for another
+    scene, other draws, a file that is not strict JSON or whose answers are not valid."""
+    import json
+
+    from wtml.bench import texture as bench
+
+    path, direct, calls = tmp_path / "oracles.json", _answers(300), []
+    monkeypatch.setattr(bench, "oracles", lambda s, n: calls.append(n) or direct)
+    kept = bench.cached_oracles(scene, 300, path)
+    assert calls == [300]
+    for got in (kept, bench.cached_oracles(scene, 300, path)):  # the second from the file
+        for a, b in zip(got, direct, strict=True):
+            assert a.keys() == b.keys() and a["accuracy"] == b["accuracy"]
+            np.testing.assert_array_equal(a["confusion"], b["confusion"])
+            assert isinstance(a["confusion"], np.ndarray)
+    assert calls == [300] and kept[1]["sweep_mm"] == direct[1]["sweep_mm"]
+    calls.clear()
+    data = json.loads(path.read_text())
+    bad = {"draws": data | {"draws": 301},
+           "scene": data | {"scene_hash": "0" * 64},
+           "accuracy": data | {"oracle": data["oracle"] | {"accuracy": 1.5}},
+           "counts": data | {"grain_oracle": data["grain_oracle"] | {"n": 299}},
+           "negative": data | {"oracle": data["oracle"] | {"confusion": (
+               -np.array(data["oracle"]["confusion"])).tolist()}},
+           "shape": data | {"oracle": data["oracle"] | {"confusion": [[1, 2], [3, 4]]}},
+           "missing": {k: v for k, v in data.items() if k != "grain_oracle"}}
+    for name, contents in [*bad.items(), ("not json", None)]:
+        path.write_text("{" if contents is None else json.dumps(contents))
+        bench.cached_oracles(scene, 300, path)
+        assert calls == [300], name
+        assert json.loads(path.read_text()) == data, name  # replaced by the answer computed
+        calls.clear()
+    bench.cached_oracles(dataclasses.replace(scene, seed=scene.seed + 1), 300, path)
+    assert calls == [300]
+
+
+def test_a_bench_waits_for_the_oracles_the_warm_up_is_computing(scene, tmp_path, monkeypatch):
+    """With the file's lock held (the warm-up computing), the bench's ``cached_oracles``
+    waits, then reads what the holder wrote instead of computing its own."""
+    import fcntl
+    import json
+    import threading
+    import time
+
+    from wtml.bench import texture as bench
+    from wtml.scenes import config_hash
+
+    path, answers = tmp_path / "oracles.json", _answers(200)
+    monkeypatch.setattr(bench, "oracles", lambda s, n: pytest.fail("computed again"))
+    got = []
+    with open(tmp_path / "oracles.json.lock", "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        reader = threading.Thread(target=lambda: got.append(
+            bench.cached_oracles(scene, 200, path)))
+        reader.start()
+        time.sleep(0.3)
+        assert reader.is_alive() and not got
+        path.write_text(json.dumps({"scene_hash": config_hash(scene), "draws": 200,
+                                    "oracle": bench._listed(answers[0]),
+                                    "grain_oracle": bench._listed(answers[1])}))
+        fcntl.flock(held, fcntl.LOCK_UN)
+    reader.join(10)
+    assert got and got[0][0]["accuracy"] == answers[0]["accuracy"]
+    np.testing.assert_array_equal(got[0][1]["confusion"], answers[1]["confusion"])

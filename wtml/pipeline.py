@@ -35,6 +35,7 @@ version: their benches' defaults are the full tables)."""
 INDEPENDENT_RECORDS = 4
 """Records of the independent simulator in the main job's onset transfer table."""
 ONSET_SCENE, FEPA_SCENE = "configs/scenes/onset.yaml", "configs/scenes/texture_fepa.yaml"
+TEXTURE_SCENE = "configs/scenes/texture.yaml"
 ONSET_DATA, FEPA_DATA = Path("datasets/onset"), Path("datasets/texture_fepa")
 """Scenes and folders of the datasets the warm-up generates ahead (:func:`warm_onset`,
 :func:`warm_texture`) as well as their slices."""
@@ -522,7 +523,7 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
 
     data, fepa = Path("datasets/texture"), FEPA_DATA
     model, bench = Path("export/texture"), Path("runs/texture/bench")
-    _generate(stages, "texture", "configs/scenes/texture.yaml", data)
+    _generate(stages, "texture", TEXTURE_SCENE, data)
     _generate(stages, "texture", FEPA_SCENE, fepa)
     ckpt = _train(stages, "texture", "configs/texture.yaml", data, max_epochs)
     test = _export_and_predict_records(stages, "texture", ckpt, model, data, predict_records,
@@ -535,7 +536,7 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
                                      f"--transfer-records {TRANSFER_RECORDS} "
                                      f"--device-records {DEVICE_RECORDS['texture']}")
     report = run_bench(data, fepa, ckpt, model, bench, transfer_records=TRANSFER_RECORDS,
-                       device_records=DEVICE_RECORDS["texture"])
+                       device_records=DEVICE_RECORDS["texture"], oracle_file=TEXTURE_ORACLES)
     print(report.split("\n\nConfusion matrices")[0])
     stages.end()
     return json.loads((bench / "summary.json").read_text())
@@ -624,6 +625,8 @@ LANES = 2
 """Slices of the main job run side by side, one thread each (see :func:`run_all`)."""
 LOGS = Path("runs/pipeline")
 """Where each slice run in a lane writes its log (``<task>.log``)."""
+TEXTURE_ORACLES = LOGS / "texture.oracles.json"
+"""The texture bench's oracles, computed ahead by the warm-up (:func:`warm_texture`)."""
 WARM = "warm-up"
 """The job that does the slices' warm parts ahead, their JIT kernels compiled and datasets
 generated (:func:`run_all`), its log ``warm-up.log`` and its line of the summary."""
@@ -728,12 +731,17 @@ def warm_texture() -> None:
     generated (:func:`generate_locked`; first: the slice reaches it within a minute), then
     its MiniRocket peer compiled (aeon's kernels, by numba, into its cache on disk: ~25 s on
     one core in a fresh environment), fitted and run on a few random windows as its bench
-    fits and runs it (float32 ``(n, 2, window)``)."""
+    fits and runs it (float32 ``(n, 2, window)``), then its bench's oracles computed into
+    :data:`TEXTURE_ORACLES` (:func:`wtml.bench.texture.cached_oracles`: ~30 s that lay on
+    the path that ends last)."""
     from wtml.baselines.texture_peers import MiniRocketPeer
+    from wtml.bench.texture import ORACLE_DRAWS, cached_oracles
+    from wtml.scenes import load_scene
 
     generate_locked(FEPA_SCENE, FEPA_DATA)
     x = np.random.default_rng(0).standard_normal((10, 2, 256)).astype(np.float32)
     MiniRocketPeer(84).fit_stacked(x.copy(), np.arange(10) % 5).predict_stacked(x)
+    cached_oracles(load_scene(TEXTURE_SCENE), ORACLE_DRAWS, TEXTURE_ORACLES)
 
 
 def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LANES) -> str:

@@ -655,12 +655,13 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
             entry["intervals"][r.sigma] = {"recalibration": dataclasses.asdict(r),
                                            "rows": rows}
         if scored["classes"]:
-            table, rows = class_table(scored["classes"], recalibration_text(u))
+            how = recalibration_text(u)
+            table, rows = class_table(scored["classes"], how)
             lines += [f"### {task}: class probabilities (expected calibration error, 15 bins, "
                       f"in-domain windows; target ≤ {100 * ECE_TARGET:.0f} %: ✗ above it and "
                       "above a calibrated classifier's 95th percentile, ? above it but within)",
                       "", *table, "",
-                      f"Recalibration ({recalibration_text(u)}) fitted on the held-out "
+                      f"Recalibration ({how}) fitted on the held-out "
                       f"windows: ECE "
                       f"{100 * u.ece_before:.1f} % → {100 * u.ece_after:.1f} % there. "
                       "Reliability curve of the test shard: `reliability.png`.", ""]

@@ -376,7 +376,7 @@ def _bench_texture(args: argparse.Namespace) -> int:
                     peer_kernels=args.peer_kernels,
                     ablation_records=args.ablation_records,
                     transfer_records=args.transfer_records,
-                    device_records=args.device_records))
+                    device_records=args.device_records, fresh_minirocket=args.fresh_minirocket))
     return 0
 
 
@@ -1036,6 +1036,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "alone, the held-out one included; each acquisition effect alone)")
     bt.add_argument("--device-records", type=COUNT, default=24,
                     help="fresh records per row of the device-spread table")
+    bt.add_argument("--no-fresh-minirocket", dest="fresh_minirocket", action="store_false",
+                    help="MiniRocket on the test shard only, not on the transfer and device "
+                         "rows (there it takes twice the other methods' time together; the "
+                         "main job's small tables; by default on every table)")
     bt.set_defaults(func=_bench_texture)
     _texture_rate_parser(be_sub)
     _texture_scale_parser(be_sub)

@@ -534,9 +534,11 @@ def run_texture(stages: Stages, *, max_epochs: int | None = None) -> dict:
                                                strict=True)))
     stages.begin("texture", "bench", f"wtml bench texture --out {bench} "
                                      f"--transfer-records {TRANSFER_RECORDS} "
-                                     f"--device-records {DEVICE_RECORDS['texture']}")
+                                     f"--device-records {DEVICE_RECORDS['texture']} "
+                                     f"--no-fresh-minirocket")
     report = run_bench(data, fepa, ckpt, model, bench, transfer_records=TRANSFER_RECORDS,
-                       device_records=DEVICE_RECORDS["texture"], oracle_file=TEXTURE_ORACLES)
+                       device_records=DEVICE_RECORDS["texture"], oracle_file=TEXTURE_ORACLES,
+                       fresh_minirocket=False)
     print(report.split("\n\nConfusion matrices")[0])
     stages.end()
     return json.loads((bench / "summary.json").read_text())

@@ -137,6 +137,7 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
         "format 4": json.dumps(manifest | {"format": 4, "wtml_version": "9.1"}),
         "format 1": json.dumps(manifest | {"format": 1}),
         "format 0": json.dumps(manifest | {"format": 0}),
+        "format true": json.dumps(manifest | {"format": True}),
         "no device": json.dumps({k: v for k, v in manifest.items() if k != "device"}),
         "another device": json.dumps(manifest | {"device": manifest["device"]
                                                  | {"sha256": "0" * 64}}),
@@ -148,6 +149,7 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
                "format 4": f"format: 4, exported by a newer wtml (9.1) than this one "
                            f"({__version__}, reads formats 2-3): install that wtml's runtime",
                "format 0": "format: must be in [2, 3]",
+               "format true": "format: must be a number in [2, 3], got True",
                "format 1": "format: 1, exported by an older wtml (it names no device)",
                "no device": "device: missing",
                "another device": "metadata scene's device is not manifest.json's fluid-lumped"}
@@ -179,20 +181,28 @@ def _schema_keys(cls, path: str = "") -> dict[str, str]:
     return keys
 
 
-SCHEMA_FINGERPRINT = {3: "5d8526f5737ac65375ed007e55ccbf896434378a236d6fdc515106d91d128ea6"}
+SCHEMA_FINGERPRINT = {3: "2cff5e5e4ffc8d4e0184f3ea75e2abfca729ff7b50ebb54626e76a16d8e9e788"}
 """Per export format, the sha256 of every key the runtime's metadata schemas read
 (:func:`_schema_keys` of the manifest and each task's graph metadata)."""
 
 
 def test_a_change_to_the_metadata_schema_comes_with_a_new_export_format():
     """An older runtime refuses a key it does not know: a schema that gains, loses or narrows a
-    key must raise ``MANIFEST_FORMAT`` so that the older runtime says "exported by a newer
-    wtml" instead (and this test records the new format's fingerprint)."""
+    key, or changes a graph's inputs, outputs, references or required keys, must raise
+    ``MANIFEST_FORMAT`` so that the older runtime says "exported by a newer wtml" instead
+    (and this test records the new format's fingerprint). The schemas' ``check`` rules are
+    code, not keys: a change there is the author's to judge."""
     import hashlib
 
     keys = _schema_keys(md.ExportManifest) | _schema_keys(md.OutputDomain, "domain.outputs.*.") | {
         f"{task}.{k}": v for task, cls in md.SCHEMAS.items() for k, v in _schema_keys(cls).items()}
-    text = json.dumps(keys, sort_keys=True)
+    keys["format"] = "int"  # its range is the formats read, not a key's meaning
+    tables = {"required": {task: cls.REQUIRED for task, cls in md.SCHEMAS.items()},
+              "kinds": md.KINDS, "gate": md.GATE_OUTPUTS, "physical": md.PHYSICAL,
+              "references": md.REFERENCE_KEYS,
+              **{name: {"/".join(k): v for k, v in table.items()} for name, table in (
+                  ("inputs", md.GRAPH_INPUTS), ("outputs", md.GRAPH_OUTPUTS))}}
+    text = json.dumps([keys, tables], sort_keys=True)
     assert "texture.uncertainty.top_slope" in keys and "texture.domain.quantile" in keys
     assert SCHEMA_FINGERPRINT.get(md.MANIFEST_FORMAT) == hashlib.sha256(
         text.encode()).hexdigest(), (

@@ -185,8 +185,8 @@ def test_fidelity_figure_5_22_is_a_line_through_the_origin():
 
 
 def _answers(draws: int, seed: int = 0) -> tuple[dict, dict]:
-    """Answers shaped as :func:`wtml.bench.texture.oracles` gives them (its fits take ~20 s
-    at any number of draws)."""
+    """Answers shaped as :func:`wtml.bench.texture.oracles` gives them (its fits take 10-25 s
+    whatever the draws: early stopping only from 10⁴)."""
     rng = np.random.default_rng(seed)
     out = []
     for extra in ({}, {"sweep_mm": [4.52, 4.16, 3.49, 2.97, 2.70]}):
@@ -224,6 +224,14 @@ def test_the_oracles_kept_ahead_are_read_back_as_computed(scene, tmp_path, monke
            "negative": data | {"oracle": data["oracle"] | {"confusion": (
                -np.array(data["oracle"]["confusion"])).tolist()}},
            "shape": data | {"oracle": data["oracle"] | {"confusion": [[1, 2], [3, 4]]}},
+           "float counts": data | {"oracle": data["oracle"] | {"confusion": [
+               [float(x) for x in row] for row in data["oracle"]["confusion"]]}},
+           "bool accuracy": data | {"oracle": data["oracle"] | {"accuracy": False}},
+           "accuracy not the trace": data | {"oracle": data["oracle"] | {
+               "accuracy": data["oracle"]["accuracy"] + 1e-3}},
+           "no sweep": data | {"grain_oracle": {k: v for k, v in data["grain_oracle"].items()
+                                                if k != "sweep_mm"}},
+           "other code": data | {"code": "0" * 64},
            "missing": {k: v for k, v in data.items() if k != "grain_oracle"}}
     for name, contents in [*bad.items(), ("not json", None)]:
         path.write_text("{" if contents is None else json.dumps(contents))
@@ -244,7 +252,6 @@ def test_a_bench_waits_for_the_oracles_the_warm_up_is_computing(scene, tmp_path,
     import time
 
     from wtml.bench import texture as bench
-    from wtml.scenes import config_hash
 
     path, answers = tmp_path / "oracles.json", _answers(200)
     monkeypatch.setattr(bench, "oracles", lambda s, n: pytest.fail("computed again"))
@@ -256,9 +263,8 @@ def test_a_bench_waits_for_the_oracles_the_warm_up_is_computing(scene, tmp_path,
         reader.start()
         time.sleep(0.3)
         assert reader.is_alive() and not got
-        path.write_text(json.dumps({"scene_hash": config_hash(scene), "draws": 200,
-                                    "oracle": bench._listed(answers[0]),
-                                    "grain_oracle": bench._listed(answers[1])}))
+        path.write_text(json.dumps(bench.oracle_key(scene, 200) | {
+            "oracle": bench._listed(answers[0]), "grain_oracle": bench._listed(answers[1])}))
         fcntl.flock(held, fcntl.LOCK_UN)
     reader.join(10)
     assert got and got[0][0]["accuracy"] == answers[0]["accuracy"]

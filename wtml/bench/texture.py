@@ -148,18 +148,18 @@ def oracles(scene, draws: int = ORACLE_DRAWS) -> tuple[dict, dict]:
 
 def cached_oracles(scene, draws: int, path: str | Path) -> tuple[dict, dict]:
     """:func:`oracles` of ``scene`` on ``draws`` draws, kept in ``path``: a pure function of
-    the scene (two gradient-boosted fits on ``draws`` draws each, ~30 s on one core), so the
-    main job's warm-up computes it ahead (:func:`wtml.pipeline.warm_texture`) and the texture
-    bench reads it. ``path`` holds the scene's hash, the draws and both answers (strict
-    JSON); one of another scene or draws, or not a valid answer, is computed again and
+    the scene (two gradient-boosted fits on ``draws`` draws each), so the main job's warm-up
+    computes it ahead (:func:`wtml.pipeline.warm_texture`) and the texture bench reads it.
+    ``path`` holds its key (the scene's hash, the draws, and the oracles' code: a hash of
+    their source and scikit-learn's version) and both answers (strict JSON); one of another
+    key, or whose answers are not valid (:func:`_oracle_answers`), is computed again and
     replaced. Holds ``path`` + ``.lock`` meanwhile: a bench that gets there first waits for
     the warm-up's answer instead of computing its own beside it."""
     import fcntl
 
     from wtml.files import FileError, read_json
-    from wtml.scenes import config_hash
 
-    path, key = Path(path), {"scene_hash": config_hash(scene), "draws": int(draws)}
+    path, key = Path(path), oracle_key(scene, draws)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path.with_name(path.name + ".lock"), "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
@@ -178,14 +178,35 @@ def cached_oracles(scene, draws: int, path: str | Path) -> tuple[dict, dict]:
         return oracle, grain
 
 
+def oracle_key(scene, draws: int) -> dict:
+    """What :func:`cached_oracles`' answers are a function of: the scene's hash, the draws,
+    the oracles' code (sha256 of the source of :func:`amplitude_oracle`, :func:`oracles` and
+    :func:`~wtml.scenes.texture.nominal_response`) and scikit-learn's version."""
+    import hashlib
+    import inspect
+
+    import sklearn
+
+    from wtml.scenes import config_hash
+
+    code = "".join(inspect.getsource(f) for f in (amplitude_oracle, oracles, nominal_response))
+    return {"scene_hash": config_hash(scene), "draws": int(draws),
+            "code": hashlib.sha256(code.encode()).hexdigest(), "sklearn": sklearn.__version__}
+
+
 def _listed(answer: dict) -> dict:
     return answer | {"confusion": np.asarray(answer["confusion"]).tolist()}
 
 
 def _oracle_answers(kept, key: dict, k: int) -> tuple[dict, dict] | None:
     """Both oracles' answers from a :func:`cached_oracles` file's contents ``kept`` if it is
-    of ``key`` (the scene's hash and the draws) and each answer valid (an accuracy in [0, 1],
-    a ``(k, k)`` confusion of counts summing to its ``n``), else None."""
+    of ``key`` and each answer is what :func:`amplitude_oracle` gives (a ``(k, k)``
+    confusion of integer counts summing to ``n`` = the key's draws, the accuracy its trace
+    over ``n``; the every-grain oracle's ``sweep_mm``, k positive numbers), rebuilt from
+    those checked values alone; else None."""
+    def count(x) -> bool:
+        return type(x) is int and x >= 0
+
     if not isinstance(kept, dict) or any(kept.get(name) != value for name, value in key.items()):
         return None
     answers = []
@@ -193,15 +214,23 @@ def _oracle_answers(kept, key: dict, k: int) -> tuple[dict, dict] | None:
         answer = kept.get(name)
         if not isinstance(answer, dict):
             return None
-        try:
-            table = np.array(answer.get("confusion"), dtype=np.int64)
-            accuracy = float(answer.get("accuracy"))
-        except (TypeError, ValueError, OverflowError):
+        table, n, accuracy = answer.get("confusion"), answer.get("n"), answer.get("accuracy")
+        if not (isinstance(table, list) and len(table) == k and all(
+                isinstance(row, list) and len(row) == k and all(map(count, row))
+                for row in table)):
             return None
-        if (table.shape != (k, k) or (table < 0).any() or table.sum() != answer.get("n")
-                or not 0 <= accuracy <= 1):
+        table = np.array(table, dtype=np.int64)
+        if not (n == key["draws"] and count(n) and table.sum() == n and type(accuracy) is float
+                and accuracy == float(np.trace(table) / n)):
             return None
-        answers.append(answer | {"confusion": table})
+        rebuilt = {"accuracy": accuracy, "confusion": table, "n": n}
+        if name == "grain_oracle":
+            sweep = answer.get("sweep_mm")
+            if not (isinstance(sweep, list) and len(sweep) == k and all(
+                    type(x) is float and 0 < x < 1e3 for x in sweep)):
+                return None
+            rebuilt["sweep_mm"] = sweep
+        answers.append(rebuilt)
     return answers[0], answers[1]
 
 
@@ -626,7 +655,8 @@ def _report(s: dict) -> str:
               "the share the domain gate flags; the last column is the decoder's error rate "
               f"over the nominal row's (target over the spread ≤ {DEVICE_TARGET:g}×: "
               f"{'met' if v['met'] else 'MISSED'}; the class that costs most alone: "
-              f"{v['limit']}).", ""]
+              f"{v['limit']})" + ("." if s["fresh_minirocket"] else "; MiniRocket on the test "
+                                 "shard only, as in the transfer table."), ""]
     lines += device_table(s["device_spread"])
     lines += ["", "## Robustness: accuracy by quartile of each nuisance", ""]
     for key, (label, unit, _) in NUISANCES.items():

@@ -640,9 +640,10 @@ def read_manifest(folder: str | Path) -> ExportManifest:
 
     Raises:
         FileError: no manifest (a folder from an older wtml: export it again), not a regular
-            small file, not strict JSON; a format older than :data:`OLDEST_FORMAT` (export it
-            again) or newer than :data:`MANIFEST_FORMAT` (update this wtml).
-        SchemaError: a key missing, of the wrong type or out of range (naming it).
+            small file, not strict JSON; format 1 (export it again) or a format newer than
+            :data:`MANIFEST_FORMAT` (install the exporting wtml's runtime).
+        SchemaError: a key missing, of the wrong type or out of range (naming it; a format
+            that is not an integer in [:data:`OLDEST_FORMAT`, :data:`MANIFEST_FORMAT`]).
     """
     path = Path(folder) / MANIFEST
     if not path.exists():
@@ -650,12 +651,12 @@ def read_manifest(folder: str | Path) -> ExportManifest:
                         f"older one, or not by `wtml export`, or an export interrupted); {REDO}")
     data = read_json(path, what="export manifest")
     fmt = data.get("format") if isinstance(data, dict) else None
-    if fmt == 1:
+    if type(fmt) is int and fmt == 1:
         raise FileError(f"{path}: format: 1, exported by an older wtml (it names no device); "
                         f"{REDO}")
-    if isinstance(fmt, int) and not isinstance(fmt, bool) and fmt > MANIFEST_FORMAT:
+    if type(fmt) is int and fmt > MANIFEST_FORMAT:
         made = data.get("wtml_version")
-        raise FileError(f"{path}: format: {fmt}, exported by a newer wtml"
+        raise FileError(f"{path}: format: {fmt!r:.20}, exported by a newer wtml"
                         f"{f' ({made:.40})' if isinstance(made, str) else ''} than this one "
                         f"({__version__}, reads formats {OLDEST_FORMAT}-{MANIFEST_FORMAT}): "
                         f"install that wtml's runtime on this device, or export with this one")

@@ -183,7 +183,8 @@ def _schema_keys(cls, path: str = "") -> dict[str, str]:
 
 SCHEMA_FINGERPRINT = {3: "2cff5e5e4ffc8d4e0184f3ea75e2abfca729ff7b50ebb54626e76a16d8e9e788"}
 """Per export format, the sha256 of every key the runtime's metadata schemas read
-(:func:`_schema_keys` of the manifest and each task's graph metadata)."""
+(:func:`_schema_keys` of the manifest and each task's graph metadata) and of the tables
+they check graphs against (inputs, outputs, references, required keys, kinds)."""
 
 
 def test_a_change_to_the_metadata_schema_comes_with_a_new_export_format():

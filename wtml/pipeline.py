@@ -35,10 +35,11 @@ version: their benches' defaults are the full tables)."""
 INDEPENDENT_RECORDS = 4
 """Records of the independent simulator in the main job's onset transfer table."""
 ONSET_SCENE, FEPA_SCENE = "configs/scenes/onset.yaml", "configs/scenes/texture_fepa.yaml"
-TEXTURE_SCENE = "configs/scenes/texture.yaml"
 ONSET_DATA, FEPA_DATA = Path("datasets/onset"), Path("datasets/texture_fepa")
 """Scenes and folders of the datasets the warm-up generates ahead (:func:`warm_onset`,
 :func:`warm_texture`) as well as their slices."""
+TEXTURE_SCENE = "configs/scenes/texture.yaml"
+"""The texture slice's scene: its dataset's, and the one whose oracles the warm-up computes."""
 DEVICE_RECORDS = {"onset": 8, "texture": 16}
 """Fresh records per row of the main job's device-spread tables (texture's rows are paired:
 the same specimens and nuisance on every device)."""

@@ -195,6 +195,7 @@ def oracle_key(scene, draws: int) -> dict:
 
 
 def _listed(answer: dict) -> dict:
+    """An oracle's answer as JSON holds it: its confusion as lists."""
     return answer | {"confusion": np.asarray(answer["confusion"]).tolist()}
 
 
@@ -411,8 +412,7 @@ def run_bench(data_dir: str | Path, fepa_dir: str | Path, checkpoint: str | Path
                "onnx_torch_max_diff": parity,
                "methods": results, "decoder_minus_peer": versus_peer,
                "decoder_minus_bands": versus_bands,
-               "oracle": oracle | {"confusion": oracle["confusion"].tolist()},
-               "grain_oracle": grain_oracle | {"confusion": grain_oracle["confusion"].tolist()},
+               "oracle": _listed(oracle), "grain_oracle": _listed(grain_oracle),
                "by_window": by_window, "unseen": unseen, "ablation": ablation,
                "transfer": transfer, "device_spread": spread,
                "fresh_minirocket": fresh_minirocket,

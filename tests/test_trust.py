@@ -455,6 +455,41 @@ def test_generate_removes_what_a_killed_writer_left(tmp_path):
     assert len(load_shards(out)["eta"]) == 40
 
 
+def test_a_file_is_replaced_whole_or_not_at_all_and_a_lock_is_waited_for(tmp_path):
+    """``atomic_write``: bytes or a writer; a writer that fails leaves the old file as it was
+    and only its own temporary file, which ``tmp_writer`` names as this process's (and so
+    ``clean_orphans`` as a live writer's). ``locked``: a process entering a held lock goes on
+    only once the holder leaves."""
+    import time
+
+    from wtml.files import atomic_write, locked, tmp_writer
+
+    path = atomic_write(tmp_path / "a.json", b"old")
+
+    def half(fh):
+        fh.write(b"ne")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        atomic_write(path, half)
+    assert path.read_bytes() == b"old"
+    assert [tmp_writer(p.name) for p in tmp_path.iterdir() if p != path] == [os.getpid()]
+    assert tmp_writer("a.json") is None and tmp_writer(".a.json.elsewhere.12.tmp") is None
+    atomic_write(path, lambda fh: fh.write(b"new"))
+    assert path.read_bytes() == b"new"
+    lock = tmp_path / "made" / "x.lock"
+    code = ("import sys, time\nfrom wtml.files import locked\nprint('ready', flush=True)\n"
+            f"with locked({str(lock)!r}):\n    print(time.time(), flush=True)")
+    with locked(lock):
+        other = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                                 text=True)
+        assert other.stdout.readline().strip() == "ready"
+        time.sleep(0.5)
+        left = time.time()
+    entered = float(other.communicate(timeout=60)[0])
+    assert entered >= left
+
+
 @pytest.mark.parametrize(("args", "needle"), [
     (["--model.init_args.lr", "-0.1"], "model.lr must be in (0, 10)"),
     (["--data.init_args.batch_size", "0"], "data.batch_size must be a whole number"),

@@ -6,18 +6,24 @@ keys) and small; an ``.npz`` whose arrays are checked from their headers (names,
 shapes, total size) before any of them is read, loaded without pickle; a name that stays
 inside its folder; a file's sha256. Each refusal is a :class:`FileError` whose message starts
 with the file's path (and the key, where there is one) and says what is allowed.
+And writing: a file replaced whole or not at all (:func:`atomic_write`), under a lock that
+other processes wait on (:func:`locked`).
 Imports numpy only: the device runtime uses it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import os
 import re
+import socket
 import stat
 import zipfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -67,6 +73,52 @@ def regular_file(path: str | Path, *, what: str = "file",
         raise FileError(f"{path}: {nbytes_text(st.st_size)}, over the {nbytes_text(max_bytes)} "
                         f"a {what} may have")
     return path
+
+
+def tmp_name(path: Path) -> Path:
+    """Where ``path`` is written before its rename: ``.{name}.{host}.{pid}.tmp`` beside it (a
+    writer's own, so that two never share one and a dead one's can be told and removed)."""
+    return path.with_name(f".{path.name}.{socket.gethostname()}.{os.getpid()}.tmp")
+
+
+def tmp_writer(name: str) -> int | None:
+    """The pid of the process writing ``name`` where it is a :func:`tmp_name` of this host;
+    None for any other name."""
+    match = re.match(rf"^\..+\.{re.escape(socket.gethostname())}\.(\d+)\.tmp$", name)
+    return int(match[1]) if match else None
+
+
+def atomic_write(path: str | Path, data: bytes | Callable[[BinaryIO], Any]) -> Path:
+    """Write ``path`` whole or not at all: ``data`` (bytes, or a function that writes to the
+    open binary file) into :func:`tmp_name`, flushed to disk, then renamed over ``path`` (a
+    reader sees the old file or the new one, never a part; an interrupted write leaves only
+    the temporary file). Returns ``path``."""
+    path = Path(path)
+    tmp = tmp_name(path)
+    with open(tmp, "wb") as fh:
+        if isinstance(data, bytes):
+            fh.write(data)
+        else:
+            data(fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    return path
+
+
+@contextlib.contextmanager
+def locked(path: str | Path) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on the file ``path`` (made, with its folder, where missing)
+    for the block: another process entering it on the same path waits until this one leaves
+    (or dies: the lock goes with the open file). POSIX only, imported here: the device
+    runtime never takes a lock."""
+    import fcntl
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        yield
 
 
 def sha256(path: str | Path) -> str:

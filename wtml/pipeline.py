@@ -23,6 +23,7 @@ import numpy as np
 
 from wtml.bench.timing import duration
 from wtml.cores import THREADS_ENV, available_cores
+from wtml.files import locked
 from wtml.lanes import lane_order
 from wtml.memory import release_memory
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
@@ -177,9 +178,7 @@ def generate_locked(scene_path: str, out: Path) -> dict:
     from wtml.data import generate
     from wtml.scenes import load_scene
 
-    LOGS.mkdir(parents=True, exist_ok=True)
-    with open(LOGS / f"{out.name}.generate.lock", "a") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with locked(LOGS / f"{out.name}.generate.lock"):
         return generate(load_scene(scene_path), out)
 
 

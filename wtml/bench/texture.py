@@ -155,14 +155,10 @@ def cached_oracles(scene, draws: int, path: str | Path) -> tuple[dict, dict]:
     key, or whose answers are not valid (:func:`_oracle_answers`), is computed again and
     replaced. Holds ``path`` + ``.lock`` meanwhile: a bench that gets there first waits for
     the warm-up's answer instead of computing its own beside it."""
-    import fcntl
-
-    from wtml.files import FileError, read_json
+    from wtml.files import FileError, atomic_write, locked, read_json
 
     path, key = Path(path), oracle_key(scene, draws)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.with_name(path.name + ".lock"), "a") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with locked(path.with_name(path.name + ".lock")):
         try:
             kept = read_json(path, what="oracles file") if path.exists() else None
         except FileError:
@@ -171,10 +167,8 @@ def cached_oracles(scene, draws: int, path: str | Path) -> tuple[dict, dict]:
         if answers is not None:
             return answers
         oracle, grain = oracles(scene, draws)
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_text(json.dumps(key | {"oracle": _listed(oracle), "grain_oracle":
-                                         _listed(grain)}))
-        tmp.replace(path)
+        atomic_write(path, json.dumps(key | {"oracle": _listed(oracle),
+                                             "grain_oracle": _listed(grain)}).encode())
         return oracle, grain
 
 

@@ -83,7 +83,7 @@ from wtml.data.shards import (
     shard_name,
 )
 from wtml.decoders.texture import TextureDecoder, WhiskFeatures, crop
-from wtml.files import read_npz
+from wtml.files import atomic_write, read_npz
 from wtml.runtime.texture import windows
 from wtml.scenes import config_hash, load_scene, scene_from_dict
 from wtml.scenes.texture import TextureScene
@@ -281,11 +281,9 @@ def _shard_job(scene: dict, folder: str, features: str, k: int, window: int) -> 
             (e, i), owner = windows(np.stack([data["e"], data["i"]]), window)
             peer = BandPowerPeer(made_scene.calibration_hz,
                                  made_scene.acquisition.sample_rate_hz)
-            tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp")
-            with open(tmp, "wb") as fh:
-                np.savez(fh, x=peer.features(e, i, data["t"][owner]),
-                         grade=data["grade"][owner], specimen=data["specimen"][owner])
-            os.replace(tmp, dst)
+            atomic_write(dst, lambda fh: np.savez(
+                fh, x=peer.features(e, i, data["t"][owner]), grade=data["grade"][owner],
+                specimen=data["specimen"][owner]))
     return {"k": k, "made": before is None or side.stat().st_mtime_ns != before,
             "seconds": seconds}
 

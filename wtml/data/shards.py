@@ -30,7 +30,6 @@ import dataclasses
 import json
 import os
 import re
-import socket
 import sys
 import time
 from pathlib import Path
@@ -44,12 +43,15 @@ from wtml.devices import DeviceIdentity, identity
 from wtml.files import (
     MEMORY_CEILING,
     FileError,
+    atomic_write,
     inside,
     nbytes_text,
     npz_headers,
     read_json,
     read_npz,
     sha256,
+    tmp_name,
+    tmp_writer,
 )
 from wtml.scenes import FluidScene, config_hash, device_of, scene_from_dict, to_dict
 from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
@@ -494,11 +496,6 @@ def _memory_bytes() -> int:
 
 
 # --- writing -------------------------------------------------------------------------------
-def _tmp_name(path: Path) -> Path:
-    """Where ``path`` is written before its rename: ``.{name}.{host}.{pid}.tmp``."""
-    return path.with_name(f".{path.name}.{socket.gethostname()}.{os.getpid()}.tmp")
-
-
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -514,23 +511,13 @@ def clean_orphans(out: Path) -> list[Path]:
     shard write): those of this host whose process is gone. Files of a live writer (a
     parallel ``--shard`` job) and of other hosts sharing the folder are left alone.
     Returns the removed paths."""
-    mine = re.compile(rf"^\..+\.{re.escape(socket.gethostname())}\.(\d+)\.tmp$")
     removed = []
     for tmp in out.iterdir():
-        match = mine.match(tmp.name)
-        if match and not _pid_alive(int(match[1])):
+        pid = tmp_writer(tmp.name)
+        if pid is not None and not _pid_alive(pid):
             tmp.unlink(missing_ok=True)
             removed.append(tmp)
     return removed
-
-
-def _atomic_write(path: Path, write) -> None:
-    tmp = _tmp_name(path)
-    with open(tmp, "wb") as fh:
-        write(fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 def _shard_path(out: Path, k: int) -> Path:
@@ -601,7 +588,7 @@ def claim(out: Path, scene: FluidScene, n_shards: int) -> None:
                                f"{len(left)} in all; no {IDENTITY}: an older wtml's or copied "
                                "in); choose another --out")
         blob = json.dumps(_identity(scene, n_shards), indent=1).encode()
-        tmp = _tmp_name(ident)
+        tmp = tmp_name(ident)
         tmp.write_bytes(blob)
         try:
             os.link(tmp, ident)
@@ -663,10 +650,10 @@ def _write_shard(scene: FluidScene, out: Path, k: int, count: int) -> None:
     arrays = scene.simulate(count, np.random.default_rng([scene.seed, k]))
     specs = array_specs(arrays, count, f"scene {scene.task}, shard {k}")
     check_finite(f"{npz} (as simulated)", arrays, scene.task)
-    _atomic_write(npz, lambda fh: np.savez(fh, **arrays))
+    atomic_write(npz, lambda fh: np.savez(fh, **arrays))
     side = {"index": k, "file": npz.name, "count": count, "sha256": sha256(npz),
             "scene_hash": config_hash(scene), "arrays": specs}
-    _atomic_write(npz.with_suffix(".json"), lambda fh: fh.write(json.dumps(side).encode()))
+    atomic_write(npz.with_suffix(".json"), lambda fh: fh.write(json.dumps(side).encode()))
 
 
 def _write_manifest(scene: FluidScene, out: Path, n_shards: int) -> dict:
@@ -683,7 +670,7 @@ def _write_manifest(scene: FluidScene, out: Path, n_shards: int) -> dict:
                 "samples": scene.samples, "complete": len(shards) == n_shards,
                 "shards": shards}
     build(Manifest, manifest)  # what is written is what a reader accepts
-    _atomic_write(out / "manifest.json",
+    atomic_write(out / "manifest.json",
                   lambda fh: fh.write(json.dumps(manifest, indent=1).encode()))
     return manifest
 

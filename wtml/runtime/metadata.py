@@ -20,7 +20,6 @@ import functools
 import hashlib
 import json
 import math
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +29,15 @@ import numpy as np
 
 from wtml import __version__, tasks
 from wtml.devices import DeviceIdentity, physical_hash
-from wtml.files import FileError, inside, parse_json, read_json, regular_file, sha256
+from wtml.files import (
+    FileError,
+    atomic_write,
+    inside,
+    parse_json,
+    read_json,
+    regular_file,
+    sha256,
+)
 from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
 from wtml.tasks import UNNAMED
 
@@ -629,10 +636,8 @@ def write_manifest(folder: str | Path, files: dict[str, Path], metadata: dict[st
             "scene_hash": scene_hash, "device": device, "files": listed,
             "metadata": metadata}
     build(ExportManifest, data)  # what is written is what is read
-    tmp = folder / f".{MANIFEST}.tmp"
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-    os.replace(tmp, folder / MANIFEST)
-    return folder / MANIFEST
+    return atomic_write(folder / MANIFEST,
+                        (json.dumps(data, indent=1, sort_keys=True) + "\n").encode())
 
 
 def read_manifest(folder: str | Path) -> ExportManifest:

@@ -126,6 +126,10 @@ def test_texture_rows_hold_out_more_viscous_friction_that_table_4_10_cannot_tell
     assert np.all(np.abs(fitted / table - 1) < 0.10)
     assert np.all(np.abs(fitted / trained - 1) < 0.01)
     assert np.all(unfitted < 0.9 * trained)
+    rec = rows["viscous part c = 0.0002 N·s/m, μ(d) fitted again (held out)"].make(
+        5, np.random.default_rng(0))
+    assert np.all(np.isfinite(rec["i"])) and sorted(rec["grade"]) == [0, 1, 2, 3, 4]
+    assert np.all(rec["mu"] < scene.mu(rec["grain_m"] * 1e6, "coulomb") - 0.05)
 
 
 def test_texture_rows_draw_each_record_its_own_specimen():

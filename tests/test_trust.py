@@ -457,23 +457,26 @@ def test_generate_removes_what_a_killed_writer_left(tmp_path):
 
 def test_a_file_is_replaced_whole_or_not_at_all_and_a_lock_is_waited_for(tmp_path):
     """``atomic_write``: bytes or a writer; a writer that fails leaves the old file as it was
-    and only its own temporary file, which ``tmp_writer`` names as this process's (and so
+    and removes its temporary file, whose name ``tmp_writer`` reads as this process's (and so
     ``clean_orphans`` as a live writer's). ``locked``: a process entering a held lock goes on
     only once the holder leaves."""
     import time
 
-    from wtml.files import atomic_write, locked, tmp_writer
+    from wtml.files import atomic_write, locked, tmp_name, tmp_writer
 
     path = atomic_write(tmp_path / "a.json", b"old")
+    seen = []
 
     def half(fh):
         fh.write(b"ne")
+        seen.append(sorted(p.name for p in tmp_path.iterdir()))
         raise OSError("disk full")
 
     with pytest.raises(OSError, match="disk full"):
         atomic_write(path, half)
-    assert path.read_bytes() == b"old"
-    assert [tmp_writer(p.name) for p in tmp_path.iterdir() if p != path] == [os.getpid()]
+    assert path.read_bytes() == b"old" and list(tmp_path.iterdir()) == [path]
+    assert seen == [sorted(["a.json", tmp_name(path).name])]
+    assert tmp_writer(tmp_name(path).name) == os.getpid()
     assert tmp_writer("a.json") is None and tmp_writer(".a.json.elsewhere.12.tmp") is None
     atomic_write(path, lambda fh: fh.write(b"new"))
     assert path.read_bytes() == b"new"

@@ -77,7 +77,8 @@ def regular_file(path: str | Path, *, what: str = "file",
 
 def tmp_name(path: Path) -> Path:
     """Where ``path`` is written before its rename: ``.{name}.{host}.{pid}.tmp`` beside it (a
-    writer's own, so that two never share one and a dead one's can be told and removed)."""
+    process's own, so that two processes never share one and a dead one's can be told and
+    removed; threads of one process must not write the same path at once)."""
     return path.with_name(f".{path.name}.{socket.gethostname()}.{os.getpid()}.tmp")
 
 
@@ -91,18 +92,23 @@ def tmp_writer(name: str) -> int | None:
 def atomic_write(path: str | Path, data: bytes | Callable[[BinaryIO], Any]) -> Path:
     """Write ``path`` whole or not at all: ``data`` (bytes, or a function that writes to the
     open binary file) into :func:`tmp_name`, flushed to disk, then renamed over ``path`` (a
-    reader sees the old file or the new one, never a part; an interrupted write leaves only
-    the temporary file). Returns ``path``."""
+    reader sees the old file or the new one, never a part). A write that fails removes its
+    temporary file; one killed mid-way leaves it, for a dataset's ``clean_orphans`` to
+    remove. Returns ``path``."""
     path = Path(path)
     tmp = tmp_name(path)
-    with open(tmp, "wb") as fh:
-        if isinstance(data, bytes):
-            fh.write(data)
-        else:
-            data(fh)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            if isinstance(data, bytes):
+                fh.write(data)
+            else:
+                data(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 

@@ -608,8 +608,9 @@ def _texture_device_lines(s: dict) -> list[str]:
 
 def _texture_transfer_lines(rows: list[dict]) -> list[str]:
     """The decoder's accuracy on the trained scene beside each friction law alone and each
-    other held-out row (the pre-sliding compliance; target: every held-out row within 3
-    points of the in-family accuracy)."""
+    other held-out row (the pre-sliding compliance, more viscous friction; target: every
+    held-out row within 3 points of the in-family accuracy, on a few records: the report's
+    intervals say what the verdicts are worth)."""
     acc = {r["name"]: r["methods"][0]["accuracy"] for r in rows}
     n = rows[0]["records"]
     family = acc["the trained scene (in family)"]

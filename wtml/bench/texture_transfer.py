@@ -97,9 +97,9 @@ def viscous(scene):
 
 def texture_variants(scene) -> list[Variant]:
     """The rows: the scene as trained, each friction law alone, a pre-sliding compliance
-    (:func:`presliding`; held out unless the scene trains on that span already), more viscous
-    friction (:func:`viscous`), each acquisition effect alone; every row's
-    records each their own specimen
+    (:func:`presliding`; held out unless the scene trains on that span already), each
+    acquisition effect alone, more viscous friction (:func:`viscous`, held out; its laws
+    fitted again at each draw, 2-5 s); every row's records each their own specimen
     (:meth:`~wtml.scenes.texture.TextureScene.simulate_independent`)."""
     draw = TextureScene.simulate_independent
     rows = [Variant("the trained scene (in family)", "in family", scene.simulate_independent)]
@@ -109,10 +109,11 @@ def texture_variants(scene) -> list[Variant]:
     rows.append(Variant(f"pre-sliding: each specimen's v_r in [v_r/{spanned.friction.slip_span:g}"
                         f", v_r]" + (" (held out)" if held else ""),
                         "held out" if held else "in family", spanned.simulate_independent))
-    rows.append(Variant(f"viscous part c = {scene.friction.viscous + VISCOUS:g} N·s/m, μ(d) "
-                        "fitted again (held out)", "held out",
-                        lambda n, rng: viscous(scene).simulate_independent(n, rng)))
-    return rows + acquisition_variants(scene, draw=draw)
+    rows += acquisition_variants(scene, draw=draw)
+    # last, so that the rows before keep their seeds (a row's seed is its position)
+    return rows + [Variant(f"viscous part c = {scene.friction.viscous + VISCOUS:g} N·s/m, μ(d) "
+                           "fitted again (held out)", "held out",
+                           lambda n, rng: viscous(scene).simulate_independent(n, rng))]
 
 
 def device_variants(scene) -> list[Variant]:

@@ -671,7 +671,7 @@ def _write_manifest(scene: FluidScene, out: Path, n_shards: int) -> dict:
                 "shards": shards}
     build(Manifest, manifest)  # what is written is what a reader accepts
     atomic_write(out / "manifest.json",
-                  lambda fh: fh.write(json.dumps(manifest, indent=1).encode()))
+                 lambda fh: fh.write(json.dumps(manifest, indent=1).encode()))
     return manifest
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from wtml.baselines.ridge_gcv import BlockRidgeClassifierCV
 from wtml.baselines.texture_peers import KineticSignature, MiniRocketPeer
 from wtml.bench.texture import _cut, _torch, amplitude_oracle, confusion
 from wtml.decoders.texture import BandPowers, WhiskFeatures
@@ -145,6 +146,91 @@ def test_minirocket_peer_is_aeons_classifier_transformed_a_few_windows_at_a_time
     np.testing.assert_allclose(peer.model.decision_function(x[27:].copy()),
                                aeon.pipeline_.decision_function(x[27:]), rtol=1e-4, atol=1e-6)
     np.testing.assert_array_equal(peer.predict(e[27:], i[27:])["grade"], aeon.predict(x[27:]))
+
+
+@pytest.mark.parametrize("classes", [2, 5])
+def test_the_blockwise_ridge_is_scikit_learns_ridge_classifier_cv(classes):
+    """Long features (more rows than features, offset and mixed so that centring and the
+    unpenalised intercept matter), blocks of 37 rows (not a divisor of n): every penalty's
+    leave-one-out score, the penalty chosen (inside the grid, not at an end), the
+    coefficients, the intercept, the decision function and the classes are scikit-learn's;
+    the caller's features are left as they were."""
+    from sklearn.linear_model import RidgeClassifierCV
+
+    alphas = np.logspace(-3, 3, 10)
+    rng = np.random.default_rng(classes)
+    n, p = 170, 60
+    grade = rng.integers(0, classes, n) * 10 + 3  # labels that are not 0..k-1
+    mix = rng.normal(size=(p, p))
+    x = (rng.normal(size=(n, p)) + 2.4 * np.eye(classes, p)[(grade - 3) // 10]) @ mix * 0.1 + 2
+    before = x.copy()
+    ref = RidgeClassifierCV(alphas=alphas, store_cv_results=True).fit(x, grade)
+    ours = BlockRidgeClassifierCV(alphas, block=37).fit(x, grade)
+    np.testing.assert_array_equal(x, before)
+    np.testing.assert_allclose(ours.cv_scores_, -ref.cv_results_.reshape(n, -1, 10).mean((0, 1)),
+                               rtol=1e-10)
+    assert ours.alpha_ == ref.alpha_ and alphas[0] < ours.alpha_ < alphas[-1]
+    np.testing.assert_allclose(ours.best_score_, ref.best_score_, rtol=1e-10)
+    assert ours.coef_.shape == ref.coef_.shape == ((p,) if classes == 2 else (classes, p))
+    np.testing.assert_allclose(ours.coef_, ref.coef_, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(ours.intercept_, ref.intercept_, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(ours.decision_function(x), ref.decision_function(x),
+                               rtol=1e-8, atol=1e-10)
+    np.testing.assert_array_equal(ours.predict(x), ref.predict(x))
+    assert (ours.predict(x) == grade).mean() > 0.8  # a problem the ridge solves
+
+
+def test_the_blockwise_ridge_refuses_what_it_cannot_fit():
+    """Wide features (scikit-learn's gram mode is the lean one there), a NaN (named by its
+    rows' block), one class, rows of x and y that differ, penalties that are not > 0, and a
+    decision before the fit: each a clear error."""
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=(50, 4)), np.arange(50) % 3
+    with pytest.raises(ValueError, match="more rows than features"):
+        BlockRidgeClassifierCV().fit(x[:4], y[:4])
+    bad = x.copy()
+    bad[21, 2] = np.nan
+    with pytest.raises(ValueError, match="rows 20-29"):
+        BlockRidgeClassifierCV(block=10).fit(bad, y)
+    with pytest.raises(ValueError, match="two classes"):
+        BlockRidgeClassifierCV().fit(x, np.zeros(50))
+    with pytest.raises(ValueError, match="one class per row"):
+        BlockRidgeClassifierCV().fit(x, y[:-1])
+    for alphas in ([], [1.0, 0.0], [np.inf]):
+        with pytest.raises(ValueError, match="alphas"):
+            BlockRidgeClassifierCV(alphas).fit(x, y)
+    with pytest.raises(ValueError, match="block"):
+        BlockRidgeClassifierCV(block=0).fit(x, y)
+    with pytest.raises(RuntimeError, match="before fit"):
+        BlockRidgeClassifierCV().predict(x)
+
+
+def test_minirocket_peer_with_more_windows_than_features_is_still_aeons(monkeypatch):
+    """Past its features (84 kernels, 150 training windows), the peer's ridge is the blockwise
+    one (blocks of 16 rows), and the peer is still aeon's MiniRocketClassifier: the same
+    penalty, decision function and predictions on held-out windows."""
+    from aeon.classification.convolution_based import MiniRocketClassifier
+
+    from wtml.baselines import ridge_gcv
+
+    monkeypatch.setattr(ridge_gcv, "BLOCK", 16)
+    rng = np.random.default_rng(3)
+    n, length, train = 180, 200, 150
+    grade = np.arange(n) % 3
+    e = rng.standard_normal((n, length))
+    i = 1e-6 * rng.standard_normal((n, length)) * (1.0 + 0.4 * grade[:, None])
+    peer = MiniRocketPeer(n_kernels=84, seed=5).fit(e[:train], i[:train], grade[:train])
+    ridge = peer.model[-1]
+    assert isinstance(ridge, BlockRidgeClassifierCV) and ridge.coef_.shape[1] < train
+    x = np.stack([e, i], 1).astype(np.float32) / peer.scale
+    aeon = MiniRocketClassifier(n_kernels=84, random_state=5, n_jobs=1).fit(x[:train],
+                                                                          grade[:train])
+    assert ridge.alpha_ == aeon.pipeline_[-1].alpha_
+    np.testing.assert_allclose(peer.model.decision_function(x[train:].copy()),
+                               aeon.pipeline_.decision_function(x[train:]), rtol=1e-4,
+                               atol=1e-5)
+    np.testing.assert_array_equal(peer.predict(e[train:], i[train:])["grade"],
+                                  aeon.predict(x[train:]))
 
 
 def test_bench_windows_keep_the_records_dtype_and_the_torch_graph_gets_float32():

@@ -33,9 +33,11 @@ trains on every whole window of the same records at those sizes, in the peer's t
 windows, read straight into MiniRocket's float32 stack (1.05 GB per 10240 windows of 2 × 12800
 samples; aeon's fit makes a float32 copy of it for a moment), are transformed a few at a time
 into float64 features (0.82 GB per 10240 windows at 10000 kernels) and freed; then the scaler
-and the ridge, whose cross-validation holds about four times the features (scikit-learn's
-``cov`` mode once the windows outnumber the features: their centred copy and two products of
-their size). So its peak memory grows with the size: about 5 × 0.82 GB per 10240 windows.
+and the ridge. Once the windows outnumber the features that is
+:class:`~wtml.baselines.ridge_gcv.BlockRidgeClassifierCV`, scikit-learn's ``cov`` mode in row
+blocks, which holds two 0.8 GB matrices beside the features (scikit-learn's own held about
+four times the features: 15.6 GB at 40960 windows). So its peak memory is the transform's
+end, windows and features: about 1.9 GB per 10240 windows.
 
 Scores: every whole window (the recipes' ``window_s``) of every held-out record: accuracy,
 its 95 % interval (bootstrap over the held-out specimens), P320/P280 confusion
@@ -618,7 +620,7 @@ class _Study:
         t0 = time.perf_counter()
         peer = MiniRocketPeer(self.kernels)
         features = peer.fit_transform_stacked(x)
-        del x  # the windows go before the ridge, which holds ~4× the features
+        del x  # the windows go before the ridge
         _progress(f"{MINIROCKET}, {size} specimens: transformed in "
                   f"{time.perf_counter() - t0:.0f} s; the ridge")
         peer.fit_features(features, grade)

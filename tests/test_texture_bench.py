@@ -154,7 +154,8 @@ def test_the_blockwise_ridge_is_scikit_learns_ridge_classifier_cv(classes):
     unpenalised intercept matter), blocks of 37 rows (not a divisor of n): every penalty's
     leave-one-out score, the penalty chosen (inside the grid, not at an end), the
     coefficients, the intercept, the decision function and the classes are scikit-learn's;
-    the caller's features are left as they were."""
+    the caller's features are left as they were. float32 features far from zero fit as their
+    float64 values do; features that say nothing take the first penalty, as scikit-learn."""
     from sklearn.linear_model import RidgeClassifierCV
 
     alphas = np.logspace(-3, 3, 10)
@@ -178,12 +179,23 @@ def test_the_blockwise_ridge_is_scikit_learns_ridge_classifier_cv(classes):
                                rtol=1e-8, atol=1e-10)
     np.testing.assert_array_equal(ours.predict(x), ref.predict(x))
     assert (ours.predict(x) == grade).mean() > 0.8  # a problem the ridge solves
+    # float32 features far from zero: summed in float64, the same fit as their float64 values
+    far = (x * 0.01 + 1e4).astype(np.float32)
+    as_f64 = BlockRidgeClassifierCV(alphas, block=37).fit(far.astype(np.float64), grade)
+    as_f32 = BlockRidgeClassifierCV(alphas, block=37).fit(far, grade)
+    np.testing.assert_allclose(as_f32.cv_scores_, as_f64.cv_scores_, rtol=1e-12)
+    np.testing.assert_allclose(as_f32.coef_, as_f64.coef_, rtol=1e-10, atol=1e-12)
+    # features that say nothing: every penalty scores alike, and the first is taken
+    flat = BlockRidgeClassifierCV(alphas, block=37).fit(np.ones((n, 3)), grade)
+    assert flat.alpha_ == RidgeClassifierCV(alphas=alphas).fit(np.ones((n, 3)), grade).alpha_ \
+        == alphas[0]
 
 
 def test_the_blockwise_ridge_refuses_what_it_cannot_fit():
     """Wide features (scikit-learn's gram mode is the lean one there), a NaN (named by its
-    rows' block), one class, rows of x and y that differ, penalties that are not > 0, and a
-    decision before the fit: each a clear error."""
+    rows' block), one class, y that is not one class per row of x (fewer, or a column),
+    x that is not 2-D, penalties that are not > 0, and a decision before the fit: each a
+    clear error."""
     rng = np.random.default_rng(0)
     x, y = rng.normal(size=(50, 4)), np.arange(50) % 3
     with pytest.raises(ValueError, match="more rows than features"):
@@ -194,8 +206,11 @@ def test_the_blockwise_ridge_refuses_what_it_cannot_fit():
         BlockRidgeClassifierCV(block=10).fit(bad, y)
     with pytest.raises(ValueError, match="two classes"):
         BlockRidgeClassifierCV().fit(x, np.zeros(50))
-    with pytest.raises(ValueError, match="one class per row"):
-        BlockRidgeClassifierCV().fit(x, y[:-1])
+    for bad_y in (y[:-1], y[:, None]):  # (n, 1) would broadcast to (n, n) targets
+        with pytest.raises(ValueError, match="one class per row"):
+            BlockRidgeClassifierCV().fit(x, bad_y)
+    with pytest.raises(ValueError, match=r"features \(n, p\)"):
+        BlockRidgeClassifierCV().fit(x[:, 0], y)
     for alphas in ([], [1.0, 0.0], [np.inf]):
         with pytest.raises(ValueError, match="alphas"):
             BlockRidgeClassifierCV(alphas).fit(x, y)

@@ -557,7 +557,7 @@ def _texture_scale_parser(be_sub) -> None:
                     help="sizes, each one of --sizes, comma-separated, at which MiniRocket "
                          "is fitted too on every whole training window (default: none; on "
                          "CPU ~1 min per 1280 windows per core; its memory grows with the "
-                         "windows: ~1.9 GB per 10240)")
+                         "windows: ~2.6 GB per 10240, 21.2 GB at 81920)")
     bs.add_argument("--minirocket-kernels", type=_number(84, 10**6, int), default=None,
                     help="MiniRocket's kernels (default: 10000, as wtml bench texture)")
     bs.add_argument("--workers", type=_number(1, 1024, int), default=None,

@@ -17,6 +17,7 @@ from wtml.scenes.texture import (
     NOMINAL_ANGLE_DEG,
     NOMINAL_N,
     TABLE_4_10_RMS_SPEED,
+    THESIS_GRADES,
     TextureScene,
     fit_friction_law,
     nominal_response,
@@ -296,6 +297,56 @@ def test_mixture_is_drawn_per_specimen_and_leaves_coulomb_records_as_they_were()
     for key in ("e", "i", "mu"):
         np.testing.assert_array_equal(a[key][same], b[key][same])
     assert np.all(np.isfinite(b["i"])) and not np.array_equal(a["i"][~same], b["i"][~same])
+
+
+def test_a_span_of_viscous_friction_keeps_table_4_10_and_the_other_nuisance():
+    """``friction.viscous_span``: each specimen draws its own c in [viscous, viscous + span]
+    from its seeds (its records share it), its law's line moves with c (less Coulomb friction)
+    and the records' other nuisance is the span-free scene's, draw for draw; at the span's top
+    and middle the moved lines give the tip speeds of c = 0 (within 2 %), where the old line
+    with the same c is > 5 % slower at the top."""
+    plain = scene_with({"coulomb": 0.4, "stribeck": 0.3, "lugre": 0.3})
+    spanned = replace(plain, friction=replace(plain.friction, viscous_span=1e-4))
+    a = plain.simulate(20, np.random.default_rng(5))
+    b = spanned.simulate(20, np.random.default_rng(5))
+    assert np.all(a["viscous"] == 0) and np.all((b["viscous"] > 0) & (b["viscous"] < 1e-4))
+    for key in ("whisk_v", "whisk_hz", "normal_force", "angle", "coupling", "grade",
+                "friction_law", "asperity", "grain_m"):
+        np.testing.assert_array_equal(a[key], b[key])
+    spec = b["specimen"] - b["specimen"].min()
+    for s in np.unique(spec):
+        assert len(set(b["viscous"][spec == s])) == 1
+    shift = spanned.mu(b["grain_m"] * 1e6, b["friction_law"], b["viscous"]) - spanned.mu(
+        b["grain_m"] * 1e6, b["friction_law"])
+    assert np.all(shift < 0)
+    np.testing.assert_allclose(b["mu"] - a["mu"], shift, atol=1e-12)
+    assert np.all(np.isfinite(b["i"])) and not np.array_equal(a["i"], b["i"])
+
+    scene = TextureScene()
+    grain = np.array(list(THESIS_GRADES.values()))
+    table = np.array(list(TABLE_4_10_RMS_SPEED.values()))
+    for law in ("coulomb", "stribeck"):
+        at_0 = nominal_response(scene, law=law)["rms_speed"]  # the line's own, within 4 %
+        for c in (5e-5, 1e-4):
+            at_c = replace(scene, friction=replace(scene.friction, viscous=c))
+            speed = nominal_response(at_c, mu=scene.mu(grain, law, c), law=law)["rms_speed"]
+            assert np.all(np.abs(speed / at_0 - 1) < 0.02), (c, law)
+            assert np.all(np.abs(speed / table - 1) < 0.10), (c, law)
+    old = nominal_response(replace(scene, friction=replace(scene.friction, viscous=1e-4)))
+    assert np.all(old["rms_speed"] < 0.95 * nominal_response(scene)["rms_speed"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("law", LAWS)
+def test_default_line_shifts_are_the_fit_at_1e_4(law):
+    """Each law's ``mu_0_per_c`` and ``mu_per_um_per_c`` are the secant of its lines fitted to
+    Table 4.10 at c = 0 and c = 1e-4 N·s/m (to 1 % of the shift)."""
+    scene = TextureScene()
+    bottom, top = (fit_friction_law(replace(scene, friction=replace(scene.friction, viscous=c)),
+                                    law=law) for c in (0.0, 1e-4))
+    per_c = scene.friction.line_shift(law)
+    assert abs((top["intercept"] - bottom["intercept"]) / 1e-4 - per_c[0]) < 0.01 * abs(per_c[0])
+    assert abs((top["slope"] - bottom["slope"]) / 1e-4 - per_c[1]) < 0.01 * abs(per_c[1])
 
 
 def test_bad_law_config_is_a_scene_error_naming_the_allowed_laws():

@@ -130,6 +130,12 @@ def test_texture_rows_hold_out_more_viscous_friction_that_table_4_10_cannot_tell
         5, np.random.default_rng(0))
     assert np.all(np.isfinite(rec["i"])) and sorted(rec["grade"]) == [0, 1, 2, 3, 4]
     assert np.all(rec["mu"] < scene.mu(rec["grain_m"] * 1e6, "coulomb") - 0.05)
+    assert np.all(rec["viscous"] == VISCOUS)  # every specimen at c, whatever span trains
+    spans = {span: texture_variants(dataclasses.replace(scene, friction=dataclasses.replace(
+        scene.friction, viscous_span=span)))[-1] for span in (1e-4, VISCOUS)}
+    assert spans[1e-4].kind == "held out" and spans[VISCOUS].kind == "in family"
+    assert viscous(dataclasses.replace(scene, friction=dataclasses.replace(
+        scene.friction, viscous_span=1e-4))).friction.viscous_span == 0
 
 
 def test_texture_rows_draw_each_record_its_own_specimen():

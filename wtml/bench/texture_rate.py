@@ -40,7 +40,7 @@ from wtml.scenes.texture import THESIS_GRADES, TextureScene
 
 SCENES = ("configs/scenes/texture.yaml", "configs/scenes/texture_pxi.yaml")
 """The two scenes compared: the texture scene and its 204.8 kS/s variant."""
-PAIRED = ("grade", "grain_m", "mu", "asperity", "friction_law", "whisk_v", "whisk_hz",
+PAIRED = ("grade", "grain_m", "mu", "asperity", "friction_law", "viscous", "whisk_v", "whisk_hz",
           "normal_force", "angle", "coupling")
 """The labels and nuisance each pair of records must share (checked, exactly)."""
 PAIR = ("P320", "P280")

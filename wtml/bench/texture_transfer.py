@@ -82,8 +82,11 @@ def viscous(scene):
     the same tip speeds at the nominal set-up from less Coulomb friction (μ 0.33-0.56 against
     0.55-0.69 for Coulomb alone). Table 4.10 fixes the fundamental's in-phase force, not how
     much of it grows with speed, and that share is what the row changes: the records of a
-    device whose friction the thesis's numbers cannot tell from the trained law."""
-    f = dataclasses.replace(scene.friction, viscous=scene.friction.viscous + VISCOUS)
+    device whose friction the thesis's numbers cannot tell from the trained law. Every
+    specimen at that c: beyond a scene that trains on a span of c
+    (``friction.viscous_span``) where the span is below :data:`VISCOUS`."""
+    f = dataclasses.replace(scene.friction, viscous=scene.friction.viscous + VISCOUS,
+                            viscous_span=0.0)
     thick = dataclasses.replace(scene, friction=f)
     lines = {}
     for law, weight in f.law.items():
@@ -99,7 +102,8 @@ def viscous(scene):
 def texture_variants(scene) -> list[Variant]:
     """The rows: the scene as trained, each friction law alone, a pre-sliding compliance
     (:func:`presliding`; held out unless the scene trains on that span already), each
-    acquisition effect alone, more viscous friction (:func:`viscous`, held out; its laws
+    acquisition effect alone, more viscous friction (:func:`viscous`, held out unless the
+    scene trains on a span of c that reaches it; its laws
     fitted again once, at its first draw: 2-5 s); every row's records each their own specimen
     (:meth:`~wtml.scenes.texture.TextureScene.simulate_independent`)."""
     draw = TextureScene.simulate_independent
@@ -112,9 +116,11 @@ def texture_variants(scene) -> list[Variant]:
                         "held out" if held else "in family", spanned.simulate_independent))
     rows += acquisition_variants(scene, draw=draw)
     thick = functools.cache(lambda: viscous(scene))
+    held = scene.friction.viscous_span < VISCOUS
     # last, so that the rows before keep their seeds (a row's seed is its position)
     return rows + [Variant(f"viscous part c = {scene.friction.viscous + VISCOUS:g} N·s/m, μ(d) "
-                           "fitted again (held out)", "held out",
+                           "fitted again" + (" (held out)" if held else ""),
+                           "held out" if held else "in family",
                            lambda n, rng: thick().simulate_independent(n, rng))]
 
 

@@ -26,7 +26,8 @@ zero (the default) draws nothing: the records are today's, bit for bit.
 
 Each specimen also draws its friction law from the mixture ``friction.law`` (Coulomb, Stribeck
 or LuGre, each with its own line μ_c(d) fitted to Table 4.10 and its shape drawn as nuisance:
-:class:`StribeckLaw`, :class:`LuGreLaw`).
+:class:`StribeckLaw`, :class:`LuGreLaw`), and with ``friction.viscous_span`` its own viscous part c,
+each line moved with c so that the tip's speeds still meet Table 4.10: :class:`FrictionLaw`).
 
 ``grades: thesis`` holds the five sandpapers of the thesis as classes; ``grades: fepa`` the ten
 other FEPA P-grades (the regression test of unseen grain sizes; their class label is -1).
@@ -100,10 +101,15 @@ class StribeckLaw:
     shape: ``static_ratio`` μ_s/μ_c (uniform) and ``stribeck_speed`` v_s (m/s, log-uniform),
     the ranges of physics.md §12. The default line is the fit's (intercept 0.4884, slope
     0.003875 /µm: the Coulomb law's to 1e-5, the tip sliding at ~100 v_s at the nominal set-up).
+    ``mu_0_per_c`` and ``mu_per_um_per_c``: how the fitted line moves per N·s/m of viscous
+    friction beyond the scene's ``viscous`` (:attr:`FrictionLaw.viscous_span`; the secant
+    of the fits at c and c + 1e-4: less Coulomb friction for the same tip speeds).
     """
 
     mu_0: float = bounded(-1.0, 2.0, default=0.488)
     mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
+    mu_0_per_c: float = bounded(-1e5, 1e5, default=-1202.0)
+    mu_per_um_per_c: float = bounded(-1e4, 1e4, default=10.42)
     static_ratio: tuple[float, float] = bounded(1.0, 3.0, default=(1.0, 1.5))
     stribeck_speed: tuple[float, float] = bounded(1e-5, 1.0, default=(1e-3, 1e-2))
 
@@ -115,11 +121,13 @@ class LuGreLaw(StribeckLaw):
     the nominal N and θ (m, log-uniform; it sets the stiffness σ0, a property of the
     specimen), and ``bristle_damping`` σ1 (N·s/m, uniform: up to about 0.15 of the critical
     damping of a 1e3 N/m bristle on the tip's modal mass ``1/Σφb²`` ≈ 1 mg). σ2 is ``viscous``.
-    The default line is the fit's (intercept 0.4862, slope 0.003869 /µm).
+    The default line is the fit's (intercept 0.4862, slope 0.003869 /µm), and its shift per c.
     """
 
     mu_0: float = bounded(-1.0, 2.0, default=0.486)
     mu_per_um: float = bounded(-1.0, 1.0, default=0.0039)
+    mu_0_per_c: float = bounded(-1e5, 1e5, default=-1192.0)
+    mu_per_um_per_c: float = bounded(-1e4, 1e4, default=10.40)
     presliding_m: tuple[float, float] = bounded(1e-9, 1e-4, default=(2e-8, 2e-6))
     bristle_damping: tuple[float, float] = bounded(0.0, 1.0, default=(0.0, 0.01))
 
@@ -153,8 +161,13 @@ class FrictionLaw:
     ``slip_span``: each Coulomb or Stribeck specimen's own v_r, log-uniform in ``[slip_speed /
     slip_span, slip_speed]`` (how sharply its force turns over at each reversal: the surface's
     pre-sliding compliance, a nuisance; 1: every specimen at ``slip_speed``),
-    ``viscous`` c (N·s/m); ``mu_spread`` (std of μ), ``asperity_spread`` (log-normal σ of a),
-    ``grain_spread`` (range of the coefficient of variation of grain spacing and size).
+    ``viscous`` c (N·s/m); ``viscous_span``: each specimen's own c, uniform in ``[viscous,
+    viscous + viscous_span]``, its law's line moved by ``(c − viscous) · (mu_0_per_c +
+    mu_per_um_per_c · d/µm)`` so that it still meets Table 4.10 (Table 4.10 fixes the
+    fundamental's in-phase force, not the share of it that grows with speed: a nuisance the
+    thesis's numbers leave open; 0: every specimen at ``viscous``); ``mu_spread`` (std of μ),
+    ``asperity_spread`` (log-normal σ of a), ``grain_spread`` (range of the coefficient of
+    variation of grain spacing and size).
 
     ``law``: the mixture each specimen's law is drawn from, ``{name: weight}`` over
     :data:`~wtml.physics.friction.LAWS` (default Coulomb only); ``stribeck`` and ``lugre``
@@ -167,6 +180,9 @@ class FrictionLaw:
     slip_speed: float = bounded(1e-4, 1.0, default=0.01)
     slip_span: float = bounded(1.0, 100.0, default=1.0)
     viscous: float = bounded(0.0, 1.0, default=0.0)
+    viscous_span: float = bounded(0.0, 1e-3, default=0.0)
+    mu_0_per_c: float = bounded(-1e5, 1e5, default=-1202.0)
+    mu_per_um_per_c: float = bounded(-1e4, 1e4, default=10.42)
     mu_spread: float = bounded(0.0, 0.5, default=0.005)
     asperity_spread: float = bounded(0.0, 1.0, default=0.08)
     grain_spread: tuple[float, float] = bounded(0.05, 1.5, default=(0.25, 0.4))
@@ -182,10 +198,18 @@ class FrictionLaw:
         """Each law's probability, in the order of :data:`LAWS`."""
         return mixture("friction.law", self.law, LAWS)
 
+    def own(self, law: str):
+        """What holds ``law``'s line: this law (Coulomb's), ``stribeck`` or ``lugre``."""
+        return {"coulomb": self, "stribeck": self.stribeck, "lugre": self.lugre}[law]
+
     def line(self, law: str) -> tuple[float, float]:
         """``(mu_0, mu_per_um)`` of ``law``'s μ_c(d)."""
-        own = {"coulomb": self, "stribeck": self.stribeck, "lugre": self.lugre}[law]
-        return own.mu_0, own.mu_per_um
+        return self.own(law).mu_0, self.own(law).mu_per_um
+
+    def line_shift(self, law: str) -> tuple[float, float]:
+        """``(mu_0_per_c, mu_per_um_per_c)``: how ``law``'s line moves per N·s/m of viscous
+        friction beyond ``viscous``."""
+        return self.own(law).mu_0_per_c, self.own(law).mu_per_um_per_c
 
     def shape(self, code: np.ndarray, rng: np.random.Generator | None) -> dict[str, np.ndarray]:
         """Each specimen's shape for its law ``code`` ``(n,)``: ``static_ratio``,
@@ -387,15 +411,20 @@ class TextureScene:
     def n_samples(self) -> int:
         return int(round(self.drive.record_s * self.acquisition.sample_rate_hz))
 
-    def mu(self, grain_um, law="coulomb") -> np.ndarray:
+    def mu(self, grain_um, law="coulomb", viscous=None) -> np.ndarray:
         """The law's Coulomb coefficient μ_c at mean grain size ``grain_um`` (µm): ``law`` a
-        name of :data:`~wtml.physics.friction.LAWS` or an array of codes (broadcast)."""
+        name of :data:`~wtml.physics.friction.LAWS` or an array of codes, ``viscous`` c (N·s/m;
+        None: ``friction.viscous``), the line moved for it (:class:`FrictionLaw`; broadcast)."""
         grain_um = np.asarray(grain_um, float)
-        if isinstance(law, str):
-            mu_0, per_um = self.friction.line(law)
-            return mu_0 + per_um * grain_um
-        lines = np.array([self.friction.line(name) for name in LAWS])[np.asarray(law)]
-        return lines[..., 0] + lines[..., 1] * grain_um
+        names = [law] if isinstance(law, str) else LAWS
+        pick = 0 if isinstance(law, str) else np.asarray(law)
+        lines = np.array([self.friction.line(name) for name in names])[pick]
+        mu = lines[..., 0] + lines[..., 1] * grain_um
+        if viscous is None:
+            return mu
+        shift = np.array([self.friction.line_shift(name) for name in names])[pick]
+        extra = np.asarray(viscous, float) - self.friction.viscous
+        return mu + extra * (shift[..., 0] + shift[..., 1] * grain_um)
 
     def asperity(self, grain_um) -> np.ndarray:
         """The law's asperity factor a at ``grain_um`` (µm)."""
@@ -426,7 +455,9 @@ class TextureScene:
         ``grain_um``, ``mu``, ``asperity``, ``spread``, ``seed``, ``law`` (code) and its shape
         (:meth:`FrictionLaw.shape`) each ``(n_specimens,)``. The law and its shape are drawn
         from the specimens' seeds, so that ``rng`` is drawn from as with Coulomb alone; a
-        specimen's μ deviates from its own law's line by the same draw."""
+        specimen's μ deviates from its own law's line by the same draw. With
+        ``friction.viscous_span`` each specimen also draws its ``viscous`` c (N·s/m) from its
+        seeds, after its shape, and its line moves with it (:meth:`mu`)."""
         f = self.friction
         sizes = np.array(list(self.grade_table.values()))
         grade = np.repeat(np.arange(len(sizes)), self.specimens_per_grade)
@@ -441,7 +472,12 @@ class TextureScene:
         spec["law"] = own.choice(len(LAWS), n, p=f.weights)
         spec["mu"] = np.where(spec["law"] == 0, spec["mu"], spec["mu"] - self.mu(
             spec["grain_um"]) + self.mu(spec["grain_um"], spec["law"]))
-        return {**spec, **f.shape(spec["law"], own)}
+        spec.update(f.shape(spec["law"], own))
+        if f.viscous_span > 0:
+            spec["viscous"] = f.viscous + own.uniform(0.0, f.viscous_span, n)
+            spec["mu"] = spec["mu"] + self.mu(spec["grain_um"], spec["law"], spec["viscous"]) \
+                - self.mu(spec["grain_um"], spec["law"])
+        return spec
 
     def friction_load(self, spec: dict, which: np.ndarray, normal: np.ndarray,
                       angle: np.ndarray, *, asperities: bool = True,
@@ -461,15 +497,20 @@ class TextureScene:
         coulomb = spec["mu"][which] if mu is None else mu
         return Friction(np.clip(coulomb, 0.0, None), normal, angle,
                         spec.get("slip_speed", np.full(len(spec["mu"]), f.slip_speed))[which],
-                        f.viscous,
-                        pos, imp, **self.law_shape(spec, which))
+                        self.viscous(spec)[which], pos, imp, **self.law_shape(spec, which))
+
+    def viscous(self, spec: dict) -> np.ndarray:
+        """Each specimen's viscous c (N·s/m) ``(n_specimens,)``: its own draw, or the
+        scene's ``friction.viscous``."""
+        return spec.get("viscous", np.full(len(spec["law"]), self.friction.viscous))
 
     def law_shape(self, spec: dict, which: np.ndarray) -> dict[str, np.ndarray]:
         """The keyword arguments of :class:`~wtml.physics.friction.Friction` for the law of
         specimen ``which[r]``: its code and shape, σ0 set by its pre-sliding distance at the
         nominal N and θ on its law's line μ_s(d)."""
         law, ratio = spec["law"][which], spec["static_ratio"][which]
-        stiffness = (ratio * np.clip(self.mu(spec["grain_um"][which], law), 1e-3, None)
+        stiffness = (ratio * np.clip(self.mu(spec["grain_um"][which], law,
+                                             self.viscous(spec)[which]), 1e-3, None)
                      * NOMINAL_N * np.cos(np.deg2rad(NOMINAL_ANGLE_DEG))
                      / spec["presliding_m"][which])
         return {"law": law, "static_ratio": ratio,
@@ -495,6 +536,7 @@ class TextureScene:
         memory +175 MB against +330 MB, one thread)."""
         spec = self.specimens(rng)
         if nominal:
+            spec.pop("viscous", None)
             spec["mu"] = self.mu(spec["grain_um"], spec["law"])
             spec["asperity"] = self.asperity(spec["grain_um"])
             spec.update(self.friction.shape(spec["law"], None))
@@ -545,6 +587,7 @@ class TextureScene:
                 "grade": grade, "grain_m": spec["grain_um"][which] * 1e-6,
                 "specimen": rng.integers(0, 2**62) + which, "mu": spec["mu"][which],
                 "asperity": spec["asperity"][which], "friction_law": spec["law"][which],
+                "viscous": self.viscous(spec)[which],
                 "whisk_v": volts, "whisk_hz": hz,
                 "normal_force": normal, "angle": angle, "coupling": scale,
                 "rms_speed": np.sqrt(np.mean(vel.astype(float) ** 2, axis=1))}

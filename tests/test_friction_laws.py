@@ -325,7 +325,7 @@ def test_a_span_of_viscous_friction_keeps_table_4_10_and_the_other_nuisance():
     scene = TextureScene()
     grain = np.array(list(THESIS_GRADES.values()))
     table = np.array(list(TABLE_4_10_RMS_SPEED.values()))
-    for law in ("coulomb", "stribeck"):
+    for law in LAWS:
         at_0 = nominal_response(scene, law=law)["rms_speed"]  # the line's own, within 4 %
         for c in (5e-5, 1e-4):
             at_c = replace(scene, friction=replace(scene.friction, viscous=c))
@@ -334,6 +334,46 @@ def test_a_span_of_viscous_friction_keeps_table_4_10_and_the_other_nuisance():
             assert np.all(np.abs(speed / table - 1) < 0.10), (c, law)
     old = nominal_response(replace(scene, friction=replace(scene.friction, viscous=1e-4)))
     assert np.all(old["rms_speed"] < 0.95 * nominal_response(scene)["rms_speed"])
+
+
+def test_a_specimen_s_viscous_c_reaches_its_load_its_bristles_and_the_ablations(monkeypatch):
+    """With a span, the Friction a specimen's records are stepped with has its own c, LuGre's
+    bristle stiffness comes from its moved line, the middle-grade ablation's μ is the moved
+    line's at c, ``nominal`` records are the span-free scene's to the bit, and a span whose
+    moved line reaches μ <= 0 is a scene error naming the field."""
+    plain = scene_with({"lugre": 1.0})
+    spanned = replace(plain, friction=replace(plain.friction, viscous_span=1e-4))
+    spec = spanned.specimens(np.random.default_rng(3))
+    which = np.arange(len(spec["grade"]))
+    n = len(which)
+    load = spanned.friction_load(spec, which, np.full(n, NOMINAL_N), np.full(n, 0.1))
+    np.testing.assert_array_equal(load.viscous, spec["viscous"])
+    moved = spanned.mu(spec["grain_um"], spec["law"], spec["viscous"])
+    stiffness = (spec["static_ratio"] * moved * NOMINAL_N * np.cos(np.deg2rad(NOMINAL_ANGLE_DEG))
+                 / spec["presliding_m"])
+    np.testing.assert_allclose(load.bristle_stiffness, stiffness, rtol=1e-12)
+
+    seen = []
+    step = type(spanned).friction_load
+    monkeypatch.setattr(type(spanned), "friction_load",
+                        lambda self, *a, **k: seen.append((k["mu"], a[0], a[1])) or step(
+                            self, *a, **k))
+    spanned.simulate(5, np.random.default_rng(4), mean_friction=False)
+    (mu, own, rows), = seen
+    middle = np.median(list(THESIS_GRADES.values()))
+    np.testing.assert_allclose(mu, spanned.mu(middle, own["law"][rows], own["viscous"][rows]))
+    assert np.all(mu < spanned.mu(middle, own["law"][rows]))
+    monkeypatch.undo()
+
+    a = plain.simulate(5, np.random.default_rng(6), nominal=True)
+    b = spanned.simulate(5, np.random.default_rng(6), nominal=True)
+    for key in ("e", "i", "mu", "viscous"):
+        np.testing.assert_array_equal(a[key], b[key])
+    with pytest.raises(SceneError, match=r"viscous_span.*lugre.*μ = "):
+        scene_with({"lugre": 1.0}, friction={"law": {"lugre": 1.0}, "viscous_span": 2e-4,
+                                             "lugre": {"mu_0_per_c": -4000.0}})
+    with pytest.raises(SceneError, match="viscous_span"):
+        scene_with({"coulomb": 1.0}, friction={"viscous_span": 1e-3})
 
 
 @pytest.mark.slow

@@ -269,6 +269,25 @@ def test_scene_reproduces_table_4_10_and_figures_4_28_to_4_31(scene):
     assert "Kinetic signature" in text
 
 
+def test_fidelity_checks_a_viscous_span_on_each_law_of_the_mixture(scene):
+    """Without a span nothing is added; with one, each law of the mixture's moved line at the
+    span's top meets Table 4.10 (the report says so), and a wrong shift (none) is reported."""
+    from dataclasses import replace
+
+    assert texture_fidelity(scene)["span_speed"] == {}
+    spanned = replace(scene, friction=replace(scene.friction, viscous_span=1e-4))
+    r = texture_fidelity(spanned)
+    assert set(r["span_speed"]) == {"coulomb", "stribeck"}
+    for v in r["span_speed"].values():
+        assert np.all(np.abs(v / r["table_speed"] - 1) < 0.10)
+    text = format_texture(r)
+    assert text.count("At the viscous span's top") == 2 and "(worst" in text
+    unmoved = replace(spanned, friction=replace(spanned.friction, mu_0_per_c=0.0,
+                                                mu_per_um_per_c=0.0, viscous_span=3e-4))
+    assert "RMS speed within 10 % of Table 4.10: NO" in format_texture(
+        texture_fidelity(unmoved)).split("At the viscous span's top")[1]
+
+
 def test_no_kinetic_signature_in_the_current(scene):
     """The current's spectral peaks are shared by all grades and none sits at v/d."""
     r = texture_fidelity(scene)

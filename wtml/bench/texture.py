@@ -91,8 +91,11 @@ def amplitude_oracle(scene, n: int = 200_000, seed: int = 0, *,
     prior: the mean friction ``μ N cosθ`` (what the thesis's cues measure) and the asperities'
     strength ``a N cosθ √(d (1 + cv²))`` (the RMS of their impulse train per √(speed):
     impulses ``a N cosθ d_j`` at the rate ``v/d``, sizes of spread cv). N, θ, and each
-    specimen's μ, a and cv are drawn as the scene draws them; a gradient-boosted classifier
-    on ``n`` draws approximates the Bayes rule on what it knows (scored on ``n`` more draws).
+    specimen's μ, a and cv are drawn as the scene draws them (μ about the Coulomb line at
+    ``friction.viscous``: the mixture's laws and a ``viscous_span``'s c are not drawn; their
+    lines give the same in-phase force at the nominal set-up, which this cue stands for); a
+    gradient-boosted classifier on ``n`` draws approximates the Bayes rule on what it knows
+    (scored on ``n`` more draws).
 
     With ``sweep_m`` (m, per grade: the path the tip sweeps at 10 V), the observer also sees
     every grain it sweeps, ``sweep · V/10 / d`` of them (V the drive drawn from the scene's

@@ -102,8 +102,10 @@ class StribeckLaw:
     the ranges of physics.md §12. The default line is the fit's (intercept 0.4884, slope
     0.003875 /µm: the Coulomb law's to 1e-5, the tip sliding at ~100 v_s at the nominal set-up).
     ``mu_0_per_c`` and ``mu_per_um_per_c``: how the fitted line moves per N·s/m of viscous
-    friction beyond the scene's ``viscous`` (:attr:`FrictionLaw.viscous_span`; the secant
-    of the fits at c and c + 1e-4: less Coulomb friction for the same tip speeds).
+    friction beyond the scene's ``viscous`` (:attr:`FrictionLaw.viscous_span`; the defaults
+    are the secant of the fits at c = 0 and 1e-4, so they hold for ``viscous`` 0 and a span up
+    to ~2e-4 (the fit at 2e-4 is within 0.005 of the secant's line): less Coulomb friction
+    for the same tip speeds).
     """
 
     mu_0: float = bounded(-1.0, 2.0, default=0.488)
@@ -180,7 +182,7 @@ class FrictionLaw:
     slip_speed: float = bounded(1e-4, 1.0, default=0.01)
     slip_span: float = bounded(1.0, 100.0, default=1.0)
     viscous: float = bounded(0.0, 1.0, default=0.0)
-    viscous_span: float = bounded(0.0, 1e-3, default=0.0)
+    viscous_span: float = bounded(0.0, 2e-4, default=0.0)
     mu_0_per_c: float = bounded(-1e5, 1e5, default=-1202.0)
     mu_per_um_per_c: float = bounded(-1e4, 1e4, default=10.42)
     mu_spread: float = bounded(0.0, 0.5, default=0.005)
@@ -191,7 +193,19 @@ class FrictionLaw:
     lugre: LuGreLaw = field(default_factory=LuGreLaw)
 
     def check(self, path: str) -> None:
-        mixture((path + "." if path else "") + "law", self.law, LAWS)
+        pre = path + "." if path else ""
+        mixture(pre + "law", self.law, LAWS)
+        if self.viscous_span > 0:  # every moved line still a friction at the span's top
+            top = self.viscous + self.viscous_span
+            for law, weight in self.law.items():
+                mu_0, per_um = self.line(law)
+                per_c = self.line_shift(law)
+                least = min(mu_0 + per_um * d + self.viscous_span * (per_c[0] + per_c[1] * d)
+                            for d in (min(FEPA_GRADES.values()), max(FEPA_GRADES.values())))
+                if weight > 0 and least <= 0:
+                    raise SceneError(f"{pre}viscous_span: at c = {top:g} N·s/m {law}'s line "
+                                     f"moved by its per-c shift gives μ = {least:.3g} <= 0 "
+                                     "within the FEPA grades (8.4-82 µm); narrow the span")
 
     @property
     def weights(self) -> np.ndarray:
@@ -554,7 +568,8 @@ class TextureScene:
             volts, hz, normal = (np.full(n, NOMINAL_V), np.full(n, NOMINAL_HZ),
                                  np.full(n, NOMINAL_N))
             angle, scale = np.full(n, np.deg2rad(NOMINAL_ANGLE_DEG)), np.ones(n)
-        mid = self.mu(np.median(list(THESIS_GRADES.values())), spec["law"][which])
+        mid = self.mu(np.median(list(THESIS_GRADES.values())), spec["law"][which],
+                      self.viscous(spec)[which])
         mu = None if mean_friction else mid
         models, device = (self.devices(n, rng) if not nominal
                           else ([self.transducer()], np.zeros(n, int)))

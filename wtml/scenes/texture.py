@@ -26,8 +26,9 @@ zero (the default) draws nothing: the records are today's, bit for bit.
 
 Each specimen also draws its friction law from the mixture ``friction.law`` (Coulomb, Stribeck
 or LuGre, each with its own line μ_c(d) fitted to Table 4.10 and its shape drawn as nuisance:
-:class:`StribeckLaw`, :class:`LuGreLaw`), and with ``friction.viscous_span`` its own viscous part c,
-each line moved with c so that the tip's speeds still meet Table 4.10: :class:`FrictionLaw`).
+:class:`StribeckLaw`, :class:`LuGreLaw`; and with ``friction.viscous_span`` its own viscous
+part c, each line moved with c so that the tip's speeds still meet Table 4.10:
+:class:`FrictionLaw`).
 
 ``grades: thesis`` holds the five sandpapers of the thesis as classes; ``grades: fepa`` the ten
 other FEPA P-grades (the regression test of unseen grain sizes; their class label is -1).
@@ -195,17 +196,16 @@ class FrictionLaw:
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
         mixture(pre + "law", self.law, LAWS)
-        if self.viscous_span > 0:  # every moved line still a friction at the span's top
-            top = self.viscous + self.viscous_span
-            for law, weight in self.law.items():
-                mu_0, per_um = self.line(law)
-                per_c = self.line_shift(law)
-                least = min(mu_0 + per_um * d + self.viscous_span * (per_c[0] + per_c[1] * d)
-                            for d in (min(FEPA_GRADES.values()), max(FEPA_GRADES.values())))
-                if weight > 0 and least <= 0:
-                    raise SceneError(f"{pre}viscous_span: at c = {top:g} N·s/m {law}'s line "
-                                     f"moved by its per-c shift gives μ = {least:.3g} <= 0 "
-                                     "within the FEPA grades (8.4-82 µm); narrow the span")
+        drawn = [law for law, weight in self.law.items() if weight > 0]
+        for law in drawn if self.viscous_span > 0 else ():  # a friction at the span's top
+            (mu_0, per_um), per_c = self.line(law), self.line_shift(law)
+            least = min(mu_0 + per_um * d + self.viscous_span * (per_c[0] + per_c[1] * d)
+                        for d in (min(FEPA_GRADES.values()), max(FEPA_GRADES.values())))
+            if least <= 0:
+                raise SceneError(f"{pre}viscous_span: at c = {self.viscous + self.viscous_span:g}"
+                                 f" N·s/m {law}'s line moved by its per-c shift gives μ = "
+                                 f"{least:.3g} <= 0 within the FEPA grades (8.4-82 µm); "
+                                 "narrow the span")
 
     @property
     def weights(self) -> np.ndarray:
@@ -511,9 +511,9 @@ class TextureScene:
         coulomb = spec["mu"][which] if mu is None else mu
         return Friction(np.clip(coulomb, 0.0, None), normal, angle,
                         spec.get("slip_speed", np.full(len(spec["mu"]), f.slip_speed))[which],
-                        self.viscous(spec)[which], pos, imp, **self.law_shape(spec, which))
+                        self.specimen_viscous(spec)[which], pos, imp, **self.law_shape(spec, which))
 
-    def viscous(self, spec: dict) -> np.ndarray:
+    def specimen_viscous(self, spec: dict) -> np.ndarray:
         """Each specimen's viscous c (N·s/m) ``(n_specimens,)``: its own draw, or the
         scene's ``friction.viscous``."""
         return spec.get("viscous", np.full(len(spec["law"]), self.friction.viscous))
@@ -524,7 +524,7 @@ class TextureScene:
         nominal N and θ on its law's line μ_s(d)."""
         law, ratio = spec["law"][which], spec["static_ratio"][which]
         stiffness = (ratio * np.clip(self.mu(spec["grain_um"][which], law,
-                                             self.viscous(spec)[which]), 1e-3, None)
+                                             self.specimen_viscous(spec)[which]), 1e-3, None)
                      * NOMINAL_N * np.cos(np.deg2rad(NOMINAL_ANGLE_DEG))
                      / spec["presliding_m"][which])
         return {"law": law, "static_ratio": ratio,
@@ -569,7 +569,7 @@ class TextureScene:
                                  np.full(n, NOMINAL_N))
             angle, scale = np.full(n, np.deg2rad(NOMINAL_ANGLE_DEG)), np.ones(n)
         mid = self.mu(np.median(list(THESIS_GRADES.values())), spec["law"][which],
-                      self.viscous(spec)[which])
+                      self.specimen_viscous(spec)[which])
         mu = None if mean_friction else mid
         models, device = (self.devices(n, rng) if not nominal
                           else ([self.transducer()], np.zeros(n, int)))
@@ -602,7 +602,7 @@ class TextureScene:
                 "grade": grade, "grain_m": spec["grain_um"][which] * 1e-6,
                 "specimen": rng.integers(0, 2**62) + which, "mu": spec["mu"][which],
                 "asperity": spec["asperity"][which], "friction_law": spec["law"][which],
-                "viscous": self.viscous(spec)[which],
+                "viscous": self.specimen_viscous(spec)[which],
                 "whisk_v": volts, "whisk_hz": hz,
                 "normal_force": normal, "angle": angle, "coupling": scale,
                 "rms_speed": np.sqrt(np.mean(vel.astype(float) ** 2, axis=1))}

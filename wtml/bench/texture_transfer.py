@@ -116,11 +116,11 @@ def texture_variants(scene) -> list[Variant]:
                         "held out" if held else "in family", spanned.simulate_independent))
     rows += acquisition_variants(scene, draw=draw)
     thick = functools.cache(lambda: viscous(scene))
-    held = scene.friction.viscous_span < VISCOUS
+    beyond = scene.friction.viscous_span < VISCOUS  # the trained span does not reach it
     # last, so that the rows before keep their seeds (a row's seed is its position)
     return rows + [Variant(f"viscous part c = {scene.friction.viscous + VISCOUS:g} N·s/m, μ(d) "
-                           "fitted again" + (" (held out)" if held else ""),
-                           "held out" if held else "in family",
+                           "fitted again" + (" (held out)" if beyond else ""),
+                           "held out" if beyond else "in family",
                            lambda n, rng: thick().simulate_independent(n, rng))]
 
 

@@ -196,12 +196,13 @@ class FrictionLaw:
     def check(self, path: str) -> None:
         pre = path + "." if path else ""
         mixture(pre + "law", self.law, LAWS)
-        drawn = [law for law, weight in self.law.items() if weight > 0]
-        for law in drawn if self.viscous_span > 0 else ():  # a friction at the span's top
+        if self.viscous_span == 0:
+            return
+        for law in [law for law, weight in self.law.items() if weight > 0]:
             (mu_0, per_um), per_c = self.line(law), self.line_shift(law)
             least = min(mu_0 + per_um * d + self.viscous_span * (per_c[0] + per_c[1] * d)
                         for d in (min(FEPA_GRADES.values()), max(FEPA_GRADES.values())))
-            if least <= 0:
+            if least <= 0:  # the line moved to the span's top is no friction there
                 raise SceneError(f"{pre}viscous_span: at c = {self.viscous + self.viscous_span:g}"
                                  f" N·s/m {law}'s line moved by its per-c shift gives μ = "
                                  f"{least:.3g} <= 0 within the FEPA grades (8.4-82 µm); "

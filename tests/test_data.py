@@ -119,7 +119,7 @@ def test_mapped_inputs_are_the_map_of_each_batch(tmp_path):
 
     generate(SCENE, tmp_path, progress=False)
     dm = ShardDataModule(str(tmp_path), batch_size=48)
-    fn = SignedLogZm(0.01 * SCENE.reference_zm())
+    fn = SignedLogZm(0.01 * SCENE.reference_zm(), SCENE.excitation.n_freq)
     torch.manual_seed(3)
     raw = list(dm.train_dataloader())
     dm.map_inputs(fn)

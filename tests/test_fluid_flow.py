@@ -22,7 +22,7 @@ from wtml.data import load_shards
 from wtml.decoders.checkpoint import load_decoder, read_checkpoint
 from wtml.decoders.domain import Gated
 from wtml.decoders.fluid import TorchFluid, load_fluid_net
-from wtml.decoders.layers import ZmFromZe
+from wtml.decoders.layers import SignedLogZm, ZmFromZe
 from wtml.exporters.common import ClassicalFluidNet
 from wtml.physics import ze_from_zm, zm_from_ze
 from wtml.physics.fluids import glycerol_water
@@ -234,6 +234,26 @@ def test_zm_layer_matches_numpy():
     eta, rho = ClassicalFluidNet(SCENE.excitation.omega, SCENE.sphere.radius)(
         *_tensors(ze.real, ze.imag, *flat_parts(t)))
     assert eta.shape == rho.shape == (64,)
+
+
+@pytest.mark.parametrize("n_freq", [31, 4])
+def test_signed_log_features_are_zm_and_the_device_elements_they_name(n_freq):
+    """The feature layer: ``sign(x) log(1 + |x|)`` of Zm / z_scale (Re at every frequency,
+    then Im), then the six device elements its docstring names (Re t11, Re t12, Im t12 at the
+    first frequency, Im t12 at the last, Re and Im t21 at the middle one), at an odd and an
+    even grid."""
+    d = SPREAD.simulate(16, np.random.default_rng(1))
+    ze, t = d["ze"][:, :n_freq], d["t"][:, :n_freq]
+    layer = SignedLogZm(50.0, n_freq)
+    x = layer(*_tensors(ze.real, ze.imag, *flat_parts(t))).double().numpy()
+    zm = zm_from_ze(t, ze) / 50.0
+    for k, part in enumerate((zm.real, zm.imag)):
+        np.testing.assert_allclose(x[:, k * n_freq:(k + 1) * n_freq],
+                                   np.sign(part) * np.log1p(np.abs(part)), rtol=1e-4, atol=1e-6)
+    mid, last = n_freq // 2, n_freq - 1
+    want = np.stack([t[:, 0, 0, 0].real, t[:, 0, 0, 1].real, t[:, mid, 1, 0].real,
+                     t[:, 0, 0, 1].imag, t[:, last, 0, 1].imag, t[:, mid, 1, 0].imag], -1)
+    np.testing.assert_allclose(x[:, 2 * n_freq:], want, rtol=1e-6)
 
 
 def _write_csv(path, freq, ze):

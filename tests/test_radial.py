@@ -15,7 +15,7 @@ from wtml.bench.radial import generation_throughput, run_bench
 from wtml.data import load_shards
 from wtml.decoders.checkpoint import read_checkpoint
 from wtml.decoders.layers import StandardPolynomial
-from wtml.decoders.radial import RadialNet, TorchRadial, load_radial_net
+from wtml.decoders.radial import GateParts, RadialNet, TorchRadial, load_radial_net
 from wtml.physics import ze_from_zm
 from wtml.runtime.predict import OnnxModel, predict_file
 from wtml.scenes import RadialScene, SceneError, load_scene
@@ -371,6 +371,24 @@ def test_the_one_device_decoder_reads_the_ratio_only(radial_flow):
     n = net.n_freq
     assert not net.device and net.refine_mean.shape == (2 * n + 1,)
     assert net.coarse.feature_mean.shape == (2 * n,)
+
+
+def test_the_gate_resolves_a_reference_a_noise_away_from_the_preset():
+    """On one device the references differ from the preset's free Ze by their noise alone
+    (~2e-6 of it): the gate's deviation ``u = ref / free - 1`` is computed from ``ref -
+    free`` (exact in float32 that close), so its sum of squares is good to ~1e-6 of itself,
+    where ``ref / free`` first and 1 subtracted after loses ~6e-8 of 1 (a few % of u)."""
+    free = RADIAL_SMALL.free_ze()
+    rng = np.random.default_rng(4)
+    eps = 2e-6 * (rng.normal(size=(256, len(free))) + 1j * rng.normal(size=(256, len(free))))
+    ref = free * (1 + eps)
+    gate = GateParts(free, device=False)
+    parts = [torch.tensor(p, dtype=torch.float32) for z in (ref, ref) for p in (z.real, z.imag)]
+    got = gate(*parts)[:, -1].double().numpy()
+    ref32, free32 = (z.real.astype(np.float32).astype(float)
+                     + 1j * z.imag.astype(np.float32).astype(float) for z in (ref, free))
+    u = ref32 / free32 - 1  # in float64, from the graph's own float32 inputs and constants
+    np.testing.assert_allclose(got, (np.abs(u) ** 2).sum(-1), rtol=1e-5)
 
 
 def test_the_bayes_posterior_mean_is_the_least_squares_error():

@@ -40,6 +40,47 @@ def test_hermite_table_is_exact_for_cubics_and_clamps_outside(xs):
     np.testing.assert_allclose((g_re + 1j * g_im)[inside], _cubic_slope(x[inside]), atol=1e-4)
 
 
+def _written_out(table, x):
+    """The table's cubic Hermite form with each basis function written out (the form before
+    the weights became a product), in float32."""
+    u = ((x - table.x0) / table.step).clamp(0.0, table.n - 1.0)
+    i = torch.floor(u).clamp(max=table.n - 2)
+    t = (u - i)[:, None]
+    row = i.long().clamp(0, table.n - 2)
+    a, b = table.rows[row], table.rows[row + 1]
+    t2, t3 = t * t, t * t * t
+    h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, 3 * t2 - 2 * t3, t3 - t2
+    g00, g10, g11 = 6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, 3 * t2 - 2 * t
+    w = 2 * table.n_col
+    f = h00 * a[:, :w] + h10 * a[:, w:] + h01 * b[:, :w] + h11 * b[:, w:]
+    df = (g00 * (a[:, :w] - b[:, :w]) + g10 * a[:, w:] + g11 * b[:, w:]) / table.step
+    return torch.cat([f, df], 1)
+
+
+@given(st.lists(st.floats(-0.3, 1.5), min_size=1, max_size=30), st.integers(0, 2**31))
+def test_hermite_table_weights_as_one_product_are_the_written_out_form(xs, seed):
+    """The weights as a product of the powers of t with constant matrices (13 graph
+    operations) give the written-out basis functions' values and slopes, in float32, to a
+    few roundings of the table's values, on and off the grid, at its edges and outside; a
+    NaN position gives NaN values and slopes (the graph must not read another row)."""
+    rng = np.random.default_rng(seed)
+    n, cols, step = 9, 3, 2.5e-4
+    values = 1 + 0.01 * (rng.normal(size=(n, cols)) + 1j * rng.normal(size=(n, cols)))
+    slopes = rng.normal(size=(n, cols)) + 1j * rng.normal(size=(n, cols))
+    table = HermiteTable(0.1, step, values, slopes)
+    grid = 0.1 + step * np.array([0, 1, n - 1])
+    x = torch.tensor(np.concatenate([0.1 + step * (n - 1) * np.asarray(xs), grid]),
+                     dtype=torch.float32)
+    got = torch.cat(table(x), 1)
+    want = _written_out(table, x)
+    eps = float(np.finfo(np.float32).eps)
+    scale = float(table.rows.abs().max())
+    np.testing.assert_allclose(got[:, :2 * cols], want[:, :2 * cols], rtol=0, atol=8 * eps * scale)
+    np.testing.assert_allclose(got[:, 2 * cols:], want[:, 2 * cols:], rtol=0,
+                               atol=32 * eps * scale / step)
+    assert torch.isnan(torch.cat(table(torch.tensor([float("nan")])), 1)).all()
+
+
 def test_hermite_table_converges_at_fourth_order():
     """Error of sin on halving the step: ratio ~16 (O(h⁴)), float64 reference."""
     errors = []
@@ -82,10 +123,9 @@ def test_residual_is_the_distance_step_at_the_reference_stiffness():
     """Noise-free Ze at the reference stiffness with the nominal device's free reference:
     p = 0 at the true d, and a start off by δ gives Re p = δ to first order (error O(δ²)).
     The reference scaled by any complex factor scales Ze alike on a device that only differs
-    by it (a gain): p is unchanged. (6e-9 m, was 2e-9 m with Ze alone: the ratio's table
-    times the float32 reference adds one rounding of Ze's size. Measured: at δ = 0, 2.8e-9 m
-    in float32 and 1.5e-9 m with the same float32 table evaluated in float64, the old form's
-    level; at δ = 0.2 µm, 4.7e-9 m; the noise allows ~4e-7 m.)"""
+    by it (a gain): p is unchanged. (6e-9 m, was 2e-9 m with Ze alone: p from the float32
+    ratio ze/ref adds one rounding of its size. Measured: at δ = 0, 2.6–3.0e-9 m; at δ = 0.2
+    µm, 2.8–4.4e-9 m, as p from ze - R ref before it; the noise allows ~4e-7 m.)"""
     net = _net()
     d = np.linspace(100e-6, 3100e-6, 31)
     ze = SCENE.ze_of(d, np.full_like(d, SCENE.reference_stiffness()))

@@ -39,7 +39,7 @@ class FluidNet(nn.Module):
     def __init__(self, n_freq: int, z_scale: float, hidden: list[int]) -> None:
         super().__init__()
         self.n_freq = n_freq
-        self.features = SignedLogZm(z_scale)
+        self.features = SignedLogZm(z_scale, n_freq)
         self.register_buffer("feature_mean", torch.zeros(2 * n_freq))
         self.register_buffer("feature_std", torch.ones(2 * n_freq))
         self.register_buffer("target_mean", torch.zeros(2))
@@ -99,7 +99,7 @@ class FluidDecoder(DecoderModule):
         device's features), the same module, so the exported graph computes Zm once for both
         (a new one before the net exists)."""
         features = (self.net.features if self.net is not None
-                    else SignedLogZm(0.01 * scene.reference_zm()))
+                    else SignedLogZm(0.01 * scene.reference_zm(), scene.excitation.n_freq))
         return features, 2 * scene.excitation.n_freq + SignedLogZm.N_DEVICE
 
     def net_shape(self) -> dict:

@@ -131,9 +131,12 @@ class GateParts(nn.Module):
     def forward(self, ze_re: torch.Tensor, ze_im: torch.Tensor, ref_re: torch.Tensor,
                 ref_im: torch.Tensor) -> torch.Tensor:
         r_re, r_im = ratio(ze_re, ze_im, ref_re, ref_im)
-        u_re, u_im = ratio(ref_re, ref_im, self.free_re.expand_as(ref_re),
-                           self.free_im.expand_as(ref_im))
-        u = torch.cat([u_re - 1, u_im], -1)
+        # u = (ref - free) × (1 / free): the reciprocal of the constant folds in the graph, and
+        # the difference comes before any rounding of ref's size (u is ~1e-6 on one device)
+        den = self.free_re * self.free_re + self.free_im * self.free_im
+        w_re, w_im = self.free_re / den, -self.free_im / den
+        d_re, d_im = ref_re - self.free_re, ref_im - self.free_im
+        u = torch.cat([d_re * w_re - d_im * w_im, d_re * w_im + d_im * w_re], -1)
         log_r = 0.5 * torch.log(r_re * r_re + r_im * r_im)
         if not self.device:
             return torch.cat([r_re - 1, r_im, log_r, (u * u).sum(-1, keepdim=True)], -1)
@@ -190,7 +193,9 @@ class RadialNet(nn.Module):
 
     def features(self, *inputs: torch.Tensor) -> torch.Tensor:
         """:class:`ReferenceParts` of the used frequencies, ``(batch, 2 or 4 × used)``."""
-        return self.parts(*(x[:, :self.used] for x in inputs))
+        if self.used < self.n_freq:
+            inputs = tuple(x[:, :self.used] for x in inputs)
+        return self.parts(*inputs)  # unsliced, the graph shares its ratio with the gate's
 
     def forward_normalized(self, *inputs: torch.Tensor) -> torch.Tensor:
         """Standardised distance and, with the head, log std: shape ``(batch, 1 or 2)``."""
@@ -290,10 +295,10 @@ class RefinedRadialNet(nn.Module):
         (without ``device``: ``(Re p, Im p, d0)``): p per frequency as in the module
         docstring."""
         f_re, f_im, g_re, g_im = self.table(d0)
-        # p = (ze - R ref) / (R' ref): one rounding of ze's size, as in ze - Ze(d0)
-        p_re, p_im = ratio(ze_re - (f_re * ref_re - f_im * ref_im),
-                           ze_im - (f_re * ref_im + f_im * ref_re),
-                           g_re * ref_re - g_im * ref_im, g_re * ref_im + g_im * ref_re)
+        # p = (ze/ref - R) / R': one rounding of ze/ref's size (~6e-8, the noise 2e-5), and
+        # ze/ref is the coarse stage's ratio, which the graph computes once
+        r_re, r_im = ratio(ze_re, ze_im, ref_re, ref_im)
+        p_re, p_im = ratio(r_re - f_re, r_im - f_im, g_re, g_im)
         if not self.device:
             return torch.cat([p_re, p_im, d0[:, None]], -1)
         return torch.cat([p_re, p_im, d0[:, None], ref_re, ref_im], -1)

@@ -40,45 +40,65 @@ def test_hermite_table_is_exact_for_cubics_and_clamps_outside(xs):
     np.testing.assert_allclose((g_re + 1j * g_im)[inside], _cubic_slope(x[inside]), atol=1e-4)
 
 
-def _written_out(table, x):
-    """The table's cubic Hermite form with each basis function written out (the form before
-    the weights became a product), in float32."""
-    u = ((x - table.x0) / table.step).clamp(0.0, table.n - 1.0)
-    i = torch.floor(u).clamp(max=table.n - 2)
+def _written_out(rows, x0, step, x):
+    """Cubic Hermite interpolation of a table's ``rows`` (``HermiteTable.rows``' layout) with
+    each basis function written out, in the dtype of ``rows`` and ``x``."""
+    n, w = len(rows), rows.shape[1] // 2
+    u = ((x - x0) / step).clamp(0.0, n - 1.0)
+    i = torch.floor(u).clamp(max=n - 2)
     t = (u - i)[:, None]
-    row = i.long().clamp(0, table.n - 2)
-    a, b = table.rows[row], table.rows[row + 1]
+    row = i.long().clamp(0, n - 2)
+    a, b = rows[row], rows[row + 1]
     t2, t3 = t * t, t * t * t
     h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, 3 * t2 - 2 * t3, t3 - t2
     g00, g10, g11 = 6 * t2 - 6 * t, 3 * t2 - 4 * t + 1, 3 * t2 - 2 * t
-    w = 2 * table.n_col
     f = h00 * a[:, :w] + h10 * a[:, w:] + h01 * b[:, :w] + h11 * b[:, w:]
-    df = (g00 * (a[:, :w] - b[:, :w]) + g10 * a[:, w:] + g11 * b[:, w:]) / table.step
+    df = (g00 * (a[:, :w] - b[:, :w]) + g10 * a[:, w:] + g11 * b[:, w:]) / step
     return torch.cat([f, df], 1)
 
 
 @given(st.lists(st.floats(-0.3, 1.5), min_size=1, max_size=30), st.integers(0, 2**31))
 def test_hermite_table_weights_as_one_product_are_the_written_out_form(xs, seed):
-    """The weights as a product of the powers of t with constant matrices (13 graph
-    operations) give the written-out basis functions' values and slopes, in float32, to a
-    few roundings of the table's values, on and off the grid, at its edges and outside; a
-    NaN position gives NaN values and slopes (the graph must not read another row)."""
+    """The weights as a product of the powers of t with constant matrices (the graph's few
+    operations) against the basis functions written out in float64 on the same float32 table
+    and positions, on and off the grid, at its edges and outside. A table like the radial
+    one (values ~1, neighbours 1e-4 to 1e-2 apart): f to a few roundings of f, and the
+    slope to a few roundings of f's change over a step (the neighbours' difference comes
+    before any product: a product of each first would lose ε|f|/h, 100× more here). A NaN
+    position gives NaN values and slopes (the graph must not read another row)."""
     rng = np.random.default_rng(seed)
-    n, cols, step = 9, 3, 2.5e-4
-    values = 1 + 0.01 * (rng.normal(size=(n, cols)) + 1j * rng.normal(size=(n, cols)))
-    slopes = rng.normal(size=(n, cols)) + 1j * rng.normal(size=(n, cols))
-    table = HermiteTable(0.1, step, values, slopes)
-    grid = 0.1 + step * np.array([0, 1, n - 1])
-    x = torch.tensor(np.concatenate([0.1 + step * (n - 1) * np.asarray(xs), grid]),
+    n, cols, step = 9, 3, 2.0**-17  # ~7.6 µm, a power of two: the position's t is exact
+    grid = step * np.arange(n)[:, None]
+    k = rng.uniform(50, 2000, cols) * np.exp(1j * rng.uniform(0, 2 * np.pi, cols))
+    values = (1 + 2j) * np.exp(k * grid)  # slopes 50-2000 /m, as the radial table's R'
+    table = HermiteTable(0.0, step, values, k * values)
+    on = step * np.array([0, 1, n - 1])
+    x = torch.tensor(np.concatenate([step * (n - 1) * np.asarray(xs), on]),
                      dtype=torch.float32)
-    got = torch.cat(table(x), 1)
-    want = _written_out(table, x)
+    got = torch.cat(table(x), 1).double()
+    want = _written_out(table.rows.double(), 0.0, step, x.double())
     eps = float(np.finfo(np.float32).eps)
-    scale = float(table.rows.abs().max())
-    np.testing.assert_allclose(got[:, :2 * cols], want[:, :2 * cols], rtol=0, atol=8 * eps * scale)
-    np.testing.assert_allclose(got[:, 2 * cols:], want[:, 2 * cols:], rtol=0,
-                               atol=32 * eps * scale / step)
+    w = 2 * cols
+    rows = table.rows.double()
+    change = max(float((rows[1:, :w] - rows[:-1, :w]).abs().max()),
+                 float(rows[:, w:].abs().max()))
+    np.testing.assert_allclose(got[:, :w], want[:, :w], rtol=0,
+                               atol=8 * eps * float(rows[:, :w].abs().max()))
+    np.testing.assert_allclose(got[:, w:], want[:, w:], rtol=0, atol=16 * eps * change / step)
     assert torch.isnan(torch.cat(table(torch.tensor([float("nan")])), 1)).all()
+
+
+def test_a_table_loaded_from_a_state_dict_reads_its_rows():
+    """A checkpoint brings ``rows`` only (the state dict of before the intervals): an empty
+    table of the same shape, loaded from it, reads the same values and slopes."""
+    grid = np.linspace(0.0, 1.2, 7)[:, None]
+    table = HermiteTable(0.0, 0.2, _cubic(grid), _cubic_slope(grid))
+    assert list(table.state_dict()) == ["rows"]
+    empty = HermiteTable.empty(0.0, 0.2, 7, 1)
+    empty.load_state_dict(table.state_dict())
+    x = torch.linspace(-0.1, 1.3, 29)
+    for got, want in zip(empty(x), table(x), strict=True):
+        assert torch.equal(got, want)
 
 
 def test_hermite_table_converges_at_fourth_order():

@@ -164,15 +164,15 @@ class StandardPolynomial(nn.Module):
 
 class HermiteTable(nn.Module):
     """A complex function of one real variable, tabulated on a uniform grid with its slopes,
-    read back by cubic Hermite interpolation in float32 real arithmetic (Floor, Gather and
-    polynomials: no complex tensors, exportable).
+    read back by cubic Hermite interpolation in float32 real arithmetic (Floor, Gather, Pow
+    and MatMul: no complex tensors, exportable).
 
     Args:
         x0, step: the grid ``x0 + step * arange(n)`` (any unit; m for distances).
         values, slopes: complex ``(n, n_col)`` numpy, f and df/dx on the grid (n >= 2).
 
-    Forward: ``x (batch,)`` (clamped to the grid) -> ``(f_re, f_im, df_re, df_im)``, each
-    ``(batch, n_col)``; the slope in units of f per unit of x.
+    Forward: ``x (batch,)`` float32 (clamped to the grid) -> ``(f_re, f_im, df_re, df_im)``,
+    each ``(batch, n_col)``; the slope in units of f per unit of x.
     """
 
     def __init__(self, x0: float, step: float, values: np.ndarray, slopes: np.ndarray) -> None:
@@ -183,19 +183,37 @@ class HermiteTable(nn.Module):
                              f"n_col) and step > 0; got {values.shape}, {slopes.shape}, {step}")
         self.n_col = values.shape[1]
         self.x0, self.step, self.n = float(x0), float(step), len(values)
-        # rows: [Re f, Im f, Re f' h, Im f' h] side by side, one row per grid point
+        # rows: [Re f, Im f, Re f' h, Im f' h] side by side, one row per grid point (the state
+        # a checkpoint holds); intervals: what forward reads, made from them
         rows = np.concatenate([values.real, values.imag, slopes.real, slopes.imag], -1)
         self.register_buffer("rows", torch.tensor(rows, dtype=torch.float32))
-        # weights of (f(a), f'(a) h, f(b), f'(b) h) as polynomials in t (rows 1, t, t², t³):
-        # the cubic Hermite basis h00, h10, h01, h11, then their d/dt over the step
-        basis = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [-3, -2, 3, -1], [2, 1, -2, 1]], float)
-        slope = np.array([[0, 1, 0, 0], [-6, -4, 6, -2], [6, 3, -6, 3], [0, 0, 0, 0]],
+        self.register_buffer("intervals", self.intervals_of(self.rows), persistent=False)
+        self.register_load_state_dict_post_hook(HermiteTable._reread)
+        # the weights of (f(a), f'(a) h, f(b) - f(a), f'(b) h) as polynomials in t (rows 1,
+        # t, t², t³): the cubic Hermite basis (h00 + h01 = 1, h10, h01, h11), then their d/dt
+        # over the step (0, g10, g01, g11)
+        basis = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, -2, 3, -1], [0, 1, -2, 1]], float)
+        slope = np.array([[0, 1, 0, 0], [0, -4, 6, -2], [0, 3, -6, 3], [0, 0, 0, 0]],
                          float) / self.step
         self.register_buffer("basis", torch.tensor(np.concatenate([basis, slope], 1),
                                                    dtype=torch.float32), persistent=False)
         self.register_buffer("exponents", torch.arange(4, dtype=torch.float32),
                              persistent=False)
-        self.register_buffer("next", torch.tensor([0, 1]), persistent=False)
+
+    @staticmethod
+    def intervals_of(rows: torch.Tensor) -> torch.Tensor:
+        """Per interval of the grid, ``(n - 1, 4, 2 n_col)``: f at its start, f'h there,
+        f's change over it (a difference of neighbours, exact in float32 where they are
+        close, before any product: the slope's ``g00 (f(a) - f(b))`` would lose ε|f|/h
+        otherwise), f'h at its end."""
+        w = rows.shape[1] // 2
+        a, b = rows[:-1], rows[1:]
+        return torch.stack([a[:, :w], a[:, w:], b[:, :w] - a[:, :w], b[:, w:]], 1)
+
+    @staticmethod
+    def _reread(module: HermiteTable, incompatible) -> None:
+        """After a state dict is loaded: the intervals of its rows."""
+        module.intervals = module.intervals_of(module.rows)
 
     @classmethod
     def empty(cls, x0: float, step: float, n: int, n_col: int) -> HermiteTable:
@@ -209,13 +227,11 @@ class HermiteTable(nn.Module):
         i = torch.floor(u).clamp(max=self.n - 2)
         row = i.long().clamp(0, self.n - 2)  # a NaN x (cast to any integer) stays NaN in t
         # the powers (1, t, t², t³) by one Pow, the four Hermite weights and their d/dt by one
-        # product, applied to both grid rows (f and f'h at each end) by another: the table
-        # is 19 operations of onnxruntime's optimised radial graph, with the row's index,
-        # where the weights written out took 48 (a call at batch 1 pays ~0.25 µs for each);
-        # the same sums of the same products
+        # product, applied to the interval's four rows by another: the table is 17
+        # operations of onnxruntime's optimised radial graph, with the row's index, where
+        # the weights written out took 48 (a call at batch 1 pays ~0.25 µs for each)
         powers = torch.pow((u - i)[:, None], self.exponents)
         weights = (powers @ self.basis).reshape(-1, 2, 4)  # (batch, [f, df/dx], 4)
-        ends = self.rows[row[:, None] + self.next].reshape(-1, 4, 2 * self.n_col)
-        out = weights @ ends  # (batch, 2, 2 n_col)
+        out = weights @ self.intervals[row]  # (batch, 2, 2 n_col)
         n = self.n_col
         return out[:, 0, :n], out[:, 0, n:], out[:, 1, :n], out[:, 1, n:]

@@ -295,8 +295,8 @@ class RefinedRadialNet(nn.Module):
         (without ``device``: ``(Re p, Im p, d0)``): p per frequency as in the module
         docstring."""
         f_re, f_im, g_re, g_im = self.table(d0)
-        # p = (ze/ref - R) / R': one rounding of ze/ref's size (~6e-8, the noise 2e-5), and
-        # ze/ref is the coarse stage's ratio, which the graph computes once
+        # p = (ze/ref - R) / R': the ratio's few roundings (~2e-7 of it; the noise is 2e-5),
+        # and ze/ref is the coarse stage's ratio, which the graph computes once
         r_re, r_im = ratio(ze_re, ze_im, ref_re, ref_im)
         p_re, p_im = ratio(r_re - f_re, r_im - f_im, g_re, g_im)
         if not self.device:

@@ -708,3 +708,27 @@ def test_the_coverage_bench_draws_its_fresh_records_from_the_seed_it_is_given(mo
     with pytest.raises(SystemExit):
         cli.main(["bench", "coverage", "--seed", "-1"])
     assert "--seed" in capsys.readouterr().err
+
+
+def test_rows_picks_the_named_rows_and_refuses_a_name_that_matches_none(monkeypatch):
+    """``--rows`` reaches the bench, which keeps each task's rows whose names hold one of
+    its texts (case-insensitive, in their order) and refuses one that matches no row,
+    naming the rows there are."""
+    from wtml import cli
+    from wtml.bench import coverage
+    from wtml.bench.coverage import RecordSet, pick_rows
+
+    seen = []
+    monkeypatch.setattr(coverage, "run_coverage",
+                        lambda tasks, out, **kw: seen.append(kw["rows"]) or "report")
+    assert cli.main(["bench", "coverage", "--only", "texture", "--rows", "in family",
+                     "--rows", "LuGre"]) == 0
+    assert cli.main(["bench", "coverage", "--only", "texture"]) == 0
+    assert seen == [["in family", "LuGre"], None]
+    sets = [RecordSet(name, "kind", lambda: None) for name in
+            ("test shard", "the trained scene (in family)", "friction law lugre alone")]
+    kept = pick_rows(sets, ["LUGRE", "in family"], "texture")
+    assert [s.name for s in kept] == ["the trained scene (in family)",
+                                      "friction law lugre alone"]
+    with pytest.raises(ValueError, match=r"no texture row matches; its rows: \['test shard'"):
+        pick_rows(sets, ["viscous"], "texture")

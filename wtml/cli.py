@@ -409,7 +409,8 @@ def _bench_coverage(args: argparse.Namespace) -> int:
     records = {"fluid": args.records, "radial": args.records, "onset": args.time_records,
                "texture": args.time_records, "independent": args.independent_records}
     print(run_coverage(tasks, args.out, records=records, seed=args.seed, threads=args.threads,
-                       sbi_simulations=args.sbi_simulations, sbi_epochs=args.sbi_epochs))
+                       sbi_simulations=args.sbi_simulations, sbi_epochs=args.sbi_epochs,
+                       rows=args.rows))
     return 0
 
 
@@ -448,6 +449,10 @@ def _coverage_parser(be_sub) -> None:
     bc.add_argument("--seed", type=_number(0, 2**32 - 1, int), default=2025,
                     help="the fresh records' seed (another draw of every row: is a ✗ there "
                          "again?)")
+    bc.add_argument("--rows", action="append", default=None, metavar="TEXT",
+                    help="only the rows whose names hold this text, case-insensitive (repeat; "
+                         "default every row): one row on many records, e.g. --only texture "
+                         "--rows 'in family' --time-records 3000")
     bc.add_argument("--threads", type=THREADS, default=2, help="torch and onnxruntime threads")
     bc.set_defaults(func=_bench_coverage)
 

@@ -583,9 +583,23 @@ TASK_SETS = {"fluid": fluid_sets, "radial": radial_sets, "onset": onset_sets,
 """Each task's record sets (its test shard, fresh records, its held-out physics)."""
 
 
+def pick_rows(sets: list[RecordSet], patterns: list[str], task: str) -> list[RecordSet]:
+    """The ``sets`` whose name holds one of ``patterns`` (case-insensitive): one row measured
+    on many records without every other row's cost.
+
+    Raises:
+        ValueError: no row of ``task`` matches (naming its rows)."""
+    kept = [s for s in sets if any(p.lower() in s.name.lower() for p in patterns)]
+    if not kept:
+        raise ValueError(f"--rows {patterns}: no {task} row matches; its rows: "
+                         f"{[s.name for s in sets]}")
+    return kept
+
+
 def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, int],
                  seed: int = 2025, threads: int = 2, sbi_simulations: int = 0,
-                 sbi_epochs: int = 50, progress=print) -> str:
+                 sbi_epochs: int = 50, rows: list[str] | None = None,
+                 progress=print) -> str:
     """Run the bench; writes ``report.md``, ``summary.json`` and ``reliability.png`` under
     ``out`` and returns the report.
 
@@ -599,6 +613,8 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
             (:func:`wtml.bench.sbi_fluid.run_npe`, at most ``sbi_epochs`` epochs), its rows
             beside the decoder's on the same fresh records; 0: none. Without the ``sbi``
             package the report says so.
+        rows: only each task's rows whose names hold one of these (:func:`pick_rows`);
+            None: every row.
     """
     torch.set_num_threads(threads)
     out = Path(out)
@@ -633,6 +649,8 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
         module = load_decoder(paths["checkpoint"])
         scene = dataset_scene(paths["data"])
         sets = TASK_SETS[task](paths, scene, decoder, records, seed)
+        if rows:
+            sets = pick_rows(sets, rows, task)
         u = decoder.uncertainty
         added = {r.sigma for r in u.intervals if r.stored == "none"} - set(scene.OUTPUTS)
         names = tuple(name for name in decoder.outputs if name not in added)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+import onnxruntime as ort
 import pytest
 import torch
 from conftest import FLUID_SMALL, train_args
@@ -388,3 +389,34 @@ def test_crlb_scales_with_noise_and_grows_with_calibration_error():
     np.testing.assert_allclose(loud["eta"], 2 * quiet["eta"], rtol=1e-3)  # linear in σ
     cal = fluid_crlb(build(FluidScene, {}), eta, rho)
     assert np.all(cal["eta"] > 10 * quiet["eta"]) and np.all(cal["rho"] > quiet["rho"])
+
+
+def test_a_session_s_first_run_is_one_row(flow, monkeypatch):
+    """``OnnxModel`` runs its graph once on one row of zeros when it opens it, before any
+    other call (a session whose first run was a large batch stays ~20 % slower at batch 1:
+    README, "Where batch 1's time goes"); a graph with a second dynamic axis is not run."""
+    from types import SimpleNamespace
+
+    from wtml.runtime import predict
+
+    runs = []
+
+    class Recording(ort.InferenceSession):
+        def run(self, names, feed, *args):
+            runs.append({k: np.array(v) for k, v in feed.items()})
+            return super().run(names, feed, *args)
+
+    monkeypatch.setattr(predict.ort, "InferenceSession", Recording)
+    tmp, _ = flow
+    model = OnnxModel(tmp / "export/model.onnx")
+    assert len(runs) == 1
+    assert {k: v.shape[0] for k, v in runs[0].items()} == dict.fromkeys(model._inputs, 1)
+    assert all(not v.any() for v in runs[0].values())
+    d = FLUID_SMALL.simulate(64, np.random.default_rng(2))
+    model.predict(d["ze"], d["t"])
+    assert len(runs) == 2 and len(runs[1]["ze_re"]) == 64
+    record = SimpleNamespace(name="e", type="tensor(float)", shape=["batch", "n_samples"])
+    stub = SimpleNamespace(session=SimpleNamespace(get_inputs=lambda: [record],
+                                                   run=lambda *a: runs.append(a)))
+    OnnxModel._first_run_at_batch_1(stub)
+    assert len(runs) == 2

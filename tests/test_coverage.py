@@ -711,24 +711,59 @@ def test_the_coverage_bench_draws_its_fresh_records_from_the_seed_it_is_given(mo
 
 
 def test_rows_picks_the_named_rows_and_refuses_a_name_that_matches_none(monkeypatch):
-    """``--rows`` reaches the bench, which keeps each task's rows whose names hold one of
-    its texts (case-insensitive, in their order) and refuses one that matches no row,
-    naming the rows there are."""
+    """``--rows`` reaches the bench, which keeps the tasks with a row whose name holds one
+    of its texts (case-insensitive), each with its test shard first, and refuses, before
+    measuring anything, a text that matches no row of any task, naming the rows there are."""
     from wtml import cli
     from wtml.bench import coverage
     from wtml.bench.coverage import RecordSet, pick_rows
 
     seen = []
     monkeypatch.setattr(coverage, "run_coverage",
-                        lambda tasks, out, **kw: seen.append(kw["rows"]) or "report")
+                        lambda tasks, out, **kw: seen.append(kw["only_rows"]) or "report")
     assert cli.main(["bench", "coverage", "--only", "texture", "--rows", "in family",
                      "--rows", "LuGre"]) == 0
     assert cli.main(["bench", "coverage", "--only", "texture"]) == 0
     assert seen == [["in family", "LuGre"], None]
-    sets = [RecordSet(name, "kind", lambda: None) for name in
-            ("test shard", "the trained scene (in family)", "friction law lugre alone")]
-    kept = pick_rows(sets, ["LUGRE", "in family"], "texture")
-    assert [s.name for s in kept] == ["the trained scene (in family)",
-                                      "friction law lugre alone"]
-    with pytest.raises(ValueError, match=r"no texture row matches; its rows: \['test shard'"):
-        pick_rows(sets, ["viscous"], "texture")
+
+    def rows(*names):
+        return [RecordSet(name, "kind", lambda: None) for name in names]
+
+    sets = {"fluid": rows("test shard", "fresh records (in family)", "radius +1 %"),
+            "texture": rows("test shard", "the trained scene (in family)",
+                            "friction law lugre alone")}
+    kept = pick_rows(sets, ["LUGRE"])
+    assert {t: [s.name for s in r] for t, r in kept.items()} == {
+        "texture": ["test shard", "friction law lugre alone"]}
+    kept = pick_rows(sets, ["in family"])
+    assert [s.name for s in kept["fluid"]] == ["test shard", "fresh records (in family)"]
+    with pytest.raises(ValueError, match=r"--rows 'viscous' matches no row; the rows: "
+                                         r"test shard; fresh records"):
+        pick_rows(sets, ["lugre", "viscous"])
+
+
+def test_the_coverage_bench_runs_two_tasks_and_their_named_rows(flow, radial_flow, tmp_path):
+    """The bench end to end on the test suite's fluid and radial exports, a few records a
+    row: every row of both tasks, then with ``only_rows`` the test shards and the named rows
+    alone (the loop's own names must not shadow the rows it was asked for)."""
+    from wtml.bench.coverage import run_coverage
+
+    fluid, ckpt = flow
+    tasks = {"fluid": {"data": fluid / "data", "checkpoint": ckpt, "model": fluid / "export"},
+             "radial": {"data": radial_flow / "data",  # its invalid contacts: another grid
+                        "checkpoint": radial_flow / "runs/radial/checkpoints/last.ckpt",
+                        "model": radial_flow / "export/radial"}}
+    records = {"fluid": 12, "radial": 12, "onset": 2, "texture": 2, "independent": 0}
+    report = run_coverage(tasks, tmp_path / "all", records=records, progress=lambda _: None)
+    summary = json.loads((tmp_path / "all/summary.json").read_text())
+    assert set(summary["tasks"]) == {"fluid", "radial"}
+    every = {t: {r["name"] for r in e["intervals"][next(iter(e["intervals"]))]["rows"]}
+             for t, e in summary["tasks"].items()}
+    assert all(len(names) > 2 for names in every.values()) and "## radial" in report
+    run_coverage(tasks, tmp_path / "some", records=records, only_rows=["Fresh records"],
+                 progress=lambda _: None)
+    some = json.loads((tmp_path / "some/summary.json").read_text())
+    assert set(some["tasks"]) == {"fluid", "radial"}
+    for task, entry in some["tasks"].items():
+        names = {r["name"] for r in entry["intervals"][next(iter(entry["intervals"]))]["rows"]}
+        assert names == {"test shard", "fresh records of the trained scene"}, task

@@ -410,7 +410,7 @@ def _bench_coverage(args: argparse.Namespace) -> int:
                "texture": args.time_records, "independent": args.independent_records}
     print(run_coverage(tasks, args.out, records=records, seed=args.seed, threads=args.threads,
                        sbi_simulations=args.sbi_simulations, sbi_epochs=args.sbi_epochs,
-                       rows=args.rows))
+                       only_rows=args.rows))
     return 0
 
 
@@ -450,9 +450,10 @@ def _coverage_parser(be_sub) -> None:
                     help="the fresh records' seed (another draw of every row: is a ✗ there "
                          "again?)")
     bc.add_argument("--rows", action="append", default=None, metavar="TEXT",
-                    help="only the rows whose names hold this text, case-insensitive (repeat; "
-                         "default every row): one row on many records, e.g. --only texture "
-                         "--rows 'in family' --time-records 3000")
+                    help="only the rows whose names hold this text, case-insensitive, and "
+                         "their tasks' test shards (repeat; default every row): one row on "
+                         "many records, e.g. --only texture --rows 'in family' "
+                         "--time-records 3000")
     bc.add_argument("--threads", type=THREADS, default=2, help="torch and onnxruntime threads")
     bc.set_defaults(func=_bench_coverage)
 

@@ -349,7 +349,8 @@ def fluid_bayes_rows(scene, sets: list[RecordSet], progress=print) -> dict[str, 
 
 
 RADIAL_SPREAD_SCENE = "configs/scenes/radial_spread.yaml"
-"""Devices off the preset for the radial rows: issue 21's manufacturing spread."""
+"""Devices off the preset for the radial rows: issue 21's manufacturing spread (its
+``spread`` block, on the trained scene: on the shipped one the same records as this scene's)."""
 
 
 def radial_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[RecordSet]:
@@ -368,7 +369,8 @@ def radial_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[R
             RecordSet("fresh records of the trained scene", "in family",
                       lambda: made(scene.simulate(n, np.random.default_rng([seed, 0])))),
             RecordSet("devices of issue 21's spread", "held out",
-                      lambda: made(load_scene(RADIAL_SPREAD_SCENE).simulate(
+                      lambda: made(dataclasses.replace(  # on the trained scene's tones
+                          scene, spread=load_scene(RADIAL_SPREAD_SCENE).spread).simulate(
                           n, np.random.default_rng([seed, 1]))))]
     if invalid_dir is not None and Path(invalid_dir).is_dir():
         sets.append(RecordSet("invalid contacts (thesis §5.5.4)", "held out", lambda: made(
@@ -583,22 +585,31 @@ TASK_SETS = {"fluid": fluid_sets, "radial": radial_sets, "onset": onset_sets,
 """Each task's record sets (its test shard, fresh records, its held-out physics)."""
 
 
-def pick_rows(sets: list[RecordSet], patterns: list[str], task: str) -> list[RecordSet]:
-    """The ``sets`` whose name holds one of ``patterns`` (case-insensitive): one row measured
-    on many records without every other row's cost.
+def pick_rows(sets: dict[str, list[RecordSet]], patterns: list[str]
+              ) -> dict[str, list[RecordSet]]:
+    """The tasks that have a row whose name holds one of ``patterns`` (case-insensitive),
+    each with those rows after its first (the test shard: its truth sets the ranges, and its
+    probabilities the reliability curve): one row measured on many records without every
+    other row's cost. ``sets``: every row of each task, by task.
 
     Raises:
-        ValueError: no row of ``task`` matches (naming its rows)."""
-    kept = [s for s in sets if any(p.lower() in s.name.lower() for p in patterns)]
-    if not kept:
-        raise ValueError(f"--rows {patterns}: no {task} row matches; its rows: "
-                         f"{[s.name for s in sets]}")
-    return kept
+        ValueError: a pattern that matches no row of any task (naming the rows there are),
+            before anything is measured."""
+    def held(s: RecordSet, keys: list[str]) -> bool:
+        return any(k.lower() in s.name.lower() for k in keys)
+
+    every = [s for rows in sets.values() for s in rows]
+    lost = [k for k in patterns if not any(held(s, [k]) for s in every)]
+    if lost:
+        raise ValueError(f"--rows {', '.join(map(repr, lost))} matches no row; the rows: "
+                         f"{'; '.join(s.name for s in every)}")
+    return {task: [rows[0], *[s for s in rows[1:] if held(s, patterns)]]
+            for task, rows in sets.items() if any(held(s, patterns) for s in rows)}
 
 
 def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, int],
                  seed: int = 2025, threads: int = 2, sbi_simulations: int = 0,
-                 sbi_epochs: int = 50, rows: list[str] | None = None,
+                 sbi_epochs: int = 50, only_rows: list[str] | None = None,
                  progress=print) -> str:
     """Run the bench; writes ``report.md``, ``summary.json`` and ``reliability.png`` under
     ``out`` and returns the report.
@@ -613,14 +624,22 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
             (:func:`wtml.bench.sbi_fluid.run_npe`, at most ``sbi_epochs`` epochs), its rows
             beside the decoder's on the same fresh records; 0: none. Without the ``sbi``
             package the report says so.
-        rows: only each task's rows whose names hold one of these (:func:`pick_rows`);
-            None: every row.
+        only_rows: only the rows whose names hold one of these, and their tasks' test
+            shards (:func:`pick_rows`); None: every row.
     """
     torch.set_num_threads(threads)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    plans = {}  # each task's export, scene and rows, all named before any is measured
+    for task, paths in tasks.items():
+        decoder = load_export(paths["model"], threads=threads)[0]
+        scene = dataset_scene(paths["data"])
+        plans[task] = (decoder, scene, TASK_SETS[task](paths, scene, decoder, records, seed))
+    if only_rows:
+        kept = pick_rows({task: plan[2] for task, plan in plans.items()}, only_rows)
+        plans = {task: (*plans[task][:2], rows) for task, rows in kept.items()}
     sbi, sbi_note = None, []
-    if sbi_simulations and "fluid" in tasks:
+    if sbi_simulations and "fluid" in plans:
         from wtml.bench.sbi_fluid import run_npe
 
         scene = dataset_scene(tasks["fluid"]["data"])
@@ -644,13 +663,9 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
              f"their errors); ?: off by more on too few answers to tell. raw: the checkpoint's "
              f"own σ; recalibrated: the export's.", ""]
     summary: dict = {"tolerance": TOLERANCE, "nominal": list(NOMINAL), "tasks": {}}
-    for task, paths in tasks.items():
-        decoder = load_export(paths["model"], threads=threads)[0]
+    for task, (decoder, scene, sets) in plans.items():
+        paths = tasks[task]
         module = load_decoder(paths["checkpoint"])
-        scene = dataset_scene(paths["data"])
-        sets = TASK_SETS[task](paths, scene, decoder, records, seed)
-        if rows:
-            sets = pick_rows(sets, rows, task)
         u = decoder.uncertainty
         added = {r.sigma for r in u.intervals if r.stored == "none"} - set(scene.OUTPUTS)
         names = tuple(name for name in decoder.outputs if name not in added)

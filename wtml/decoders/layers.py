@@ -227,7 +227,7 @@ class HermiteTable(nn.Module):
         i = torch.floor(u).clamp(max=self.n - 2)
         row = i.long().clamp(0, self.n - 2)  # a NaN x (cast to any integer) stays NaN in t
         # the powers (1, t, t², t³) by one Pow, the four Hermite weights and their d/dt by one
-        # product, applied to the interval's four rows by another: the table is 17
+        # product, applied to the interval's four rows by another: the table is 16
         # operations of onnxruntime's optimised radial graph, with the row's index, where
         # the weights written out took 48 (a call at batch 1 pays ~0.25 µs for each)
         powers = torch.pow((u - i)[:, None], self.exponents)

@@ -642,7 +642,7 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
     if sbi_simulations and "fluid" in plans:
         from wtml.bench.sbi_fluid import run_npe
 
-        scene = dataset_scene(tasks["fluid"]["data"])
+        scene = plans["fluid"][1]
         progress(f"coverage: sbi NPE on the fluid scene ({sbi_simulations} simulations)")
         try:  # the fluid rows' fresh records (fluid_sets: the same seed)
             sbi = run_npe(scene, scene.simulate(records["fluid"],

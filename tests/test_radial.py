@@ -237,7 +237,7 @@ def test_pipeline_resumes_only_a_checkpoint_of_the_same_scene_and_model(radial_f
     same.write_text(yaml.safe_dump(cfg))
     assert checkpoint_matches(ckpt, scene_hash, str(same), max_epochs=2)
     assert not checkpoint_matches(ckpt, scene_hash, str(same), max_epochs=3)
-    assert not checkpoint_matches(ckpt, scene_hash, str(same))  # the config's 35 epochs
+    assert not checkpoint_matches(ckpt, scene_hash, str(same))  # the config's 100 epochs
     assert not checkpoint_matches(ckpt, "0" * 64, str(same), max_epochs=2)
     assert not checkpoint_matches(tmp_path / "none.ckpt", scene_hash, str(same))
 

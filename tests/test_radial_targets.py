@@ -1,7 +1,6 @@
 """The radial slice at its default size: the issue's accuracy targets for our decoder.
 
-Slow (about two and a half minutes on 2 cores with the 35-epoch default of before 30 Nov;
-its 100 epochs since add ~20 s): ``pytest -m slow``. It generates the shipped
+Slow (66 s on 2 cores with the 100-epoch default, 30 Nov): ``pytest -m slow``. It generates the shipped
 scene, trains ``configs/radial.yaml`` as shipped, and checks on the first 10000 test samples
 that our decoder's RMSE is within 1.5× the Cramér–Rao bound overall and in every 800 µm
 range of d (no region where it blows up, d near 0 included), and at least 5× below the best

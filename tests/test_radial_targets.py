@@ -1,11 +1,11 @@
 """The radial slice at its default size: the issue's accuracy targets for our decoder.
 
-Slow (66 s on 2 cores with the 100-epoch default, 30 Nov): ``pytest -m slow``. It generates the shipped
-scene, trains ``configs/radial.yaml`` as shipped, and checks on the first 10000 test samples
-that our decoder's RMSE is within 1.5× the Cramér–Rao bound overall and in every 800 µm
-range of d (no region where it blows up, d near 0 included), and at least 5× below the best
-9th-degree polynomial (the thesis: 4.8×). Its predicted std must be calibrated: the
-normalised errors have a std within 10 % of 1.
+Slow (66 s on 2 cores with the 100-epoch default, 30 Nov): ``pytest -m slow``. It
+generates the shipped scene, trains ``configs/radial.yaml`` as shipped, and checks on the
+first 10000 test samples that our decoder's RMSE is within 1.5× the Cramér–Rao bound
+overall and in every 800 µm range of d (no region where it blows up, d near 0 included),
+and at least 5× below the best 9th-degree polynomial (the thesis: 4.8×). Its predicted std
+must be calibrated: the normalised errors have a std within 10 % of 1.
 """
 
 import numpy as np

@@ -487,6 +487,38 @@ def test_a_model_run_in_batches_gives_the_answer_of_one_run(fluid_copy, monkeypa
     assert read_input(data, model.frequency_hz).shape == ze.shape
 
 
+def test_a_large_batch_is_cast_into_the_models_scratch(fluid_copy):
+    """A batch over SCRATCH_FROM_BYTES (4096 rows, three calls of the graph) is cast into the
+    model's float32 scratch, kept from call to call, and gives the answers of casting each
+    row afresh: Ze's complex views, a T per row and a T broadcast over the rows alike."""
+    from wtml.runtime import predict
+
+    folder, data, _ = fluid_copy
+    model = OnnxModel(folder / "model.onnx")
+    rng = np.random.default_rng(0)
+    ze = np.resize(np.load(data)["ze"], (4096, len(FLUID_SMALL.excitation.frequency_hz)))
+    ze = ze * (1 + 0.01 * rng.standard_normal(ze.shape))
+    t0 = FLUID_SMALL.calibrated_t()
+    per_row = t0 * (1 + 0.005 * rng.standard_normal((len(ze), 1, 1, 1)))
+    shared = np.broadcast_to(t0, (len(ze), *t0.shape))
+    assert 4 * 10 * ze.size > predict.RUN_BYTES > predict.SCRATCH_FROM_BYTES
+    for t in (per_row, shared):
+        whole = model.predict(ze, t)
+        scratch = model._scratch.floats
+        assert 4 * scratch.size >= predict.SCRATCH_FROM_BYTES
+        again = model.predict(ze, t)
+        assert model._scratch.floats is scratch
+        rows = [model.predict(ze[k:k + 1], t[k:k + 1]) for k in range(len(ze))]
+        for key in whole:
+            np.testing.assert_array_equal(again[key], whole[key])
+            one_by_one = np.concatenate([r[key] for r in rows])
+            np.testing.assert_allclose(whole[key].astype(float), one_by_one.astype(float),
+                                       rtol=1e-6, atol=1e-12, err_msg=key)
+    same = model.predict(ze, np.ascontiguousarray(shared))
+    for key in same:
+        np.testing.assert_array_equal(same[key], whole[key])
+
+
 # --------------------------------------------------------------------------- the CLI
 
 

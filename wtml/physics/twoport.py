@@ -28,6 +28,7 @@ __all__ = [
     "drive_voltage",
     "efficiency",
     "flat_parts",
+    "flat_views",
     "electrical_from_mechanical",
     "electrical_power",
     "elements",
@@ -53,11 +54,18 @@ def elements(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
 def flat_parts(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """T of shape ``(..., 2, 2)`` as the exported graphs take it: real and imaginary parts,
     float32, each ``(..., 4)`` in the order (t11, t12, t21, t22)."""
+    re, im = flat_views(t)
+    return re.astype(np.float32), im.astype(np.float32)
+
+
+def flat_views(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`flat_parts` as float64 views of ``t``'s own memory (no copy for a complex128
+    T whose last two axes are contiguous), for a caller that casts them later in pieces."""
     flat = np.asarray(t, dtype=complex)
     if flat.shape[-2:] != (2, 2):
         raise ValueError(f"T must have shape (..., 2, 2), got {flat.shape}")
     flat = flat.reshape(*flat.shape[:-2], 4)
-    return flat.real.astype(np.float32), flat.imag.astype(np.float32)
+    return flat.real, flat.imag
 
 
 def _bilinear(a, b, c, d, z) -> np.ndarray:

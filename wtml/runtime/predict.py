@@ -208,10 +208,12 @@ class OnnxModel:
                              f"least one), got {[a.shape for a in arrays]}")
         per_row = sum(a[:1].size * 4 for a in arrays) or 1
         step = rows_per_run(per_row)
-        parts = [self.session.run(None, self._feed([a[k:k + step] for a in arrays]))
-                 for k in range(0, n, step)]
-        values = [p[0] if len(parts) == 1 else np.concatenate(p)
-                  for p in zip(*parts, strict=True)]
+        if n <= step:
+            values = self.session.run(None, self._feed(arrays))
+        else:
+            parts = [self.session.run(None, self._feed([a[k:k + step] for a in arrays]))
+                     for k in range(0, n, step)]
+            values = [np.concatenate(p) for p in zip(*parts, strict=True)]
         out = {k: v.astype(float) for k, v in zip(self.outputs, values, strict=False)}
         out["in_domain"] = values[-2].astype(bool)
         out["domain_score"] = values[-1].astype(float)

@@ -489,8 +489,13 @@ def test_a_model_run_in_batches_gives_the_answer_of_one_run(fluid_copy, monkeypa
 
 def test_a_large_batch_is_cast_into_the_models_scratch(fluid_copy):
     """A batch over SCRATCH_FROM_BYTES (4096 rows, three calls of the graph) is cast into the
-    model's float32 scratch, kept from call to call, and gives the answers of casting each
-    row afresh: Ze's complex views, a T per row and a T broadcast over the rows alike."""
+    model's float32 scratch, grown from a smaller batch's and kept from call to call. Its
+    answers are those of the inputs cast beforehand, to the bit (Ze's complex views, a T per
+    row and a T broadcast over the rows alike), the same as one row at a time, and the same
+    when two threads call the model at once."""
+    import threading
+
+    from wtml.physics.twoport import flat_parts
     from wtml.runtime import predict
 
     folder, data, _ = fluid_copy
@@ -501,22 +506,43 @@ def test_a_large_batch_is_cast_into_the_models_scratch(fluid_copy):
     t0 = FLUID_SMALL.calibrated_t()
     per_row = t0 * (1 + 0.005 * rng.standard_normal((len(ze), 1, 1, 1)))
     shared = np.broadcast_to(t0, (len(ze), *t0.shape))
-    assert 4 * 10 * ze.size > predict.RUN_BYTES > predict.SCRATCH_FROM_BYTES
-    for t in (per_row, shared):
-        whole = model.predict(ze, t)
+    row = 4 * 10 * ze.shape[1]  # bytes of a row's inputs as float32: Ze and T, re and im
+    assert row * len(ze) > predict.RUN_BYTES > row * 200 > predict.SCRATCH_FROM_BYTES
+    model.predict(ze[:200], per_row[:200])  # a smaller scratch first: the large batch grows it
+    answers = {}
+    for name, t in (("per row", per_row), ("shared", shared)):
+        whole = answers[name] = model.predict(ze, t)
         scratch = model._scratch.floats
-        assert 4 * scratch.size >= predict.SCRATCH_FROM_BYTES
+        assert 4 * scratch.size >= row * predict.rows_per_run(row)
         again = model.predict(ze, t)
         assert model._scratch.floats is scratch
+        cast = model.run(ze.real.astype(np.float32), ze.imag.astype(np.float32),
+                         *flat_parts(t))
         rows = [model.predict(ze[k:k + 1], t[k:k + 1]) for k in range(len(ze))]
         for key in whole:
             np.testing.assert_array_equal(again[key], whole[key])
+            np.testing.assert_array_equal(cast[key], whole[key])
             one_by_one = np.concatenate([r[key] for r in rows])
             np.testing.assert_allclose(whole[key].astype(float), one_by_one.astype(float),
                                        rtol=1e-6, atol=1e-12, err_msg=key)
     same = model.predict(ze, np.ascontiguousarray(shared))
     for key in same:
-        np.testing.assert_array_equal(same[key], whole[key])
+        np.testing.assert_array_equal(same[key], answers["shared"][key])
+    got = {}
+
+    def calls(name, t):
+        got[name] = [model.predict(ze, t) for _ in range(5)]
+
+    threads = [threading.Thread(target=calls, args=a) for a in (("per row", per_row),
+                                                               ("shared", shared))]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    for name, outs in got.items():
+        for out in outs:
+            for key in out:
+                np.testing.assert_array_equal(out[key], answers[name][key])
 
 
 # --------------------------------------------------------------------------- the CLI

@@ -597,6 +597,32 @@ def test_the_coverage_table_scores_the_recalibrated_95_percent_interval_with_its
     assert abs(fitted["all"]["cover"][1] - 0.95) < 0.01
 
 
+def test_the_table_tells_a_bias_from_a_spread(rng):
+    """The interval table's err/σ column: errors off by 0.8σ read a median of +0.8 and a
+    spread of 1; errors 1.3 times as wide as σ, a median of 0 and a spread of 1.3; the
+    answers without a σ (flagged) are left out of both, and a row of no answers reads NaN."""
+    from wtml.bench.coverage import interval_table, shape_of
+
+    n = 20000
+    truth, sigma = rng.uniform(0, 1, n), np.full(n, 0.5)
+    sigma[::10] = np.nan
+    rule = build(md.IntervalRecalibration, {"sigma": "sigma", "value": "distance",
+                                            "by": "distance", "log_value": False,
+                                            "stored": "std", "scales": [1.0],
+                                            "widths": [1.96]})
+    rows = [{"name": name, "kind": "test shard", "truth": truth, "err": err, "groups": None,
+             "sigma": sigma, "wide": np.full(n, 1.96), "raw": None, "flagged": 0.1}
+            for name, err in (("off", rng.normal(0.4, 0.5, n)),
+                              ("wide", rng.normal(0.0, 0.65, n)))]
+    lines, out = interval_table("toy", rule, rows)
+    (off, wide) = out
+    assert abs(off["z_median"] - 0.8) < 0.03 and abs(off["z_spread"] - 1.0) < 0.03
+    assert abs(wide["z_median"]) < 0.03 and abs(wide["z_spread"] - 1.3) < 0.04
+    assert "err/σ: median, spread" in lines[2]
+    assert lines[4].split(" | ")[5] == f"{off['z_median']:+.2f}, {off['z_spread']:.2f}"
+    assert all(np.isnan(shape_of(np.ones(3), np.full(3, np.nan))))
+
+
 def _miss_chance(m: int, level: int) -> float:
     """P(✗) of one cell of ``m`` independent answers of an exact interval at ``level``: the
     binomial law of its hits, each count judged by :func:`coverage_cell`."""

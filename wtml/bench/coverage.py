@@ -443,6 +443,19 @@ def _cell(c: dict) -> str:
                       for x, v in zip(c["cover"], c["verdict"], strict=True))
 
 
+def shape_of(err: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
+    """Where an interval misses, whether its answers are off or scattered: the median of
+    ``err/σ`` over the answers with a σ (a bias, in σ) and the 68th percentile of its
+    distance from that median (the spread about it: 1 where ±1σ about the bias would
+    cover 68 %). NaN, NaN without answers."""
+    z = np.asarray(err, float) / np.asarray(sigma, float)
+    z = z[np.isfinite(z)]
+    if not len(z):
+        return float("nan"), float("nan")
+    mid = float(np.median(z))
+    return mid, float(np.quantile(np.abs(z - mid), NOMINAL[0]))
+
+
 def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
                    ) -> tuple[list[str], list]:
     """Markdown lines of one interval's coverage table and its rows as JSON-ready dicts;
@@ -454,15 +467,17 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
     heads = [_fmt_range(r.value, a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
     what = f"ln {r.value}" if r.log_value else r.value
     lines = [f"### {task}: {what} (σ output `{r.sigma}`)", "",
-             "| records | kind | σ | n | flagged | all | " + " | ".join(heads) + " |",
-             "|---" * (6 + len(heads)) + "|"]
+             "| records | kind | σ | n | flagged | err/σ: median, spread | all | "
+             + " | ".join(heads) + " |",
+             "|---" * (7 + len(heads)) + "|"]
     out, tally = [], {}
     for row in [*rows, *extra]:
-        answers = ([(row["label"], row["hits"])] if "hits" in row else
-                   [(label, hits(row["err"], sigma, wide)) for label, sigma, wide in
-                    (("raw", row["raw"], WIDE),
-                     ("recalibrated", row["sigma"], row["wide"])) if sigma is not None])
-        for label, covered in answers:
+        answers = ([(row["label"], row["hits"], None)] if "hits" in row else
+                   [(label, hits(row["err"], sigma, wide), shape_of(row["err"], sigma))
+                    for label, sigma, wide in (("raw", row["raw"], WIDE),
+                                               ("recalibrated", row["sigma"], row["wide"]))
+                    if sigma is not None])
+        for label, covered, shape in answers:
             groups = row.get("groups")
             groups = None if groups is None else np.asarray(groups)
             row_truth = np.asarray(row["truth"], float)
@@ -470,12 +485,16 @@ def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
             flagged = row.get("flagged")
             lines.append(f"| {row['name']} | {row['kind']} | {label} | {cells[-1]['n']} | "
                          + ("–" if flagged is None else f"{100 * flagged:.1f} %") + " | "
-                         + " | ".join(_cell(c) for c in [cells[-1], *cells[:-1]]) + " |")
+                         + ("–" if shape is None else f"{shape[0]:+.2f}, {shape[1]:.2f}")
+                         + " | " + " | ".join(_cell(c) for c in [cells[-1], *cells[:-1]])
+                         + " |")
             chance = chance_misses(covered, row_truth, edges, groups,
                                    seed=[zlib.crc32(f"{task} {r.value}".encode()), len(out)])
             missed, high = misses(cells), float(np.quantile(chance, 0.95))
             out.append({"name": row["name"], "kind": row["kind"], "sigma": label,
-                        "flagged": flagged, "all": cells[-1], "ranges": cells[:-1],
+                        "flagged": flagged, "z_median": None if shape is None else shape[0],
+                        "z_spread": None if shape is None else shape[1],
+                        "all": cells[-1], "ranges": cells[:-1],
                         "misses": missed, "chance_misses": [float(np.median(chance)), high]})
             physics = "trained" if row["kind"] in TRAINED_KINDS else "not trained"
             seen, count, drawn, beyond = tally.get((label, physics), (0, 0, 0, []))
@@ -661,7 +680,10 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
              f"off by more than {100 * TOLERANCE:.0f} points and outside the binomial 95 % "
              f"interval (texture: over the answers' worth, windows of one specimen sharing "
              f"their errors); ?: off by more on too few answers to tell. raw: the checkpoint's "
-             f"own σ; recalibrated: the export's.", ""]
+             f"own σ; recalibrated: the export's. err/σ: its median over the row's answers (a "
+             f"bias, in σ) and the 68th percentile of its distance from that median (the "
+             f"spread about it: 1 where ±1σ about the bias would cover 68 %): a miss with "
+             f"the median near 0 and the spread off 1 is σ's width, not a bias.", ""]
     summary: dict = {"tolerance": TOLERANCE, "nominal": list(NOMINAL), "tasks": {}}
     for task, (decoder, scene, sets) in plans.items():
         paths = tasks[task]

@@ -600,7 +600,7 @@ def test_the_coverage_table_scores_the_recalibrated_95_percent_interval_with_its
 def test_the_table_tells_a_bias_from_a_spread(rng):
     """The interval table's err/σ column: errors off by 0.8σ read a median of +0.8 and a
     spread of 1; errors 1.3 times as wide as σ, a median of 0 and a spread of 1.3; the
-    answers without a σ (flagged) are left out of both, and a row of no answers reads NaN."""
+    answers without a σ (flagged) are left out of both, and a row of no answers reads "–"."""
     from wtml.bench.coverage import interval_table, shape_of
 
     n = 20000
@@ -620,7 +620,10 @@ def test_the_table_tells_a_bias_from_a_spread(rng):
     assert abs(wide["z_median"]) < 0.03 and abs(wide["z_spread"] - 1.3) < 0.04
     assert "err/σ: median, spread" in lines[2]
     assert lines[4].split(" | ")[5] == f"{off['z_median']:+.2f}, {off['z_spread']:.2f}"
-    assert all(np.isnan(shape_of(np.ones(3), np.full(3, np.nan))))
+    assert shape_of(np.ones(3), np.full(3, np.nan)) is None
+    rows[0]["sigma"] = np.full(n, np.nan)  # every answer flagged
+    lines, out = interval_table("toy", rule, rows[:1])
+    assert lines[4].split(" | ")[5] == "–" and out[0]["z_median"] is None
 
 
 def _miss_chance(m: int, level: int) -> float:

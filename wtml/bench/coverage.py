@@ -443,15 +443,15 @@ def _cell(c: dict) -> str:
                       for x, v in zip(c["cover"], c["verdict"], strict=True))
 
 
-def shape_of(err: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
+def shape_of(err: np.ndarray, sigma: np.ndarray) -> tuple[float, float] | None:
     """Where an interval misses, whether its answers are off or scattered: the median of
     ``err/σ`` over the answers with a σ (a bias, in σ) and the 68th percentile of its
     distance from that median (the spread about it: 1 where ±1σ about the bias would
-    cover 68 %). NaN, NaN without answers."""
+    cover 68 %). None without answers (every one flagged)."""
     z = np.asarray(err, float) / np.asarray(sigma, float)
     z = z[np.isfinite(z)]
     if not len(z):
-        return float("nan"), float("nan")
+        return None
     mid = float(np.median(z))
     return mid, float(np.quantile(np.abs(z - mid), NOMINAL[0]))
 

@@ -611,17 +611,24 @@ def test_the_table_tells_a_bias_from_a_spread(rng):
                                             "stored": "std", "scales": [1.0],
                                             "widths": [1.96]})
     rows = [{"name": name, "kind": "test shard", "truth": truth, "err": err, "groups": None,
-             "sigma": sigma, "wide": np.full(n, 1.96), "raw": None, "flagged": 0.1}
-            for name, err in (("off", rng.normal(0.4, 0.5, n)),
-                              ("wide", rng.normal(0.0, 0.65, n)))]
+             "sigma": sigma, "wide": np.full(n, 1.96), "raw": raw, "flagged": 0.1}
+            for name, err, raw in (("off", rng.normal(0.4, 0.5, n), 2 * sigma),
+                                   ("wide", rng.normal(0.0, 0.65, n), None))]
     lines, out = interval_table("toy", rule, rows)
-    (off, wide) = out
+    (raw, off, wide) = out
+    assert raw["sigma"] == "raw" and abs(raw["z_median"] - 0.4) < 0.02
     assert abs(off["z_median"] - 0.8) < 0.03 and abs(off["z_spread"] - 1.0) < 0.03
     assert abs(wide["z_median"]) < 0.03 and abs(wide["z_spread"] - 1.3) < 0.04
     assert "err/σ: median, spread" in lines[2]
-    assert lines[4].split(" | ")[5] == f"{off['z_median']:+.2f}, {off['z_spread']:.2f}"
+    assert lines[5].split(" | ")[5] == f"{off['z_median']:+.2f}, {off['z_spread']:.2f}"
+    # by hand, skewed: the median and the spread about it, not a mean or a standard deviation
+    assert shape_of(np.array([0, 0, 0, 1, 100.0]), np.ones(5)) == (0.0, pytest.approx(0.7308))
+    # the answers hits() judges: an infinite σ's left out, a zero σ's off by inf
+    assert shape_of(np.array([0.1, -0.2, 0.3, 5, 0]), np.array([0.1, 0.1, 0.1, np.inf, 0.1])
+                    ) == (pytest.approx(0.5), pytest.approx(2.5))
+    assert shape_of(np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))[0] == np.inf
     assert shape_of(np.ones(3), np.full(3, np.nan)) is None
-    rows[0]["sigma"] = np.full(n, np.nan)  # every answer flagged
+    rows[0]["sigma"], rows[0]["raw"] = np.full(n, np.nan), None  # every answer flagged
     lines, out = interval_table("toy", rule, rows[:1])
     assert lines[4].split(" | ")[5] == "–" and out[0]["z_median"] is None
 

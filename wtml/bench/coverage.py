@@ -447,13 +447,17 @@ def shape_of(err: np.ndarray, sigma: np.ndarray) -> tuple[float, float] | None:
     """Where an interval misses, whether its answers are off or scattered: the median of
     ``err/σ`` over the answers with a σ (a bias, in σ) and the 68th percentile of its
     distance from that median (the spread about it: 1 where ±1σ about the bias would
-    cover 68 %). None without answers (every one flagged)."""
-    z = np.asarray(err, float) / np.asarray(sigma, float)
-    z = z[np.isfinite(z)]
-    if not len(z):
+    cover 68 %). The answers :func:`hits` judges (``err`` and ``σ`` finite; a zero σ's is
+    off by ±inf, as it is a miss there). None without answers (every one flagged)."""
+    err, sigma = np.asarray(err, float), np.asarray(sigma, float)
+    answered = np.isfinite(err) & np.isfinite(sigma)
+    if not answered.any():
         return None
-    mid = float(np.median(z))
-    return mid, float(np.quantile(np.abs(z - mid), NOMINAL[0]))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = err[answered] / sigma[answered]
+        z[np.isnan(z)] = np.inf  # 0/0
+        mid = float(np.median(z))
+        return mid, float(np.quantile(np.abs(z - mid), NOMINAL[0]))
 
 
 def interval_table(task: str, r, rows: list[dict], extra: list[dict] = ()
@@ -683,7 +687,8 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
              f"own σ; recalibrated: the export's. err/σ: its median over the row's answers (a "
              f"bias, in σ) and the 68th percentile of its distance from that median (the "
              f"spread about it: 1 where ±1σ about the bias would cover 68 %): a miss with "
-             f"the median near 0 and the spread off 1 is σ's width, not a bias.", ""]
+             f"the median near 0 and the spread off 1 is σ's width, not a bias (–: a row of "
+             f"another method's own intervals, or with every answer flagged).", ""]
     summary: dict = {"tolerance": TOLERANCE, "nominal": list(NOMINAL), "tasks": {}}
     for task, (decoder, scene, sets) in plans.items():
         paths = tasks[task]

@@ -780,8 +780,9 @@ def test_rows_picks_the_named_rows_and_refuses_a_name_that_matches_none(monkeypa
 
 def test_the_coverage_bench_runs_two_tasks_and_their_named_rows(flow, radial_flow, tmp_path):
     """The bench end to end on the test suite's fluid and radial exports, a few records a
-    row: every row of both tasks, then with ``only_rows`` the test shards and the named rows
-    alone (the loop's own names must not shadow the rows it was asked for)."""
+    row: every row of both tasks, its summary strict JSON (an empty cell null, not NaN), then
+    with ``only_rows`` the test shards and the named rows alone (the loop's own names must
+    not shadow the rows it was asked for)."""
     from wtml.bench.coverage import run_coverage
 
     fluid, ckpt = flow
@@ -791,7 +792,10 @@ def test_the_coverage_bench_runs_two_tasks_and_their_named_rows(flow, radial_flo
                         "model": radial_flow / "export/radial"}}
     records = {"fluid": 12, "radial": 12, "onset": 2, "texture": 2, "independent": 0}
     report = run_coverage(tasks, tmp_path / "all", records=records, progress=lambda _: None)
-    summary = json.loads((tmp_path / "all/summary.json").read_text())
+    def no_constant(name):
+        raise AssertionError(f"summary.json is not strict JSON: {name}")
+
+    summary = json.loads((tmp_path / "all/summary.json").read_text(), parse_constant=no_constant)
     assert set(summary["tasks"]) == {"fluid", "radial"}
     every = {t: {r["name"] for r in e["intervals"][next(iter(e["intervals"]))]["rows"]}
              for t, e in summary["tasks"].items()}

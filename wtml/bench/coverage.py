@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from wtml.bench.extremes import strict_json
 from wtml.bench.resampling import effective_count
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
@@ -735,7 +736,8 @@ def run_coverage(tasks: dict[str, dict], out: str | Path, *, records: dict[str, 
     lines += sbi_note
     report = "\n".join(lines) + "\n"
     (out / "report.md").write_text(report)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=_plain) + "\n")
+    (out / "summary.json").write_text(  # strict JSON: an empty cell's NaN as null
+        json.dumps(strict_json(summary), indent=1, default=_plain, allow_nan=False) + "\n")
     return report
 
 

@@ -212,12 +212,14 @@ def format_float32(rows: list[dict]) -> list[str]:
 
 
 def strict_json(x):
-    """``x`` (nested dicts, lists, tuples, numbers) with NaN and inf as None, so that strict
-    JSON holds it."""
+    """``x`` (nested dicts, lists, tuples, arrays, numbers) with NaN and inf as None, so that
+    strict JSON holds it."""
     if isinstance(x, dict):
         return {k: strict_json(v) for k, v in x.items()}
     if isinstance(x, list | tuple):
         return [strict_json(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return strict_json(x.tolist())
     if isinstance(x, float | np.floating):
         return float(x) if np.isfinite(x) else None
     if isinstance(x, np.integer):

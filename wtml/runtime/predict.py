@@ -231,16 +231,16 @@ class OnnxModel:
         if 4 * sum(c.size for c in chunks) < SCRATCH_FROM_BYTES:
             return {name: np.ascontiguousarray(c, np.float32)
                     for name, c in zip(self._inputs, chunks, strict=True)}
-        cast = [c for c in chunks if c.dtype != np.float32 or not c.flags.c_contiguous]
-        need = sum(c.size for c in cast)
+        ready = [c.dtype == np.float32 and c.flags.c_contiguous for c in chunks]
+        need = sum(c.size for c, as_is in zip(chunks, ready, strict=True) if not as_is)
         scratch = getattr(self._scratch, "floats", None)
         if scratch is None or scratch.size < need:
             scratch = np.empty(need, np.float32)
             if 4 * need <= SCRATCH_KEPT_BYTES:
                 self._scratch.floats = scratch
         feed, used = {}, 0
-        for name, c in zip(self._inputs, chunks, strict=True):
-            if c.dtype != np.float32 or not c.flags.c_contiguous:
+        for name, c, as_is in zip(self._inputs, chunks, ready, strict=True):
+            if not as_is:
                 view = scratch[used:used + c.size].reshape(c.shape)
                 np.copyto(view, c, casting="unsafe")
                 used += c.size

@@ -6,6 +6,7 @@ The onset and texture exports' own metadata edits are in tests/test_onset.py and
 tests/test_texture.py (their fixtures); :func:`edit_metadata` is shared."""
 
 import json
+import os
 import shutil
 import time
 import tracemalloc
@@ -210,6 +211,37 @@ def test_a_change_to_the_metadata_schema_comes_with_a_new_export_format():
         f"the export metadata's schema is not format {md.MANIFEST_FORMAT}'s: raise "
         f"MANIFEST_FORMAT and record its fingerprint here")
 
+
+def test_predict_threads_caps_every_session_it_opens_and_only_while_it_runs(
+        fluid_copy, monkeypatch, capsys):
+    """``wtml predict --threads N`` opens the decoder's and the classical path's sessions on
+    N intra-op threads (default: every core it may use); the cap ends with the command, and
+    a bad count is refused naming the option."""
+    import onnxruntime as ort
+
+    from wtml.cores import THREADS_ENV, available_cores
+
+    folder, data, cal = fluid_copy
+    seen, real = [], ort.InferenceSession
+
+    def session(model, options, **kw):
+        seen.append(options.intra_op_num_threads)
+        return real(model, options, **kw)
+
+    monkeypatch.setattr(ort, "InferenceSession", session)
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    assert main(_predict(folder, data, cal) + ["--threads", "1"]) == 0
+    assert seen == [1, 1] and THREADS_ENV not in os.environ
+    seen.clear()
+    assert main(_predict(folder, data, cal)) == 0
+    assert seen == [available_cores()] * 2
+    monkeypatch.setenv(THREADS_ENV, "3")
+    assert main(_predict(folder, data, cal) + ["--threads", "1"]) == 0
+    assert os.environ[THREADS_ENV] == "3"  # put back as it was
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(_predict(folder, data, cal) + ["--threads", "0"])
+    assert "--threads" in capsys.readouterr().err
 
 def test_predict_refuses_an_export_of_another_device(fluid_copy, tmp_path, capsys):
     """The export's manifest names its device and content hash; `wtml predict --device` takes

@@ -218,6 +218,13 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
+    from wtml.cores import capped
+
+    with capped(args.threads):  # every session it opens
+        return _predict_rows(args)
+
+
+def _predict_rows(args: argparse.Namespace) -> int:
     from wtml.runtime.predict import (
         InputError,
         check_device,
@@ -803,6 +810,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "name): refused unless the export was trained for it")
     pr.add_argument("--out", default=None,
                     help="write the rows as CSV here (default: print a table)")
+    pr.add_argument("--threads", type=THREADS, default=None,
+                    help="onnxruntime threads (default: every core this process may use, at "
+                         "most $WTML_THREADS); beside another busy process, 1 keeps its speed "
+                         "where more wait on each other (README: two threads beside a busy "
+                         "process)")
     rec = pr.add_argument_group(
         "recordings from instruments (onset, texture: .tdms, .wav, .csv)",
         "how to read an instrument's file: a YAML recording profile (--profile) with the keys "

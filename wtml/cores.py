@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 
 THREADS_ENV = "WTML_THREADS"
 """An environment variable that caps :func:`available_cores` (the main job's lanes run
@@ -24,3 +26,21 @@ def available_cores() -> int:
     if not cap.isdigit() or int(cap) < 1:
         raise ValueError(f"${THREADS_ENV}: must be a positive integer, got {cap!r}")
     return min(cores, int(cap))
+
+
+@contextlib.contextmanager
+def capped(threads: int | None) -> Iterator[None]:
+    """Within the block, :func:`available_cores` is at most ``threads`` (None: as it was):
+    ``$WTML_THREADS`` set to it, and put back after."""
+    if threads is None:
+        yield
+        return
+    before = os.environ.get(THREADS_ENV)
+    os.environ[THREADS_ENV] = str(int(threads))
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[THREADS_ENV]
+        else:
+            os.environ[THREADS_ENV] = before

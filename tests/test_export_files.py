@@ -215,11 +215,11 @@ def test_a_change_to_the_metadata_schema_comes_with_a_new_export_format():
 def test_predict_threads_caps_every_session_it_opens_and_only_while_it_runs(
         fluid_copy, monkeypatch, capsys):
     """``wtml predict --threads N`` opens the decoder's and the classical path's sessions on
-    N intra-op threads (default: every core it may use); the cap ends with the command, and
-    a bad count is refused naming the option."""
+    N intra-op threads (default: every core it may use), replacing ``$WTML_THREADS`` for the
+    command only, also when it fails; a bad count is refused naming the option."""
     import onnxruntime as ort
 
-    from wtml.cores import THREADS_ENV, available_cores
+    from wtml.cores import THREADS_ENV, capped
 
     folder, data, cal = fluid_copy
     seen, real = [], ort.InferenceSession
@@ -229,19 +229,25 @@ def test_predict_threads_caps_every_session_it_opens_and_only_while_it_runs(
         return real(model, options, **kw)
 
     monkeypatch.setattr(ort, "InferenceSession", session)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda _: set(range(4)), raising=False)
     monkeypatch.delenv(THREADS_ENV, raising=False)
-    assert main(_predict(folder, data, cal) + ["--threads", "1"]) == 0
-    assert seen == [1, 1] and THREADS_ENV not in os.environ
+    for flags, threads in (([], 4), (["--threads", "3"], 3), (["--threads", "1"], 1)):
+        seen.clear()
+        assert main(_predict(folder, data, cal) + flags) == 0
+        assert seen == [threads, threads] and THREADS_ENV not in os.environ
+    monkeypatch.setenv(THREADS_ENV, "2")
     seen.clear()
-    assert main(_predict(folder, data, cal)) == 0
-    assert seen == [available_cores()] * 2
-    monkeypatch.setenv(THREADS_ENV, "3")
-    assert main(_predict(folder, data, cal) + ["--threads", "1"]) == 0
-    assert os.environ[THREADS_ENV] == "3"  # put back as it was
+    assert main(_predict(folder, data, cal) + ["--threads", "3"]) == 0
+    assert seen == [3, 3] and os.environ[THREADS_ENV] == "2"  # replaced, then put back
+    assert main(_predict(folder, folder / "missing.npz", cal) + ["--threads", "1"]) == 2
+    assert os.environ[THREADS_ENV] == "2"  # put back after a failed command too
     capsys.readouterr()
     with pytest.raises(SystemExit):
         main(_predict(folder, data, cal) + ["--threads", "0"])
     assert "--threads" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="threads: must be at least 1"), capped(0):
+        pass
+
 
 def test_predict_refuses_an_export_of_another_device(fluid_copy, tmp_path, capsys):
     """The export's manifest names its device and content hash; `wtml predict --device` takes

@@ -812,9 +812,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="write the rows as CSV here (default: print a table)")
     pr.add_argument("--threads", type=THREADS, default=None,
                     help="onnxruntime threads (default: every core this process may use, at "
-                         "most $WTML_THREADS); beside another busy process, 1 keeps its speed "
-                         "where more wait on each other (README: two threads beside a busy "
-                         "process)")
+                         "most $WTML_THREADS; N replaces that for this command); beside another "
+                         "busy process, 1 keeps its speed where more wait on each other "
+                         "(README: two threads beside a busy process)")
     rec = pr.add_argument_group(
         "recordings from instruments (onset, texture: .tdms, .wav, .csv)",
         "how to read an instrument's file: a YAML recording profile (--profile) with the keys "

@@ -31,10 +31,17 @@ def available_cores() -> int:
 @contextlib.contextmanager
 def capped(threads: int | None) -> Iterator[None]:
     """Within the block, :func:`available_cores` is at most ``threads`` (None: as it was):
-    ``$WTML_THREADS`` set to it, and put back after."""
+    ``$WTML_THREADS`` set to it, replacing any value it had, and put back after, also when
+    the block raises. For a command's process (it changes the process's environment).
+
+    Raises:
+        ValueError: ``threads`` is below 1.
+    """
     if threads is None:
         yield
         return
+    if int(threads) < 1:
+        raise ValueError(f"threads: must be at least 1, got {threads}")
     before = os.environ.get(THREADS_ENV)
     os.environ[THREADS_ENV] = str(int(threads))
     try:

@@ -22,7 +22,7 @@ from typing import TextIO
 import numpy as np
 
 from wtml.bench.timing import duration
-from wtml.cores import THREADS_ENV, available_cores
+from wtml.cores import available_cores, capped
 from wtml.files import locked
 from wtml.lanes import lane_order
 from wtml.memory import release_memory
@@ -686,9 +686,8 @@ def _threads(threads: int) -> Iterator[None]:
     import torch
     from threadpoolctl import threadpool_limits
 
-    os.environ[THREADS_ENV] = str(threads)
     torch.set_num_threads(threads)
-    with threadpool_limits(threads):
+    with capped(threads), threadpool_limits(threads):
         yield
 
 

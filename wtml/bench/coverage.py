@@ -111,16 +111,26 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
     return float(mid - half), float(mid + half)
 
 
+def scores(err: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """``err/σ`` per row ``(n,)``: NaN where ``err`` or ``sigma`` is not finite (no answer,
+    or no interval: out of domain), +inf for 0/0 (a zero σ misses even an exact answer)."""
+    err, sigma = np.asarray(err, float), np.asarray(sigma, float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = err / sigma
+    z[np.isnan(z)] = np.inf
+    z[~(np.isfinite(err) & np.isfinite(sigma))] = np.nan
+    return z
+
+
 def hits(err: np.ndarray, sigma: np.ndarray, wide: float | np.ndarray = WIDE
          ) -> np.ndarray:
     """Per row whether ±1σ and ±wide·σ (the 68 % and 95 % intervals; ``wide`` one, or
     ``(n,)`` per row: an export's fitted widths) hold the truth, ``(n, 2)`` float: 1, 0, or
-    NaN where ``err`` or ``sigma`` is not finite (no answer, or no interval: out of domain)."""
-    err, sigma = np.asarray(err, float), np.asarray(sigma, float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        z = np.abs(err) / sigma
-    out = np.stack([z <= 1.0, z <= wide], 1).astype(float)
-    out[~(np.isfinite(err) & np.isfinite(sigma))] = np.nan
+    NaN where there is no answer (:func:`scores`)."""
+    z = np.abs(scores(err, sigma))
+    with np.errstate(invalid="ignore"):
+        out = np.stack([z <= 1.0, z <= wide], 1).astype(float)
+    out[np.isnan(z)] = np.nan
     return out
 
 
@@ -448,16 +458,14 @@ def shape_of(err: np.ndarray, sigma: np.ndarray) -> tuple[float, float] | None:
     """Where an interval misses, whether its answers are off or scattered: the median of
     ``err/σ`` over the answers with a σ (a bias, in σ) and the 68th percentile of its
     distance from that median (the spread about it: 1 where ±1σ about the bias would
-    cover 68 %). The answers :func:`hits` judges (``err`` and ``σ`` finite; a zero σ's is
-    off by ±inf, as it is a miss there). None without answers (every one flagged)."""
-    err, sigma = np.asarray(err, float), np.asarray(sigma, float)
-    answered = np.isfinite(err) & np.isfinite(sigma)
-    if not answered.any():
+    cover 68 %), over the answers :func:`hits` judges (:func:`scores`). None without
+    answers (every one flagged)."""
+    z = scores(err, sigma)
+    z = z[~np.isnan(z)]
+    if not len(z):
         return None
-    with np.errstate(invalid="ignore", divide="ignore"):
-        z = err[answered] / sigma[answered]
-        z[np.isnan(z)] = np.inf  # 0/0
-        mid = float(np.median(z))
+    mid = float(np.median(z))
+    with np.errstate(invalid="ignore"):
         return mid, float(np.quantile(np.abs(z - mid), NOMINAL[0]))
 
 

@@ -807,3 +807,22 @@ def test_the_coverage_bench_runs_two_tasks_and_their_named_rows(flow, radial_flo
     for task, entry in some["tasks"].items():
         names = {r["name"] for r in entry["intervals"][next(iter(entry["intervals"]))]["rows"]}
         assert names == {"test shard", "fresh records of the trained scene"}, task
+
+
+def test_onset_records_of_one_device_are_judged_as_sharing_their_errors():
+    """An onset row's records share the devices the scene drew for them (labelled by HUE(0),
+    a device's own): 400 answers on 40 devices, each device's all covered or all missed at
+    60 %, are a miss to the binomial count of 400 but too few to tell as the 40 they are
+    worth; records of one device (the preset alone) carry no groups."""
+    from wtml.bench.coverage import onset_truth
+
+    rec = {"gap": np.arange(6.0), "hue0": np.array([2.0, 1.0, 2.0, 3.0, 1.0, 2.0])}
+    np.testing.assert_array_equal(onset_truth(rec)["groups"], [1, 0, 1, 2, 0, 1])
+    assert set(onset_truth({"gap": np.zeros(3), "hue0": np.full(3, 1.3)})) == {"gap"}
+    device = np.repeat(np.arange(40), 10)
+    hit = np.repeat(np.arange(40) < 24, 10).astype(float)  # 60 % of the devices
+    covered = np.stack([hit, np.ones(400)], 1)
+    groups = onset_truth({"gap": np.zeros(400), "hue0": 1.0 + device})["groups"]
+    assert coverage_cell(covered)["verdict"][0] == "miss"
+    alike = coverage_cell(covered, groups)
+    assert alike["verdict"][0] == "?" and alike["n_effective"][0] == pytest.approx(40, rel=0.05)

@@ -18,7 +18,13 @@ from wtml.decoders.onset import TOUCH_LOOKBACK, asinh, touch_spread
 from wtml.exporters.onset import calibration_file, record_inputs, thesis_pipeline
 from wtml.physics.spread import DeviceSpread
 from wtml.runtime.contacts import Timing, contacts_from, intervals
-from wtml.runtime.onset import predict_records, stream_record
+from wtml.runtime.onset import (
+    combine_pieces,
+    cut_pieces,
+    pieces_spread,
+    predict_records,
+    stream_record,
+)
 from wtml.runtime.predict import InputError, OnnxModel
 from wtml.runtime.recordings import read_record
 from wtml.scenes import load_scene
@@ -464,6 +470,128 @@ def test_whittle_fisher_is_the_time_domain_sum_for_white_noise_and_weighs_by_the
     np.testing.assert_allclose(ratio, [0.1, 1.0], rtol=1e-9)
 
 
+def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
+    """A record of k times the graph's length is k records, one after another; their
+    answers make one: the mean gap, σ not shrunk by √k (the pieces share their errors), in
+    domain only where every piece is and their walls lie within the limit, the score the
+    larger of the pieces' and the spread over the limit; pieces that disagree on whether
+    there is a wall at all are flagged, a path without σ is not checked by it."""
+    x = np.arange(2 * 3 * 20, dtype=np.float32).reshape(2, 3, 20)
+    cut, k = cut_pieces(x, 10, "rec.npz")
+    assert k == 2 and cut.shape == (2, 6, 10)
+    np.testing.assert_array_equal(cut[:, 2], x[:, 1, :10])
+    np.testing.assert_array_equal(cut[:, 5], x[:, 2, 10:])
+    assert cut_pieces(x, 20, "rec.npz")[1] == 1
+    with pytest.raises(InputError, match="rec.npz: records of 20 samples.*whole multiple"):
+        cut_pieces(x, 15, "rec.npz")
+    um = 1e-6
+    gap = np.array([[3.0, 3.02], [3.0, 3.1], [3.0, 3.02], [np.nan, 3.0], [np.nan, np.nan]]) * um
+    sigma = np.full_like(gap, 0.1 * um)
+    spread = pieces_spread(gap, sigma)
+    np.testing.assert_allclose(spread[:3], [0.02 / np.hypot(0.1, 0.1), 0.1 / np.hypot(0.1, 0.1),
+                                            0.02 / np.hypot(0.1, 0.1)], rtol=1e-9)
+    assert np.isinf(spread[3]) and spread[4] == 0
+    three = np.array([[1.0, 1.1, 1.5]]) * um
+    assert pieces_spread(three, np.full((1, 3), 0.1 * um))[0] == pytest.approx(0.5 / np.hypot(
+        0.1, 0.1))
+    assert np.isnan(pieces_spread(gap[:1], np.full((1, 2), np.nan))[0])
+    pred = {"gap": gap.ravel(), "sigma": sigma.ravel(), "sigma_95": 2 * sigma.ravel(),
+            "in_domain": np.array([1, 1, 1, 1, 1, 0, 1, 1, 1, 1], bool),
+            "domain_score": np.array([0.1, 0.2, 0.3, 0.1, 0.9, 1.5, 0.1, 0.1, 0.2, 0.4])}
+    out = combine_pieces(pred, 2, limit=0.5)
+    np.testing.assert_array_equal(out["in_domain"], [True, False, False, False, True])
+    np.testing.assert_allclose(out["gap"][:4], [3.01 * um, 3.05 * um, 3.01 * um, 3.0 * um])
+    assert np.isnan(out["gap"][4])
+    np.testing.assert_allclose(out["sigma"][:4], 0.1 * um)  # not 0.1 / √2
+    np.testing.assert_allclose(out["sigma_95"][:4], 0.2 * um)
+    np.testing.assert_allclose(out["domain_score"][:3],
+                               [max(0.2, spread[0] / 0.5), spread[1] / 0.5, 1.5])
+    assert np.isinf(out["domain_score"][3]) and out["domain_score"][4] == 0.4
+    classical = combine_pieces({**pred, "sigma": np.full(10, np.nan)}, 2, limit=0.5)
+    np.testing.assert_array_equal(classical["in_domain"], [True, True, False, False, True])
+    one = combine_pieces(pred, 1, limit=0.0)
+    for key in ("gap", "sigma", "in_domain", "domain_score"):
+        np.testing.assert_array_equal(one[key], pred[key])
+
+
+def test_predict_reads_a_record_of_two_pieces_as_the_device_would(onset_export, scene,
+                                                                   tmp_path, monkeypatch):
+    """A record of four whisk cycles: its contacts are its two halves' (the second half's
+    times from the record's start), its answer theirs combined; halves that locate the wall
+    apart are flagged by the export's limit; a record of 1.5 times the length is refused, and
+    so is a long record for an export without the limit."""
+    import wtml.runtime.onset as onset_runtime
+
+    longer = dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, cycles=4.0))
+    rec = longer.simulate(2, np.random.default_rng(21))
+    rate, n = scene.acquisition.sample_rate_hz, scene.n_samples
+    cal = calibration_file(tmp_path / "cal.npz", scene, rec)
+    whole, halves = tmp_path / "whole.npz", tmp_path / "halves.npz"
+    np.savez(whole, e=rec["e"], i=rec["i"], sample_rate_hz=rate)
+    np.savez(halves, e=rec["e"].reshape(4, n), i=rec["i"].reshape(4, n), sample_rate_hz=rate)
+    np.savez(tmp_path / "cal4.npz", frequency_hz=[scene.drive.probe_hz],
+             t=np.repeat(np.asarray(rec["t_probe"])[:, None], 2, 0),
+             hue0=np.repeat(rec["hue0"], 2))
+    rows = predict_records(onset_export["model"], whole, calibration=cal)
+    parts = predict_records(onset_export["model"], halves, calibration=tmp_path / "cal4.npz")
+    for method in ("decoder", "classical"):
+        got = [r for r in rows if r["method"] == method]
+        assert {r["record"] for r in got} == {0, 1}
+        for r in (0, 1):
+            want = sorted(p["onset (s)"] + (p["record"] % 2) * n / rate for p in parts
+                          if p["method"] == method and p["record"] // 2 == r
+                          and p["contact"] >= 0)
+            mine = [g for g in got if g["record"] == r]
+            assert sorted(g["onset (s)"] for g in mine if g["contact"] >= 0) == pytest.approx(
+                want, rel=1e-9)
+            halves_score = max(p["domain_score"] for p in parts if p["method"] == method
+                               and p["record"] // 2 == r)
+            assert mine[0]["domain_score"] >= halves_score - 1e-9
+    assert any(r["contact"] >= 0 and r["onset (s)"] > n / rate for r in rows
+               if r["method"] == "classical")  # the second half's contacts are there
+    limit = OnnxModel(onset_export["model"] / "model.onnx").meta.domain.pieces_limit
+    assert limit > 0
+    run = OnnxModel.run
+
+    def walls_apart(self, *inputs):  # the fixture's net finds no wall: the halves' walls 1 µm
+        out = run(self, *inputs)  # and 3 µm, σ 0.1 µm (first record), or alike (second)
+        if self.meta.kind == "decoder":
+            out["gap"] = np.array([1.0, 3.0, 2.0, 2.0]) * 1e-6
+            out["sigma"] = np.full(4, 1e-7)
+            out["in_domain"] = np.ones(4, bool)
+            out["domain_score"] = np.full(4, 0.1)
+        return out
+
+    with monkeypatch.context() as m:
+        m.setattr(OnnxModel, "run", walls_apart)
+        dec = {r["record"]: r for r in predict_records(onset_export["model"], whole,
+                                                       calibration=cal)
+               if r["method"] == "decoder"}
+    assert not dec[0]["in_domain"] and "2 pieces locate the wall 14 sigma apart" in dec[0][
+        "flags"]
+    assert dec[0]["domain_score"] == pytest.approx(2 / np.hypot(0.1, 0.1) / limit, rel=1e-6)
+    assert dec[0]["gap (m)"] == pytest.approx(2e-6) and dec[0]["sigma (m)"] == pytest.approx(
+        1e-7)
+    assert dec[1]["in_domain"] and dec[1]["flags"] == ""
+    odd = tmp_path / "odd.npz"
+    np.savez(odd, e=rec["e"][:, :3 * n // 2], i=rec["i"][:, :3 * n // 2], sample_rate_hz=rate)
+    with pytest.raises(InputError, match="whole multiple"):
+        predict_records(onset_export["model"], odd, calibration=cal)
+    load = onset_runtime.load_export
+
+    def without_limit(path):
+        models = load(path)
+        for model in models:
+            model.meta = dataclasses.replace(model.meta, domain=dataclasses.replace(
+                model.meta.domain, pieces_limit=0.0))
+        return models
+
+    monkeypatch.setattr(onset_runtime, "load_export", without_limit)
+    with pytest.raises(InputError, match="export it again"):
+        predict_records(onset_export["model"], whole, calibration=cal)
+    assert predict_records(onset_export["model"], halves, calibration=tmp_path / "cal4.npz")
+
+
 def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_path):
     rec = scene.simulate(1, np.random.default_rng(6))
     rate = scene.acquisition.sample_rate_hz
@@ -773,3 +901,32 @@ def test_an_onset_export_with_edited_metadata_is_one_line(onset_export, scene, t
     change, needle = ONSET_EDITS[name]
     edit_metadata(folder, "model.onnx", **change)
     one_line(capsys, argv, "model.onnx: " + needle)
+
+
+def test_the_coverage_bench_reads_its_long_records_as_the_device_does(onset_export, tmp_path,
+                                                                      monkeypatch):
+    """`wtml bench coverage`'s rows of records of twice the whisk cycles (the trained scene
+    and the object moving most) are answered as two records each and combined by the
+    runtime's own rule, the checkpoint's raw answers alike: one answer per record."""
+    import wtml.bench.coverage as coverage
+
+    calls = []
+    combine = coverage.combine_pieces
+
+    def counted(pred, k, limit):
+        calls.append((k, len(pred["gap"]), limit))
+        return combine(pred, k, limit)
+
+    monkeypatch.setattr(coverage, "combine_pieces", counted)
+    tasks = {"onset": {"data": onset_export["data"], "model": onset_export["model"],
+                       "checkpoint": onset_export["run"] / "checkpoints/last.ckpt"}}
+    coverage.run_coverage(tasks, tmp_path, records={"onset": 3, "independent": 0},
+                          only_rows=["read as two"], progress=lambda _: None)
+    rows = json.loads((tmp_path / "summary.json").read_text())["tasks"]["onset"]["intervals"][
+        "sigma"]["rows"]
+    names = sorted({r["name"] for r in rows})
+    assert names == ["object moving with the base alone (rms_m 8e-07); records of 4 whisk "
+                     "cycles read as two", "test shard", "the trained scene (in family); "
+                     "records of 4 whisk cycles read as two"]
+    limit = OnnxModel(onset_export["model"] / "model.onnx").meta.domain.pieces_limit
+    assert calls == [(2, 6, limit)] * 4  # two rows, each the export's answers and the raw ones

@@ -61,6 +61,7 @@ from wtml.decoders.recalibration import (
 )
 from wtml.physics.twoport import flat_parts
 from wtml.runtime.metadata import WIDE
+from wtml.runtime.onset import combine_pieces, cut_pieces
 from wtml.runtime.predict import load_export
 
 TOLERANCE = 0.03
@@ -95,6 +96,10 @@ class RecordSet:
     name: str
     kind: str
     make: Callable[[], tuple[tuple[np.ndarray, ...], dict[str, np.ndarray]]]
+    pieces: int = 1
+    """Records of this many times the graph's length, made as that many records each (a
+    record's pieces one after another): its answer is theirs combined as the device combines
+    them (:func:`wtml.runtime.onset.combine_pieces`, the export's ``pieces_limit``)."""
 
 
 # ------------------------------------------------------------------------------ metrics
@@ -261,6 +266,9 @@ def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progre
         inputs, truth = s.make()
         after = decoder.run(*inputs)
         before = raw_answers(module, names, inputs)
+        if s.pieces > 1:
+            limit = decoder.meta.domain.pieces_limit
+            after, before = (combine_pieces(a, s.pieces, limit) for a in (after, before))
         inside = after["in_domain"]
         flagged = float(1 - inside.mean())
         for r in u.intervals:
@@ -389,10 +397,24 @@ def radial_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[R
     return sets
 
 
+def onset_truth(records: dict) -> dict[str, np.ndarray]:
+    """An onset row's truth: ``gap`` (m), and ``groups``, each record's device (one label per
+    HUE(0): a device's calibration is its own) where the records come from more than one.
+    A scene draws its devices per call (``spread.devices``, 256), so a row's records share
+    them, and with them a part of their errors: 1020 answers of the main job's decoder on
+    252 devices were worth 574 independent ones (:func:`effective_count`; 30 Nov), and such
+    rows' coverage scattered 62.6–69.0 % between draws of 1200 records. One device (the
+    preset alone) shares nothing the records do not each have: no groups."""
+    _, device = np.unique(np.asarray(records["hue0"]), return_inverse=True)
+    return {"gap": records["gap"]} | ({"groups": device} if device.max(initial=0) > 0 else {})
+
+
 def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[RecordSet]:
     """The test shard, then the onset transfer table's rows
-    (:func:`wtml.bench.onset_transfer.onset_variants`, ``records["onset"]`` records each)
-    and the independent simulator's (``records["independent"]``; 0: none)."""
+    (:func:`wtml.bench.onset_transfer.onset_variants`, ``records["onset"]`` records each),
+    the independent simulator's (``records["independent"]``; 0: none), and the trained
+    scene and the object moving most with records of twice the whisk cycles, each answered
+    as two pieces (``records["onset"]`` each; :attr:`RecordSet.pieces`)."""
     data_dir, n = Path(paths["data"]), records["onset"]
     independent = records.get("independent", 0)
     from wtml.bench.onset_transfer import independent_variant, onset_variants
@@ -401,7 +423,12 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
     keys = ("e", "i", "t_probe", "hue0", "gap")
 
     def made(records: dict):
-        return record_inputs(records), {"gap": records["gap"]}
+        return record_inputs(records), onset_truth(records)
+
+    def pieces(records: dict):
+        x, _ = cut_pieces(np.stack([records["e"], records["i"]]), scene.n_samples, "records")
+        cal = record_inputs(records)[2:]
+        return ((*x, *(np.repeat(c, 2, 0) for c in cal)), onset_truth(records))
 
     sets = [RecordSet("test shard", "test shard", lambda: made(_test_shard(data_dir, keys)))]
     variants = onset_variants(scene) + ([independent_variant(scene)] if independent else [])
@@ -409,6 +436,15 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
         count = independent if v.kind == "independent" else n
         sets.append(RecordSet(v.name, v.kind, lambda v=v, k=k, count=count: made(
             v.make(count, np.random.default_rng([seed, 9100, k])))))
+    twice = dataclasses.replace(scene, drive=dataclasses.replace(
+        scene.drive, cycles=2 * scene.drive.cycles))
+    longer = [v for v in onset_variants(twice) if v.kind == "in family"][:1] + [
+        v for v in onset_variants(twice) if "base" in v.name][-1:]
+    for k, v in enumerate(longer):  # the trained scene; the object moving most
+        sets.append(RecordSet(f"{v.name}; records of {twice.drive.cycles:g} whisk cycles read "
+                              "as two", v.kind,
+                              lambda v=v, k=k: pieces(v.make(n, np.random.default_rng(
+                                  [seed, 9200, k]))), pieces=2))
     return sets
 
 

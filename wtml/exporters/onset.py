@@ -9,6 +9,7 @@ The metadata carries everything a device needs to turn the graphs' frames into c
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from wtml.runtime.metadata import (
     STREAM_INPUTS,
     STREAM_OUTPUTS,
 )
+from wtml.runtime.onset import combine_pieces, cut_pieces, pieces_spread
 from wtml.scenes import config_hash, to_dict
 from wtml.scenes.onset import onset_calibration
 
@@ -82,6 +84,44 @@ def spread_limit(spread: np.ndarray) -> float:
                          "fresh answers with a wall are not finite")
     limit = float(np.quantile(spread, SPREAD_QUANTILE)) if len(spread) >= SPREAD_MIN_WALLS else 0
     return limit if limit > 0 else SPREAD_DEFAULT  # 0: a record of one cycle, no check
+
+
+PIECE_RECORDS = 256
+"""Fresh records of twice the scene's whisk cycles (their own seeds) on which the limit of a
+record's pieces' agreement is fitted (:func:`pieces_limit`): ~10 s of the export on the main
+job's scene, simulated :data:`PIECE_CHUNK` at a time."""
+PIECE_CHUNK = 32
+"""Records of two pieces simulated at once: as many samples as :data:`FRESH_CHUNK` records."""
+
+
+@torch.no_grad()
+def pieces_limit(decoder, scene) -> tuple[float, float]:
+    """The limit (σ) of how far the two pieces of a record of twice the scene's whisk cycles
+    may locate the wall apart (:func:`wtml.runtime.onset.pieces_spread`), and the share of
+    :data:`PIECE_RECORDS` fresh such records it flags, by the exported ``decoder`` (the gated,
+    recalibrated module): the :data:`SPREAD_QUANTILE` of the spread over the records whose
+    pieces both answer in domain with a wall (:func:`spread_limit`: its default with too few).
+    A still wall is met alike in every piece (the device's calibration and the wall's law
+    make most of an answer's error, and the pieces share them); a wall that moves with the
+    floor is met elsewhere in each."""
+    longer = dataclasses.replace(scene, drive=dataclasses.replace(
+        scene.drive, cycles=2 * scene.drive.cycles))
+    pred: dict[str, list] = {"gap": [], "sigma": [], "in_domain": [], "domain_score": []}
+    for k in range(0, PIECE_RECORDS, PIECE_CHUNK):
+        fresh = longer.simulate(min(PIECE_CHUNK, PIECE_RECORDS - k),
+                                np.random.default_rng([scene.seed, 10**6 + 2, k]))
+        x, _ = cut_pieces(np.stack([fresh["e"], fresh["i"]]), scene.n_samples, "fresh records")
+        cal = tuple(np.repeat(c, 2, 0) for c in record_inputs(fresh)[2:])
+        out = decoder(*(torch.tensor(np.asarray(v, np.float32)) for v in (*x, *cal)))
+        for key, v in zip(pred, (out[0], out[1], out[-2], out[-1]), strict=True):
+            pred[key].append(v.double().numpy())
+        del fresh, x
+    per = {key: np.concatenate(v).reshape(-1, 2) for key, v in pred.items()}
+    spread = pieces_spread(per["gap"], per["sigma"])
+    answered = per["in_domain"].all(1) & np.isfinite(per["gap"]).all(1)
+    limit = spread_limit(spread[answered])
+    flagged = combine_pieces({key: v.ravel() for key, v in per.items()}, 2, limit)
+    return limit, float(1 - flagged["in_domain"].mean())
 
 
 GAP_INTERVAL = {"sigma": "sigma", "value": "gap", "by": "gap", "log_value": False,
@@ -147,6 +187,7 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
         raise ValueError(f"the onset graph's last output must be touch_spread, got "
                          f"{calibrated.outputs}")
     decoder = Gated(calibrated, module.gate, (1,), check=limit).eval()
+    pieces, pieces_flagged = pieces_limit(decoder, scene)
     # the classical graph has the gate alone; the decoder's and the stream's also the check
     domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
     checked = {"domain": json.dumps(domain | {
@@ -156,7 +197,8 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
                       f"every cycle); its limit is the {SPREAD_QUANTILE} quantile over the "
                       f"fresh records with a wall ({SPREAD_DEFAULT} with fewer than "
                       f"{SPREAD_MIN_WALLS}); the domain score is the larger of the gate's and it "
-                      "over the limit", "self_check_limit": limit})}
+                      "over the limit", "self_check_limit": limit,
+        "pieces_limit": pieces, "pieces_false_alarm_fresh": pieces_flagged})}
     rate = scene.acquisition.sample_rate_hz
     period = frame_period(scene)
     merge = scene.merge_periods / scene.drive.probe_hz

@@ -42,10 +42,11 @@ from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
 from wtml.tasks import UNNAMED
 
 MANIFEST = "manifest.json"
-MANIFEST_FORMAT = 3
+MANIFEST_FORMAT = 4
 """The export format this wtml writes. Raised whenever a graph's metadata or the manifest
 gains a key that an older runtime's schema would refuse (3: the texture decoder's
-``uncertainty.top_slope``, ``top_bias``, 29 Nov), so that an older runtime refuses a newer
+``uncertainty.top_slope``, ``top_bias``, 29 Nov; 4: the onset graphs' ``domain.pieces_limit``,
+``pieces_false_alarm_fresh``, 30 Nov), so that an older runtime refuses a newer
 export by its format, not by the first key it does not know."""
 OLDEST_FORMAT = 2
 """The oldest export format this runtime reads (1 named no device)."""
@@ -156,7 +157,10 @@ class Domain:
     ``outputs`` maps output names to :class:`OutputDomain`. A graph that also checks its own
     answer (the onset decoder's whisk cycles' agreement) says what in ``self_check`` and the
     limit at which its domain score reaches 1 in ``self_check_limit`` (empty and 0 without
-    one)."""
+    one). ``pieces_limit``: how far (σ) the pieces of a record of several times the graph's
+    length may locate the wall apart (:func:`wtml.runtime.onset.combine_pieces`; 0: such
+    records are refused), and the fresh records of two pieces it flagged
+    (``pieces_false_alarm_fresh``)."""
 
     score: str
     quantile: float = bounded(0.5, 1.0)
@@ -165,6 +169,8 @@ class Domain:
     outputs: dict = dataclasses.field(default_factory=dict)
     self_check: str = ""
     self_check_limit: float = bounded(0.0, 1e30, default=0.0)
+    pieces_limit: float = bounded(0.0, 1e30, default=0.0)
+    pieces_false_alarm_fresh: float = bounded(0.0, 1.0, default=0.0)
 
     def check(self, path: str) -> None:
         built = {}

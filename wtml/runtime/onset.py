@@ -20,6 +20,7 @@ in, the chunk's frames and the running answers out (:func:`stream_record`; ``wtm
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,66 @@ def read_onset_calibration(path: str | Path | None, probe_hz: float, n: int
     return tuple(np.asarray(x, np.float32) for x in (t.real, t.imag, hue0))
 
 
+def cut_pieces(x: np.ndarray, n_samples: int, where: str) -> tuple[np.ndarray, int]:
+    """Records of ``k`` times the decoder's length as ``k`` records each: ``x`` ``(..., n,
+    k · n_samples)`` -> ``(..., n · k, n_samples)``, record r's piece j at row ``r · k + j``,
+    and ``k``. A piece starts where the one before ends, at the same phase of the whisk and the
+    probe (a record holds whole cycles of both).
+
+    Raises:
+        InputError: a length that is not a whole multiple of ``n_samples`` (``where`` names
+            the file).
+    """
+    n, length = x.shape[-2:]
+    if length % n_samples:
+        raise InputError(f"{where}: records of {length} samples; the model takes records of "
+                         f"{n_samples} samples or a whole multiple of it (one record of the "
+                         f"model's whisk cycles after another)")
+    k = length // n_samples
+    return x.reshape(*x.shape[:-2], n * k, n_samples), k
+
+
+def pieces_spread(gap: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """How far a record's pieces locate the wall apart, in their σ: ``gap``, ``sigma`` ``(n,
+    k)`` (m) -> ``(n,)``, the largest ``|g_a − g_b| / sqrt(σ_a² + σ_b²)`` over its pairs of
+    pieces; 0 for one piece or where every piece finds no wall (NaN gap); +inf where some
+    find a wall and others none; NaN where σ is NaN (a path without σ: the classical one)."""
+    a, b = np.triu_indices(gap.shape[1], 1)
+    with np.errstate(invalid="ignore"):
+        apart = np.abs(gap[:, a] - gap[:, b]) / np.hypot(sigma[:, a], sigma[:, b])
+    walls = np.isfinite(gap).sum(1)
+    out = np.max(apart, 1, initial=0.0) if len(a) else np.zeros(len(gap))
+    out = np.where(walls == 0, 0.0, out)
+    return np.where((walls > 0) & (walls < gap.shape[1]), np.inf, out)
+
+
+def combine_pieces(pred: dict[str, np.ndarray], k: int, limit: float) -> dict[str, np.ndarray]:
+    """One answer per record from its ``k`` pieces' (``pred``: ``gap``, ``sigma``,
+    ``in_domain`` and optional ``sigma_95``, ``domain_score``, each ``(n · k,)``, record r's
+    pieces at rows ``r · k ...``): ``gap`` their mean (m); ``sigma`` (and ``sigma_95``) their
+    mean, not over √k, since a record's pieces share their errors (the device's calibration,
+    the wall's law: in the trained scene two pieces' gaps lie 0.05σ apart at the median);
+    ``pieces_spread`` (:func:`pieces_spread`); ``in_domain`` where every piece is in domain
+    and the spread is within ``limit`` (σ; 0: no limit, and a NaN spread is not checked);
+    ``domain_score`` the larger of the pieces' and the spread over the limit. Each ``(n,)``."""
+    per = {key: np.asarray(v).reshape(-1, k) for key, v in pred.items()
+           if key in ("gap", "sigma", "sigma_95", "in_domain", "domain_score")}
+    spread = pieces_spread(per["gap"], per["sigma"])
+    with np.errstate(invalid="ignore"):
+        over = spread / limit if limit > 0 else np.where(np.isinf(spread), np.inf, 0.0)
+    over = np.where(np.isnan(over), 0.0, over)  # no σ to measure the pieces by
+    out = {"pieces_spread": spread,
+           "in_domain": per["in_domain"].all(1) & (over <= 1)}
+    for key in ("gap", "sigma", "sigma_95"):  # a wall in some pieces only: theirs, flagged
+        if key in per:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # no piece found a wall: NaN
+                out[key] = np.nanmean(per[key], 1)
+    if "domain_score" in per:
+        out["domain_score"] = np.maximum(per["domain_score"].max(1), over)
+    return out
+
+
 def predict_records(model_dir: str | Path, input_path: str | Path, *,
                     calibration: str | Path | None = None,
                     profile: RecordingProfile | None = None) -> list[dict]:
@@ -84,41 +145,63 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
     meta = decoder.meta
     # per sample beyond the record: the classical path's per-sample contact state (float32
     # from the graph, float64 after), and the masks the timing rule makes of it
-    x = read_record(input_path, meta.sample_rate_hz, meta.n_samples,
+    x = read_record(input_path, meta.sample_rate_hz, meta.n_samples, at_least=True,
                     rows_per_record=2 * (1 + meta.scene.get("max_contacts", 8)),
                     work_per_sample=24, profile=profile)
-    cal = (read_onset_calibration(calibration, float(decoder.frequency_hz[0]), x.shape[1])
+    n = x.shape[1]
+    x, k = cut_pieces(x, meta.n_samples, str(input_path))
+    limit = meta.domain.pieces_limit
+    if k > 1 and not limit:
+        raise InputError(f"{input_path}: records of {k} times the model's {meta.n_samples} "
+                         f"samples need an export that states how far its pieces may locate "
+                         f"the wall apart (metadata domain.pieces_limit, since 30 Nov): export "
+                         f"it again, or give records of {meta.n_samples} samples")
+    cal = (read_onset_calibration(calibration, float(decoder.frequency_hz[0]), n)
            if "calibration" in decoder.references else ())
+    cal = tuple(np.repeat(c, k, 0) for c in cal)
+    piece_s = meta.n_samples / meta.sample_rate_hz
     rows = []
     for label, model in (("decoder", decoder), ("classical", classical)):
         pred = model.run(x[0], x[1], *cal)
         pred |= model.half_widths(pred)
         onset, detach = contacts_from(pred, Timing.of(model.meta))
-        odd = impossible(model, pred)["gap"]
+        shift = (np.arange(n * k) % k * piece_s)[:, None]  # each piece's start in its record
+        onset, detach = (t + shift for t in (onset, detach))
+        odd = impossible(model, pred)["gap"] & np.isfinite(pred["gap"])
+        record = combine_pieces(pred, k, limit)
         outside = ("outside the trained domain (its inputs, or its whisk cycles' locations of "
                    "the wall disagree: an object that moves?)" if model.meta.domain.self_check
                    else "outside the trained domain")
-        for r in range(x.shape[1]):
+        for r in range(n):
             flags = []
-            if not pred["in_domain"][r]:
-                # the cycles' check speaks only where a wall was answered (else it is 0)
-                flags.append(("outside the trained domain" if np.isnan(pred["gap"][r])
-                              else outside) if pred["domain_score"][r] > 1
-                             else "answer outside the trained range")
-            if odd[r] and np.isfinite(pred["gap"][r]):
+            for p in range(r * k, (r + 1) * k):
+                if not pred["in_domain"][p]:
+                    # the cycles' check speaks only where a wall was answered (else it is 0)
+                    flags.append((("outside the trained domain" if np.isnan(pred["gap"][p])
+                                   else outside) if pred["domain_score"][p] > 1
+                                  else "answer outside the trained range")
+                                 + (f" (piece {p - r * k + 1} of {k})" if k > 1 else ""))
+            spread = record["pieces_spread"][r]
+            if np.isinf(spread) or (limit and spread > limit):
+                flags.append(f"its {k} pieces locate the wall " + (
+                    "in some and none in others" if np.isinf(spread) else
+                    f"{spread:.2g} sigma apart (limit {limit:.2g})") + ": an object that moves?")
+            if odd[r * k:(r + 1) * k].any():
                 flags.append("gap physically impossible")
-            base = {"record": r, "method": label, "gap (m)": float(pred["gap"][r]),
-                    "sigma (m)": float(pred["sigma"][r]),
-                    "sigma_95 (m)": float(pred["sigma_95"][r]) if "sigma_95" in pred
+            base = {"record": r, "method": label, "gap (m)": float(record["gap"][r]),
+                    "sigma (m)": float(record["sigma"][r]),
+                    "sigma_95 (m)": float(record["sigma_95"][r]) if "sigma_95" in record
                     else float("nan"),
-                    "in_domain": bool(pred["in_domain"][r]),
-                    "domain_score": float(pred["domain_score"][r]), "flags": "; ".join(flags)}
-            found = np.flatnonzero(np.isfinite(onset[r]))
-            for k in found if len(found) else [None]:
-                rows.append({"record": r, "method": label,
-                             "contact": -1 if k is None else int(k),
-                             "onset (s)": float("nan") if k is None else float(onset[r, k]),
-                             "detachment (s)": float("nan") if k is None else float(detach[r, k]),
+                    "in_domain": bool(record["in_domain"][r]),
+                    "domain_score": float(record["domain_score"][r]),
+                    "flags": "; ".join(flags)}
+            found = [(p, c) for p in range(r * k, (r + 1) * k)
+                     for c in np.flatnonzero(np.isfinite(onset[p]))]
+            for number, (p, c) in enumerate(found) if found else [(-1, (None, None))]:
+                rows.append({"record": r, "method": label, "contact": number,
+                             "onset (s)": float("nan") if p is None else float(onset[p, c]),
+                             "detachment (s)": float("nan") if p is None
+                             else float(detach[p, c]),
                              **{key: v for key, v in base.items()
                                 if key not in ("record", "method")}})
     return rows

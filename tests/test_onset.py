@@ -471,19 +471,23 @@ def test_whittle_fisher_is_the_time_domain_sum_for_white_noise_and_weighs_by_the
 
 
 def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
-    """A record of k times the graph's length is k records, one after another; their
+    """A record of twice the graph's length is two records, one after the other; their
     answers make one: the mean gap, σ not shrunk by √k (the pieces share their errors), in
     domain only where every piece is and their walls lie within the limit, the score the
     larger of the pieces' and the spread over the limit; pieces that disagree on whether
-    there is a wall at all are flagged, a path without σ is not checked by it."""
+    there is a wall at all are flagged; a path without σ is checked for that alone. Longer
+    records are refused (the limit is fitted on two pieces)."""
     x = np.arange(2 * 3 * 20, dtype=np.float32).reshape(2, 3, 20)
-    cut, k = cut_pieces(x, 10, "rec.npz")
+    cut, k = cut_pieces(x, 10, "rec.npz", 5.0)
     assert k == 2 and cut.shape == (2, 6, 10)
     np.testing.assert_array_equal(cut[:, 2], x[:, 1, :10])
     np.testing.assert_array_equal(cut[:, 5], x[:, 2, 10:])
-    assert cut_pieces(x, 20, "rec.npz")[1] == 1
-    with pytest.raises(InputError, match="rec.npz: records of 20 samples.*whole multiple"):
-        cut_pieces(x, 15, "rec.npz")
+    assert cut_pieces(x, 20, "rec.npz", 5.0)[1] == 1
+    with pytest.raises(InputError, match=r"rec.npz: records of 4 s \(20 samples at 5 Hz\); "
+                                         r"the model takes records of 3 s"):
+        cut_pieces(x, 15, "rec.npz", 5.0)
+    with pytest.raises(InputError, match="or of 2 of them one after the other"):
+        cut_pieces(x, 5, "rec.npz", 5.0)  # four pieces
     um = 1e-6
     gap = np.array([[3.0, 3.02], [3.0, 3.1], [3.0, 3.02], [np.nan, 3.0], [np.nan, np.nan]]) * um
     sigma = np.full_like(gap, 0.1 * um)
@@ -491,10 +495,11 @@ def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
     np.testing.assert_allclose(spread[:3], [0.02 / np.hypot(0.1, 0.1), 0.1 / np.hypot(0.1, 0.1),
                                             0.02 / np.hypot(0.1, 0.1)], rtol=1e-9)
     assert np.isinf(spread[3]) and spread[4] == 0
-    three = np.array([[1.0, 1.1, 1.5]]) * um
-    assert pieces_spread(three, np.full((1, 3), 0.1 * um))[0] == pytest.approx(0.5 / np.hypot(
-        0.1, 0.1))
+    three = np.array([[1.0, 3.0, 2.0]]) * um  # the largest pair with a σ: a piece without
+    assert pieces_spread(three, np.array([[0.1, 0.1, np.nan]]) * um)[0] == pytest.approx(
+        2 / np.hypot(0.1, 0.1))  # one (out of domain) hides nothing of the others
     assert np.isnan(pieces_spread(gap[:1], np.full((1, 2), np.nan))[0])
+    assert pieces_spread(gap[:, :1], sigma[:, :1])[0] == 0
     pred = {"gap": gap.ravel(), "sigma": sigma.ravel(), "sigma_95": 2 * sigma.ravel(),
             "in_domain": np.array([1, 1, 1, 1, 1, 0, 1, 1, 1, 1], bool),
             "domain_score": np.array([0.1, 0.2, 0.3, 0.1, 0.9, 1.5, 0.1, 0.1, 0.2, 0.4])}
@@ -514,16 +519,53 @@ def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
         np.testing.assert_array_equal(one[key], pred[key])
 
 
-def test_predict_reads_a_record_of_two_pieces_as_the_device_would(onset_export, scene,
+def test_the_pieces_limit_is_the_fresh_pieces_quantile_and_needs_whole_cycles(scene,
+                                                                               monkeypatch):
+    """The export's limit is the :data:`SPREAD_QUANTILE` of the spread over the fresh
+    records whose two pieces both answer a wall in domain (a stand-in decoder: record r's
+    second piece r·1 nm from its first, σ 0.1 µm; every fifth record's second piece out of
+    domain), and the share of those records it flags; a scene whose records do not hold
+    whole whisk cycles gets no limit (its long recordings are refused)."""
+    import wtml.exporters.onset as exporter
+
+    monkeypatch.setattr(exporter, "PIECE_RECORDS", 40)
+    monkeypatch.setattr(exporter, "PIECE_CHUNK", 16)
+    seen = []
+
+    def decoder(e, i, t_re, t_im, hue0):
+        rows = torch.arange(len(e)) + 2 * sum(seen)  # pieces of records across chunks
+        seen.append(len(e) // 2)
+        record, piece = rows // 2, rows % 2
+        gap = 4e-6 + (piece * record).double() * 1e-9
+        inside = ~((piece == 1) & (record % 5 == 4))
+        return (gap.double(), torch.full((len(e),), 1e-7, dtype=torch.float64), inside,
+                torch.where(inside, 0.5, 2.0))
+
+    limit, flagged = exporter.pieces_limit(decoder, scene)
+    spread = np.arange(40) * 1e-9 / np.hypot(1e-7, 1e-7)
+    answered = np.arange(40) % 5 != 4
+    want = np.quantile(spread[answered], exporter.SPREAD_QUANTILE)
+    assert seen == [16, 16, 8] and limit == pytest.approx(want, rel=1e-9)
+    assert flagged == pytest.approx(np.mean(~answered | (spread > want)))
+    assert exporter.whole_pieces(scene)
+    odd = dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, cycles=2.5))
+    assert not exporter.whole_pieces(odd) and exporter.pieces_limit(decoder, odd) == (0.0, 0.0)
+
+
+def test_predict_reads_a_record_of_two_pieces_as_the_device_would(onset_export, spread_scene,
                                                                    tmp_path, monkeypatch):
-    """A record of four whisk cycles: its contacts are its two halves' (the second half's
-    times from the record's start), its answer theirs combined; halves that locate the wall
-    apart are flagged by the export's limit; a record of 1.5 times the length is refused, and
-    so is a long record for an export without the limit."""
+    """A record of four whisk cycles, each of two records of its own device: its contacts are
+    its two halves' (onsets and detachments of the second half from the record's start,
+    numbered across the record), its answer theirs combined (the classical path's gap their
+    mean, through each half's own calibration); halves that locate the wall apart are
+    flagged by the export's limit; a record of 1.5 times the length is refused, and so is a
+    long record for an export without the limit."""
     import wtml.runtime.onset as onset_runtime
 
+    scene = spread_scene
     longer = dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, cycles=4.0))
-    rec = longer.simulate(2, np.random.default_rng(21))
+    rec = longer.simulate(2, np.random.default_rng(21), gaps=[4e-6, 7e-6])
+    assert rec["hue0"][0] != rec["hue0"][1]
     rate, n = scene.acquisition.sample_rate_hz, scene.n_samples
     cal = calibration_file(tmp_path / "cal.npz", scene, rec)
     whole, halves = tmp_path / "whole.npz", tmp_path / "halves.npz"
@@ -538,15 +580,20 @@ def test_predict_reads_a_record_of_two_pieces_as_the_device_would(onset_export, 
         got = [r for r in rows if r["method"] == method]
         assert {r["record"] for r in got} == {0, 1}
         for r in (0, 1):
-            want = sorted(p["onset (s)"] + (p["record"] % 2) * n / rate for p in parts
-                          if p["method"] == method and p["record"] // 2 == r
-                          and p["contact"] >= 0)
             mine = [g for g in got if g["record"] == r]
-            assert sorted(g["onset (s)"] for g in mine if g["contact"] >= 0) == pytest.approx(
-                want, rel=1e-9)
-            halves_score = max(p["domain_score"] for p in parts if p["method"] == method
-                               and p["record"] // 2 == r)
-            assert mine[0]["domain_score"] >= halves_score - 1e-9
+            theirs = [p for p in parts if p["method"] == method and p["record"] // 2 == r]
+            for key in ("onset (s)", "detachment (s)"):
+                want = sorted(p[key] + (p["record"] % 2) * n / rate for p in theirs
+                              if p["contact"] >= 0)
+                assert sorted(g[key] for g in mine if g["contact"] >= 0) == pytest.approx(
+                    want, rel=1e-9, nan_ok=True)
+            assert [g["contact"] for g in mine] == (list(range(len(mine))) if mine[0][
+                "contact"] >= 0 else [-1])
+            assert mine[0]["domain_score"] >= max(p["domain_score"] for p in theirs) - 1e-9
+            if method == "classical":  # each half through its own device's calibration
+                halves_gap = {p["record"]: p["gap (m)"] for p in theirs}
+                assert mine[0]["gap (m)"] == pytest.approx(np.nanmean(list(
+                    halves_gap.values())), rel=1e-6)
     assert any(r["contact"] >= 0 and r["onset (s)"] > n / rate for r in rows
                if r["method"] == "classical")  # the second half's contacts are there
     limit = OnnxModel(onset_export["model"] / "model.onnx").meta.domain.pieces_limit
@@ -575,7 +622,7 @@ def test_predict_reads_a_record_of_two_pieces_as_the_device_would(onset_export, 
     assert dec[1]["in_domain"] and dec[1]["flags"] == ""
     odd = tmp_path / "odd.npz"
     np.savez(odd, e=rec["e"][:, :3 * n // 2], i=rec["i"][:, :3 * n // 2], sample_rate_hz=rate)
-    with pytest.raises(InputError, match="whole multiple"):
+    with pytest.raises(InputError, match="or of 2 of them one after the other"):
         predict_records(onset_export["model"], odd, calibration=cal)
     load = onset_runtime.load_export
 
@@ -918,6 +965,10 @@ def test_the_coverage_bench_reads_its_long_records_as_the_device_does(onset_expo
         return combine(pred, k, limit)
 
     monkeypatch.setattr(coverage, "combine_pieces", counted)
+    labelled = []
+    truth = coverage.onset_truth
+    monkeypatch.setattr(coverage, "onset_truth", lambda rec: labelled.append(len(rec["gap"]))
+                        or truth(rec))
     tasks = {"onset": {"data": onset_export["data"], "model": onset_export["model"],
                        "checkpoint": onset_export["run"] / "checkpoints/last.ckpt"}}
     coverage.run_coverage(tasks, tmp_path, records={"onset": 3, "independent": 0},
@@ -930,3 +981,4 @@ def test_the_coverage_bench_reads_its_long_records_as_the_device_does(onset_expo
                      "records of 4 whisk cycles read as two"]
     limit = OnnxModel(onset_export["model"] / "model.onnx").meta.domain.pieces_limit
     assert calls == [(2, 6, limit)] * 4  # two rows, each the export's answers and the raw ones
+    assert labelled[1:] == [3, 3]  # every row's truth labels its devices (the test shard first)

@@ -403,8 +403,10 @@ def onset_truth(records: dict) -> dict[str, np.ndarray]:
     A scene draws its devices per call (``spread.devices``, 256), so a row's records share
     them, and with them a part of their errors: 1020 answers of the main job's decoder on
     252 devices were worth 574 independent ones (:func:`effective_count`; 30 Nov), and such
-    rows' coverage scattered 62.6–69.0 % between draws of 1200 records. One device (the
-    preset alone) shares nothing the records do not each have: no groups."""
+    rows' coverage scattered 62.6–69.5 % between draws of 1200 records. One device (the
+    preset alone) shares nothing the records do not each have: no groups. (A scene with a
+    stored calibration gives every device the preset's HUE(0): its rows get no groups, and
+    their verdicts count records of one device as independent.)"""
     _, device = np.unique(np.asarray(records["hue0"]), return_inverse=True)
     return {"gap": records["gap"]} | ({"groups": device} if device.max(initial=0) > 0 else {})
 
@@ -414,7 +416,8 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
     (:func:`wtml.bench.onset_transfer.onset_variants`, ``records["onset"]`` records each),
     the independent simulator's (``records["independent"]``; 0: none), and the trained
     scene and the object moving most with records of twice the whisk cycles, each answered
-    as two pieces (``records["onset"]`` each; :attr:`RecordSet.pieces`)."""
+    as two pieces (``records["onset"]`` each; :attr:`RecordSet.pieces`), where the export
+    states its pieces' limit."""
     data_dir, n = Path(paths["data"]), records["onset"]
     independent = records.get("independent", 0)
     from wtml.bench.onset_transfer import independent_variant, onset_variants
@@ -426,7 +429,8 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
         return record_inputs(records), onset_truth(records)
 
     def pieces(records: dict):
-        x, _ = cut_pieces(np.stack([records["e"], records["i"]]), scene.n_samples, "records")
+        x, _ = cut_pieces(np.stack([records["e"], records["i"]]), scene.n_samples, "records",
+                          scene.acquisition.sample_rate_hz)
         cal = record_inputs(records)[2:]
         return ((*x, *(np.repeat(c, 2, 0) for c in cal)), onset_truth(records))
 
@@ -436,6 +440,8 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
         count = independent if v.kind == "independent" else n
         sets.append(RecordSet(v.name, v.kind, lambda v=v, k=k, count=count: made(
             v.make(count, np.random.default_rng([seed, 9100, k])))))
+    if not decoder.meta.domain.pieces_limit:  # an export that refuses such records
+        return sets
     twice = dataclasses.replace(scene, drive=dataclasses.replace(
         scene.drive, cycles=2 * scene.drive.cycles))
     longer = [v for v in onset_variants(twice) if v.kind == "in family"][:1] + [

@@ -88,10 +88,22 @@ def spread_limit(spread: np.ndarray) -> float:
 
 PIECE_RECORDS = 256
 """Fresh records of twice the scene's whisk cycles (their own seeds) on which the limit of a
-record's pieces' agreement is fitted (:func:`pieces_limit`): ~10 s of the export on the main
+record's pieces' agreement is fitted (:func:`pieces_limit`): ~9 s of the export on the main
 job's scene, simulated :data:`PIECE_CHUNK` at a time."""
 PIECE_CHUNK = 32
 """Records of two pieces simulated at once: as many samples as :data:`FRESH_CHUNK` records."""
+
+
+def whole_pieces(scene) -> bool:
+    """Whether a record of twice ``scene``'s whisk cycles is two of its records one after the
+    other: whole whisk cycles, a whole number of probe periods per record, and twice the
+    samples (else a second piece would start at another phase, and the export states no
+    limit: such recordings are refused)."""
+    longer = dataclasses.replace(scene, drive=dataclasses.replace(
+        scene.drive, cycles=2 * scene.drive.cycles))
+    probe = scene.n_samples * scene.drive.probe_hz / scene.acquisition.sample_rate_hz
+    return (float(scene.drive.cycles).is_integer() and abs(probe - round(probe)) < 1e-9
+            and longer.n_samples == 2 * scene.n_samples)
 
 
 @torch.no_grad()
@@ -103,14 +115,18 @@ def pieces_limit(decoder, scene) -> tuple[float, float]:
     pieces both answer in domain with a wall (:func:`spread_limit`: its default with too few).
     A still wall is met alike in every piece (the device's calibration and the wall's law
     make most of an answer's error, and the pieces share them); a wall that moves with the
-    floor is met elsewhere in each."""
+    floor is met elsewhere in each. ``(0, 0)``: no limit, for a scene whose records do not
+    hold whole cycles (:func:`whole_pieces`)."""
+    if not whole_pieces(scene):
+        return 0.0, 0.0
     longer = dataclasses.replace(scene, drive=dataclasses.replace(
         scene.drive, cycles=2 * scene.drive.cycles))
     pred: dict[str, list] = {"gap": [], "sigma": [], "in_domain": [], "domain_score": []}
     for k in range(0, PIECE_RECORDS, PIECE_CHUNK):
         fresh = longer.simulate(min(PIECE_CHUNK, PIECE_RECORDS - k),
                                 np.random.default_rng([scene.seed, 10**6 + 2, k]))
-        x, _ = cut_pieces(np.stack([fresh["e"], fresh["i"]]), scene.n_samples, "fresh records")
+        x, _ = cut_pieces(np.stack([fresh["e"], fresh["i"]]), scene.n_samples, "fresh records",
+                          scene.acquisition.sample_rate_hz)
         cal = tuple(np.repeat(c, 2, 0) for c in record_inputs(fresh)[2:])
         out = decoder(*(torch.tensor(np.asarray(v, np.float32)) for v in (*x, *cal)))
         for key, v in zip(pred, (out[0], out[1], out[-2], out[-1]), strict=True):

@@ -71,36 +71,49 @@ def read_onset_calibration(path: str | Path | None, probe_hz: float, n: int
     return tuple(np.asarray(x, np.float32) for x in (t.real, t.imag, hue0))
 
 
-def cut_pieces(x: np.ndarray, n_samples: int, where: str) -> tuple[np.ndarray, int]:
+MAX_PIECES = 2
+"""The most records of the trained length one recording may hold (one after the other): the
+export's ``domain.pieces_limit`` is fitted on records of two, and a record of k pieces would
+be judged on k(k − 1)/2 pairs against it, its false alarms growing with k."""
+
+
+def cut_pieces(x: np.ndarray, n_samples: int, where: str, rate_hz: float
+               ) -> tuple[np.ndarray, int]:
     """Records of ``k`` times the decoder's length as ``k`` records each: ``x`` ``(..., n,
-    k · n_samples)`` -> ``(..., n · k, n_samples)``, record r's piece j at row ``r · k + j``,
-    and ``k``. A piece starts where the one before ends, at the same phase of the whisk and the
-    probe (a record holds whole cycles of both).
+    k · n_samples)`` at ``rate_hz`` -> ``(..., n · k, n_samples)``, record r's piece j at row
+    ``r · k + j``, and ``k`` (1 to :data:`MAX_PIECES`). A piece starts where the one before
+    ends, at the same phase of the whisk and the probe (the export fits its limit only for a
+    scene whose records hold whole cycles of both).
 
     Raises:
-        InputError: a length that is not a whole multiple of ``n_samples`` (``where`` names
-            the file).
+        InputError: a length that is not 1 to :data:`MAX_PIECES` times ``n_samples``
+            (``where`` names the file).
     """
     n, length = x.shape[-2:]
-    if length % n_samples:
-        raise InputError(f"{where}: records of {length} samples; the model takes records of "
-                         f"{n_samples} samples or a whole multiple of it (one record of the "
-                         f"model's whisk cycles after another)")
     k = length // n_samples
+    if length % n_samples or not 1 <= k <= MAX_PIECES:
+        raise InputError(f"{where}: records of {length / rate_hz:g} s ({length} samples at "
+                         f"{rate_hz:g} Hz); the model takes records of {n_samples / rate_hz:g} "
+                         f"s ({n_samples} samples) or of {MAX_PIECES} of them one after the "
+                         f"other ({MAX_PIECES * n_samples} samples): cut a longer recording "
+                         "into such records")
     return x.reshape(*x.shape[:-2], n * k, n_samples), k
 
 
 def pieces_spread(gap: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """How far a record's pieces locate the wall apart, in their σ: ``gap``, ``sigma`` ``(n,
     k)`` (m) -> ``(n,)``, the largest ``|g_a − g_b| / sqrt(σ_a² + σ_b²)`` over its pairs of
-    pieces; 0 for one piece or where every piece finds no wall (NaN gap); +inf where some
-    find a wall and others none; NaN where σ is NaN (a path without σ: the classical one)."""
+    pieces with a σ; 0 for one piece or where every piece finds no wall (NaN gap); +inf
+    where some find a wall and others none; NaN where no pair has a σ (a path without σ,
+    the classical one, or pieces out of domain)."""
     a, b = np.triu_indices(gap.shape[1], 1)
     with np.errstate(invalid="ignore"):
         apart = np.abs(gap[:, a] - gap[:, b]) / np.hypot(sigma[:, a], sigma[:, b])
+    measured = np.isfinite(apart)
+    out = np.where(measured.any(1), np.max(np.where(measured, apart, -np.inf), 1,
+                                           initial=-np.inf), np.nan)
     walls = np.isfinite(gap).sum(1)
-    out = np.max(apart, 1, initial=0.0) if len(a) else np.zeros(len(gap))
-    out = np.where(walls == 0, 0.0, out)
+    out = np.where((walls == 0) | (gap.shape[1] == 1), 0.0, out)
     return np.where((walls > 0) & (walls < gap.shape[1]), np.inf, out)
 
 
@@ -111,7 +124,8 @@ def combine_pieces(pred: dict[str, np.ndarray], k: int, limit: float) -> dict[st
     mean, not over √k, since a record's pieces share their errors (the device's calibration,
     the wall's law: in the trained scene two pieces' gaps lie 0.05σ apart at the median);
     ``pieces_spread`` (:func:`pieces_spread`); ``in_domain`` where every piece is in domain
-    and the spread is within ``limit`` (σ; 0: no limit, and a NaN spread is not checked);
+    and the spread is within ``limit`` (σ; 0: none, a wall in some pieces only still out;
+    a NaN spread, nothing to measure it by, is not checked);
     ``domain_score`` the larger of the pieces' and the spread over the limit. Each ``(n,)``."""
     per = {key: np.asarray(v).reshape(-1, k) for key, v in pred.items()
            if key in ("gap", "sigma", "sigma_95", "in_domain", "domain_score")}
@@ -149,13 +163,15 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
                     rows_per_record=2 * (1 + meta.scene.get("max_contacts", 8)),
                     work_per_sample=24, profile=profile)
     n = x.shape[1]
-    x, k = cut_pieces(x, meta.n_samples, str(input_path))
+    x, k = cut_pieces(x, meta.n_samples, str(input_path), meta.sample_rate_hz)
     limit = meta.domain.pieces_limit
     if k > 1 and not limit:
         raise InputError(f"{input_path}: records of {k} times the model's {meta.n_samples} "
                          f"samples need an export that states how far its pieces may locate "
-                         f"the wall apart (metadata domain.pieces_limit, since 30 Nov): export "
-                         f"it again, or give records of {meta.n_samples} samples")
+                         f"the wall apart (metadata domain.pieces_limit: exports of format 4, "
+                         f"since 30 Nov, of a scene whose records hold whole whisk and probe "
+                         f"cycles): export it again, or give records of {meta.n_samples} "
+                         f"samples")
     cal = (read_onset_calibration(calibration, float(decoder.frequency_hz[0]), n)
            if "calibration" in decoder.references else ())
     cal = tuple(np.repeat(c, k, 0) for c in cal)

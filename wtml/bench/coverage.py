@@ -444,8 +444,9 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
         return sets
     twice = dataclasses.replace(scene, drive=dataclasses.replace(
         scene.drive, cycles=2 * scene.drive.cycles))
-    longer = [v for v in onset_variants(twice) if v.kind == "in family"][:1] + [
-        v for v in onset_variants(twice) if "base" in v.name][-1:]
+    rows = onset_variants(twice)
+    longer = [v for v in rows if v.kind == "in family"][:1] + [
+        v for v in rows if "base" in v.name][-1:]
     for k, v in enumerate(longer):  # the trained scene; the object moving most
         sets.append(RecordSet(f"{v.name}; records of {twice.drive.cycles:g} whisk cycles read "
                               "as two", v.kind,

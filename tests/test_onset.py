@@ -620,6 +620,21 @@ def test_predict_reads_a_record_of_two_pieces_as_the_device_would(onset_export, 
     assert dec[0]["gap (m)"] == pytest.approx(2e-6) and dec[0]["sigma (m)"] == pytest.approx(
         1e-7)
     assert dec[1]["in_domain"] and dec[1]["flags"] == ""
+
+    def both_outside(self, *inputs):  # every piece out of its domain: one flag names both
+        out = walls_apart(self, *inputs)
+        if self.meta.kind == "decoder":
+            out["in_domain"] = np.zeros(4, bool)
+            out["domain_score"] = np.full(4, 2.0)
+        return out
+
+    with monkeypatch.context() as m:
+        m.setattr(OnnxModel, "run", both_outside)
+        flags = [r["flags"] for r in predict_records(onset_export["model"], whole,
+                                                     calibration=cal)
+                 if r["method"] == "decoder" and r["record"] == 1][0]
+    assert flags.startswith("outside the trained domain (its inputs, or its whisk cycles'")
+    assert flags.endswith("(pieces 1, 2 of 2)") and flags.count("outside") == 1
     odd = tmp_path / "odd.npz"
     np.savez(odd, e=rec["e"][:, :3 * n // 2], i=rec["i"][:, :3 * n // 2], sample_rate_hz=rate)
     with pytest.raises(InputError, match="or of 2 of them one after the other"):

@@ -189,14 +189,17 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
                    "the wall disagree: an object that moves?)" if model.meta.domain.self_check
                    else "outside the trained domain")
         for r in range(n):
-            flags = []
+            doubts: dict[str, list[int]] = {}  # each reason, the pieces it holds for
             for p in range(r * k, (r + 1) * k):
                 if not pred["in_domain"][p]:
                     # the cycles' check speaks only where a wall was answered (else it is 0)
-                    flags.append((("outside the trained domain" if np.isnan(pred["gap"][p])
-                                   else outside) if pred["domain_score"][p] > 1
-                                  else "answer outside the trained range")
-                                 + (f" (piece {p - r * k + 1} of {k})" if k > 1 else ""))
+                    doubts.setdefault(("outside the trained domain" if np.isnan(pred["gap"][p])
+                                       else outside) if pred["domain_score"][p] > 1
+                                      else "answer outside the trained range", []).append(
+                        p - r * k + 1)
+            flags = [text + ("" if k == 1 else f" (piece {pieces[0]} of {k})" if len(pieces) == 1
+                             else f" (pieces {', '.join(map(str, pieces))} of {k})")
+                     for text, pieces in doubts.items()]
             spread = record["pieces_spread"][r]
             if np.isinf(spread) or (limit and spread > limit):
                 flags.append(f"its {k} pieces locate the wall " + (

@@ -61,7 +61,7 @@ from wtml.decoders.recalibration import (
 )
 from wtml.physics.twoport import flat_parts
 from wtml.runtime.metadata import WIDE
-from wtml.runtime.onset import combine_pieces, cut_pieces
+from wtml.runtime.onset import combine_pieces
 from wtml.runtime.predict import load_export
 
 TOLERANCE = 0.03
@@ -421,7 +421,7 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
     data_dir, n = Path(paths["data"]), records["onset"]
     independent = records.get("independent", 0)
     from wtml.bench.onset_transfer import independent_variant, onset_variants
-    from wtml.exporters.onset import record_inputs
+    from wtml.exporters.onset import piece_inputs, record_inputs, twice_as_long
 
     keys = ("e", "i", "t_probe", "hue0", "gap")
 
@@ -429,10 +429,7 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
         return record_inputs(records), onset_truth(records)
 
     def pieces(records: dict):
-        x, _ = cut_pieces(np.stack([records["e"], records["i"]]), scene.n_samples, "records",
-                          scene.acquisition.sample_rate_hz)
-        cal = record_inputs(records)[2:]
-        return ((*x, *(np.repeat(c, 2, 0) for c in cal)), onset_truth(records))
+        return piece_inputs(records, scene), onset_truth(records)
 
     sets = [RecordSet("test shard", "test shard", lambda: made(_test_shard(data_dir, keys)))]
     variants = onset_variants(scene) + ([independent_variant(scene)] if independent else [])
@@ -442,8 +439,7 @@ def onset_sets(paths: dict, scene, decoder, records: dict, seed: int) -> list[Re
             v.make(count, np.random.default_rng([seed, 9100, k])))))
     if not decoder.meta.domain.pieces_limit:  # an export that refuses such records
         return sets
-    twice = dataclasses.replace(scene, drive=dataclasses.replace(
-        scene.drive, cycles=2 * scene.drive.cycles))
+    twice = twice_as_long(scene)
     rows = onset_variants(twice)
     longer = [v for v in rows if v.kind == "in family"][:1] + [
         v for v in rows if "base" in v.name][-1:]

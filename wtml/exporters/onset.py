@@ -94,16 +94,30 @@ PIECE_CHUNK = 32
 """Records of two pieces simulated at once: as many samples as :data:`FRESH_CHUNK` records."""
 
 
+def twice_as_long(scene):
+    """``scene`` with records of twice its whisk cycles."""
+    return dataclasses.replace(scene, drive=dataclasses.replace(
+        scene.drive, cycles=2 * scene.drive.cycles))
+
+
+def piece_inputs(records: dict, scene) -> tuple[np.ndarray, ...]:
+    """A graph's inputs (:func:`record_inputs`) from records of :func:`twice_as_long`
+    ``scene``, each cut into its two pieces (:func:`wtml.runtime.onset.cut_pieces`: record
+    r's at rows 2r, 2r + 1), each piece with its record's calibration."""
+    x, _ = cut_pieces(np.stack([records["e"], records["i"]]), scene.n_samples, "records",
+                      scene.acquisition.sample_rate_hz)
+    return tuple(np.asarray(v, np.float32) for v in x) + tuple(
+        np.repeat(c, 2, 0) for c in record_inputs(records)[2:])
+
+
 def whole_pieces(scene) -> bool:
     """Whether a record of twice ``scene``'s whisk cycles is two of its records one after the
     other: whole whisk cycles, a whole number of probe periods per record, and twice the
     samples (else a second piece would start at another phase, and the export states no
     limit: such recordings are refused)."""
-    longer = dataclasses.replace(scene, drive=dataclasses.replace(
-        scene.drive, cycles=2 * scene.drive.cycles))
     probe = scene.n_samples * scene.drive.probe_hz / scene.acquisition.sample_rate_hz
     return (float(scene.drive.cycles).is_integer() and abs(probe - round(probe)) < 1e-9
-            and longer.n_samples == 2 * scene.n_samples)
+            and twice_as_long(scene).n_samples == 2 * scene.n_samples)
 
 
 @torch.no_grad()
@@ -119,19 +133,16 @@ def pieces_limit(decoder, scene) -> tuple[float, float]:
     hold whole cycles (:func:`whole_pieces`)."""
     if not whole_pieces(scene):
         return 0.0, 0.0
-    longer = dataclasses.replace(scene, drive=dataclasses.replace(
-        scene.drive, cycles=2 * scene.drive.cycles))
+    longer = twice_as_long(scene)
     pred: dict[str, list] = {"gap": [], "sigma": [], "in_domain": [], "domain_score": []}
     for k in range(0, PIECE_RECORDS, PIECE_CHUNK):
         fresh = longer.simulate(min(PIECE_CHUNK, PIECE_RECORDS - k),
                                 np.random.default_rng([scene.seed, 10**6 + 2, k]))
-        x, _ = cut_pieces(np.stack([fresh["e"], fresh["i"]]), scene.n_samples, "fresh records",
-                          scene.acquisition.sample_rate_hz)
-        cal = tuple(np.repeat(c, 2, 0) for c in record_inputs(fresh)[2:])
-        out = decoder(*(torch.tensor(np.asarray(v, np.float32)) for v in (*x, *cal)))
+        inputs = piece_inputs(fresh, scene)
+        out = decoder(*(torch.tensor(v) for v in inputs))
         for key, v in zip(pred, (out[0], out[1], out[-2], out[-1]), strict=True):
             pred[key].append(v.double().numpy())
-        del fresh, x
+        del fresh, inputs
     per = {key: np.concatenate(v).reshape(-1, 2) for key, v in pred.items()}
     spread = pieces_spread(per["gap"], per["sigma"])
     answered = per["in_domain"].all(1) & np.isfinite(per["gap"]).all(1)

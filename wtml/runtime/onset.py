@@ -123,7 +123,8 @@ def combine_pieces(pred: dict[str, np.ndarray], k: int, limit: float) -> dict[st
     pieces at rows ``r · k ...``): ``gap`` their mean (m); ``sigma`` (and ``sigma_95``) their
     mean, not over √k, since a record's pieces share their errors (the device's calibration,
     the wall's law: in the trained scene two pieces' gaps lie 0.05σ apart at the median);
-    ``pieces_spread`` (:func:`pieces_spread`); ``in_domain`` where every piece is in domain
+    ``pieces_spread`` (:func:`pieces_spread`) and ``pieces_apart`` (that spread over the
+    limit, or a wall in some pieces only); ``in_domain`` where every piece is in domain
     and the spread is within ``limit`` (σ; 0: none, a wall in some pieces only still out;
     a NaN spread, nothing to measure it by, is not checked);
     ``domain_score`` the larger of the pieces' and the spread over the limit. Each ``(n,)``."""
@@ -133,7 +134,7 @@ def combine_pieces(pred: dict[str, np.ndarray], k: int, limit: float) -> dict[st
     with np.errstate(invalid="ignore"):
         over = spread / limit if limit > 0 else np.where(np.isinf(spread), np.inf, 0.0)
     over = np.where(np.isnan(over), 0.0, over)  # no σ to measure the pieces by
-    out = {"pieces_spread": spread,
+    out = {"pieces_spread": spread, "pieces_apart": over > 1,
            "in_domain": per["in_domain"].all(1) & (over <= 1)}
     for key in ("gap", "sigma", "sigma_95"):  # a wall in some pieces only: theirs, flagged
         if key in per:
@@ -175,13 +176,13 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
     cal = (read_onset_calibration(calibration, float(decoder.frequency_hz[0]), n)
            if "calibration" in decoder.references else ())
     cal = tuple(np.repeat(c, k, 0) for c in cal)
-    piece_s = meta.n_samples / meta.sample_rate_hz
+    # each piece's start in its record (s)
+    shift = (np.arange(n * k) % k * (meta.n_samples / meta.sample_rate_hz))[:, None]
     rows = []
     for label, model in (("decoder", decoder), ("classical", classical)):
         pred = model.run(x[0], x[1], *cal)
         pred |= model.half_widths(pred)
         onset, detach = contacts_from(pred, Timing.of(model.meta))
-        shift = (np.arange(n * k) % k * piece_s)[:, None]  # each piece's start in its record
         onset, detach = (t + shift for t in (onset, detach))
         odd = impossible(model, pred)["gap"] & np.isfinite(pred["gap"])
         record = combine_pieces(pred, k, limit)
@@ -201,7 +202,7 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
                              else f" (pieces {', '.join(map(str, pieces))} of {k})")
                      for text, pieces in doubts.items()]
             spread = record["pieces_spread"][r]
-            if np.isinf(spread) or (limit and spread > limit):
+            if record["pieces_apart"][r]:
                 flags.append(f"its {k} pieces locate the wall " + (
                     "in some and none in others" if np.isinf(spread) else
                     f"{spread:.2g} sigma apart (limit {limit:.2g})") + ": an object that moves?")

@@ -5,6 +5,7 @@ than it can be."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -69,16 +70,21 @@ def test_a_detachment_waits_for_the_merge_gap_and_an_onset_for_its_first_rise():
 class FakeStream:
     """A streaming graph's stand-in: frames of ``chunk`` samples, a frame's contact
     probability 0.9 where its mean e passes 0, its margin the mean i, a touch where e's mean
-    jumps by more than 0.5 from the frame before (the state carries the last mean), and the
-    running gap the number of frames seen."""
+    jumps by more than 0.5 from the frame before (the state carries the last mean), the
+    running gap the mean of the frames' mean i so far (the state carries their count and
+    sum), in domain below 0.5 (σ 0.05; NaN outside), the score the frames seen; records of
+    ``record`` samples (default: the test's whole stream) and a limit of ``limit`` σ for two
+    of them."""
 
-    def __init__(self, chunk: int) -> None:
+    def __init__(self, chunk: int, record: int = 960, limit: float = 3.0) -> None:
         from types import SimpleNamespace
 
         self.meta = SimpleNamespace(task="onset", sample_rate_hz=1000.0, chunk_samples=chunk,
-                                    state_size=2, frame_s=chunk / 1000.0, onset_offset_s=0.0,
+                                    state_size=3, frame_s=chunk / 1000.0, onset_offset_s=0.0,
                                     detach_offset_s=0.0, merge_s=2 * chunk / 1000.0,
-                                    touch_lookback=3, scene={"max_contacts": 8})
+                                    touch_lookback=3, scene={"max_contacts": 8},
+                                    n_samples=record,
+                                    domain=SimpleNamespace(pieces_limit=limit))
         self.frequency_hz = np.array([1000.0 / chunk])
 
     def frames(self, e: np.ndarray, i: np.ndarray, last: float) -> dict:
@@ -91,37 +97,65 @@ class FakeStream:
     def run(self, e, i, t_re, t_im, hue0, state):
         out = self.frames(e[0], i[0], state[0, 0])
         n = state[0, 1] + out["contact"].shape[1]
-        return {**out, "gap": np.array([n]), "sigma": np.array([0.0]),
-                "in_domain": np.array([True]), "domain_score": np.array([0.0]),
-                "next_state": np.array([[e[0, -self.meta.chunk_samples:].mean(), n]])}
+        total = state[0, 2] + out["detach_margin"].sum()
+        inside = total / n < 0.5
+        return {**out, "gap": np.array([total / n]),
+                "sigma": np.array([0.05 if inside else np.nan]),
+                "in_domain": np.array([inside]), "domain_score": np.array([n]),
+                "next_state": np.array([[e[0, -self.meta.chunk_samples:].mean(), n, total]])}
 
     def half_widths(self, out: dict) -> dict:
         """The 95 % half-width: 1.5 × the running gap (a stand-in's, not σ's)."""
         return {"sigma_95": 1.5 * out["gap"]}
 
 
-def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeypatch):
+def _stream_data(chunk: int, n_frames: int, offsets: list[float]) -> tuple[np.ndarray, ...]:
+    """A stand-in's stream: e at +-1 in blocks of six frames (contacts where +1), plus noise;
+    i (the margin) 0.02 x e's level a frame later, plus each record's offset (``offsets``, one
+    per record of ``n_frames / len(offsets)`` frames)."""
+    rng = np.random.default_rng(4)
+    level = np.repeat(np.where(rng.random(n_frames // 6) < 0.4, 1.0, -1.0), 6)
+    e = np.repeat(level, chunk) + 0.1 * rng.standard_normal(n_frames * chunk)
+    i = 0.02 * np.roll(np.repeat(level, chunk), chunk) + np.repeat(offsets, n_frames * chunk
+                                                                    // len(offsets))
+    return e, i
+
+
+OFFSETS = [0.0, 0.01, 0.3, 0.31, 1.0, 0.0]
+"""Six records' margins (the stand-in's gaps): alike, moved 4 σ, alike, out of domain, back."""
+
+
+@pytest.mark.parametrize("records", [1, 6])
+def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeypatch, records):
     """``wtml stream``'s loop (run_stream) on a stand-in graph, read in chunks of one, three
-    and seven graph chunks (a trailing piece shorter than a chunk left out): the offline
-    rule's contacts on the whole record's frames, every time."""
+    and seven graph chunks (a trailing piece shorter than a chunk left out), as one record or
+    six: the offline rule's contacts on the frames of each record from a fresh state, every
+    time; each record's answer after its last chunk, judged with the record before as two
+    pieces (:data:`OFFSETS`: in domain where both are and their walls lie within 3 σ)."""
     import io
 
     from wtml.runtime import stream as stream_module
 
     chunk, n_frames = 8, 120
-    rng = np.random.default_rng(4)
-    level = np.repeat(np.where(rng.random(n_frames // 6) < 0.4, 1.0, -1.0), 6)
-    e = np.repeat(level, chunk) + 0.1 * rng.standard_normal(n_frames * chunk)
-    i = np.roll(np.repeat(level, chunk), chunk)  # the margin lasts a frame longer
-    fake = FakeStream(chunk)
+    e, i = _stream_data(chunk, n_frames, OFFSETS if records > 1 else [0.0])
+    fake = FakeStream(chunk, record=n_frames * chunk // records)
     monkeypatch.setattr(stream_module, "task_of", lambda model_dir: "onset")
     monkeypatch.setattr(stream_module, "load_export", lambda *a, **k: (None, None, fake))
     np.savez(tmp_path / "cal.npz", frequency_hz=fake.frequency_hz, t=np.eye(2)[None] + 0j,
              hue0=1.0)
-    frames = fake.frames(e, i, 0.0)
+    per = fake.meta.n_samples
+    frames = [fake.frames(e[k:k + per], i[k:k + per], 0.0) for k in range(0, len(e), per)]
+    frames = {key: np.concatenate([f[key] for f in frames], 1) for key in frames[0]}
     on, off = contacts_from(frames, Timing.of(fake.meta))
     want = on[0][np.isfinite(on[0])], off[0][np.isfinite(on[0])]
     assert len(want[0]) >= 3
+    gaps = frames["detach_margin"][0].reshape(records, -1).mean(1)
+    own = gaps < 0.5
+    apart = np.abs(np.diff(gaps)) / np.hypot(0.05, 0.05)
+    apart[~(own[1:] & own[:-1])] = np.nan  # no σ to measure a pair by
+    inside = np.concatenate([own[:1], own[1:] & own[:-1] & ~(apart > 3.0)])
+    if records > 1:
+        assert list(inside) == [True, True, False, True, False, False]
     data = np.stack([e, i], -1).astype("<f4").tobytes() + b"\0" * 20  # a trailing piece
     for reads in (1, 3, 7):
         got = stream_module.run_stream("fake", io.BytesIO(data), tmp_path / "cal.npz",
@@ -130,8 +164,39 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
         ends = [x.event.time for x in got.events if x.event.kind == "detachment"]
         np.testing.assert_allclose(onsets, want[0], atol=1e-12)
         np.testing.assert_allclose(ends, want[1], atol=1e-12)
-        # a detachment carries the running answers of the chunk that decided it
-        for x in got.events:
-            if x.event.kind == "detachment":
-                assert x.sigma_95_m == 1.5 * x.gap_m and "sigma_95_m=" in x.line()
+        # the wall is the record's: no contact line claims one
+        assert all("gap_m" not in x.line() for x in got.events)
         assert got.chunks == n_frames and abs(got.signal_s - n_frames * chunk / 1e3) < 1e-12
+        assert [r.number for r in got.records] == list(range(records))
+        assert [r.domain_score for r in got.records] == [n_frames / records] * records
+        np.testing.assert_allclose([r.gap_m for r in got.records], gaps, rtol=1e-6)
+        np.testing.assert_allclose([r.end_s for r in got.records],
+                                   np.arange(1, records + 1) * per / 1e3)
+        np.testing.assert_allclose([r.apart_sigma for r in got.records[1:]], apart, rtol=1e-4)
+        assert np.isnan(got.records[0].apart_sigma)
+        assert [r.apart for r in got.records] == [False] + list(apart > 3.0)
+        assert [r.in_domain for r in got.records] == list(inside)
+        assert got.stats()["records_apart"] == (1 if records > 1 else 0)
+        assert "apart=" in got.records[-1].line() and "sigma_95_m=" in got.records[-1].line()
+        assert [r.sigma_95_m for r in got.records] == pytest.approx([1.5 * g for g in gaps],
+                                                                    rel=1e-6)
+
+
+def test_a_stream_past_one_record_needs_the_exports_limit_for_two(tmp_path, monkeypatch):
+    """An export without ``domain.pieces_limit`` answers one record of a stream: the loop
+    stops at its end, saying why, its contacts and its answer given."""
+    import io
+
+    from wtml.runtime import stream as stream_module
+
+    chunk, n_frames = 8, 120
+    e, i = _stream_data(chunk, n_frames, [0.0])
+    fake = FakeStream(chunk, record=n_frames * chunk // 4, limit=0.0)
+    monkeypatch.setattr(stream_module, "task_of", lambda model_dir: "onset")
+    monkeypatch.setattr(stream_module, "load_export", lambda *a, **k: (None, None, fake))
+    np.savez(tmp_path / "cal.npz", frequency_hz=fake.frequency_hz, t=np.eye(2)[None] + 0j,
+             hue0=1.0)
+    got = stream_module.run_stream("fake", io.BytesIO(np.stack([e, i], -1).astype(
+        "<f4").tobytes()), tmp_path / "cal.npz", chunk_samples=7 * chunk)
+    assert got.chunks == n_frames // 4 and len(got.records) == 1
+    assert "domain.pieces_limit" in got.stopped and "stopped:" in got.text()

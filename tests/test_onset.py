@@ -179,6 +179,41 @@ def test_streaming_graph_fed_chunks_gives_the_offline_answer(onset_export, scene
         stream_record(stream, rec["e"][:, :-1], rec["i"][:, :-1], *record_inputs(rec)[2:])
 
 
+def test_wtml_stream_answers_a_longer_stream_record_by_record(onset_export, scene, tmp_path):
+    """``wtml stream``'s loop over a stream of two records (four whisk cycles, one device):
+    each record's answer is the offline graph's on that record alone (the state starts
+    afresh at its first sample: a state carried on would sum the first record's frames into
+    the second's score), and the second is judged with the first as two pieces of one
+    recording are (combine_pieces, the export's limit)."""
+    import io
+
+    from wtml.exporters.onset import twice_as_long
+    from wtml.runtime.stream import run_stream
+
+    rec = twice_as_long(scene).simulate(1, np.random.default_rng(8), gaps=[5e-6])
+    x, _ = cut_pieces(np.stack([rec["e"], rec["i"]]), scene.n_samples, "test",
+                      scene.acquisition.sample_rate_hz)
+    model = OnnxModel(onset_export["model"] / "model.onnx")
+    offline = model.run(*x.astype(np.float32), *(np.repeat(c, 2, 0)
+                                                 for c in record_inputs(rec)[2:]))
+    cal = calibration_file(tmp_path / "cal.npz", scene, rec)
+    pairs = np.stack([rec["e"][0], rec["i"][0]], -1).astype("<f4").tobytes()
+    got = run_stream(onset_export["model"], io.BytesIO(pairs), cal)
+    assert [r.number for r in got.records] == [0, 1] and not got.stopped
+    np.testing.assert_allclose([r.domain_score for r in got.records], offline["domain_score"],
+                               rtol=1e-2, atol=1e-3)
+    np.testing.assert_allclose([r.gap_m for r in got.records], offline["gap"], rtol=1e-5,
+                               atol=1e-12)
+    np.testing.assert_allclose([r.sigma_m for r in got.records], offline["sigma"], rtol=1e-4,
+                               atol=1e-12)
+    pair = combine_pieces(offline, 2, model.meta.domain.pieces_limit)
+    assert [r.in_domain for r in got.records] == [offline["in_domain"][0], pair["in_domain"][0]]
+    assert got.records[1].apart == pair["pieces_apart"][0]
+    np.testing.assert_allclose(got.records[1].apart_sigma, pair["pieces_spread"][0], rtol=1e-3)
+    assert got.records[1].end_s == pytest.approx(2 * scene.n_samples
+                                                 / scene.acquisition.sample_rate_hz)
+
+
 def test_the_whisk_cycles_agreement_is_their_weighted_distance_from_the_answer_in_sigma():
     """touch_spread: two cycles of equal vote share at g ± d give d/σ; one cycle holding the
     whole vote gives 0 whatever the other's (empty) sums; a record without a wall gives 0."""

@@ -159,6 +159,9 @@ def test_stream_gives_the_offline_contacts(runtime_python, four_tasks, tmp_path)
     np.testing.assert_allclose(onsets, on[0, found], atol=1e-6)
     np.testing.assert_allclose(ends, off[0, found], atol=1e-6)
     assert all(float(x["latency_ms"]) >= 0 for x in lines)
+    (record,) = [x for x in lines if x["kind"] == "record"]  # the record's answer, once
+    np.testing.assert_allclose(float(record["gap_m"]), frames["gap"][0], rtol=1e-5)
+    assert record["in_domain"] == str(int(frames["in_domain"][0]))
 
 
 def test_instrument_formats_give_the_npz_rows(four_tasks, tmp_path):

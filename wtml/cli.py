@@ -294,7 +294,7 @@ def _stream(args: argparse.Namespace) -> int:
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115  (Python flushes stdout at exit)
         return 0
     print(f"wtml stream: {summary.text()}", file=sys.stderr)
-    return 130 if summary.interrupted else 0
+    return 130 if summary.interrupted else 1 if summary.stopped else 0
 
 
 def _bench_runtime(args: argparse.Namespace) -> int:
@@ -826,12 +826,19 @@ def build_parser() -> argparse.ArgumentParser:
               "Reads interleaved little-endian float32 (e, i) sample pairs at the model's rate "
               "from standard input or a file, in fixed chunks, carries the graph's state across "
               "chunks and prints each contact as soon as it is decided: its onset, then its "
-              "detachment with the wall's location (gap, sigma: its 68 % half-width, sigma_95: "
-              "its 95 % one) and the domain flag; each line "
-              "gives when the frame that decided it ended (decided_s, signal time) and the wall "
-              "time from the arrival of the read that held it (latency_ms). The end of the "
+              "detachment; each line gives when the frame that decided it ended (decided_s, "
+              "signal time) and the wall time from the arrival of the read that held it "
+              "(latency_ms). The stream is read as records of the trained length one after "
+              "the other, each from a fresh state: after each, a 'record' line gives the "
+              "wall's location (gap_m; sigma_m: its 68 % half-width, sigma_95_m: its 95 % one), "
+              "the domain flag, how far it and the record before locate the wall apart "
+              "(apart_sigma, in their sigma) and whether that is over the export's limit "
+              "(apart=1: a wall that moved; in_domain=0, as for a record after one out of "
+              "its domain). An export "
+              "without that limit answers the first record only (exit 1). The end of the "
               "input or Ctrl-C closes the open contact; a summary (real-time factor, per-chunk "
-              "latency) goes to stderr. Contacts are not capped (a stream is not a record).")
+              "latency, records) goes to stderr. Contacts are not capped (a stream is not a "
+              "record).")
     st.add_argument("--model", required=True, help="an onset export folder (stream.onnx)")
     st.add_argument("--calibration", default=None,
                     help="the device's calibration: .npz with frequency_hz [the probe's], t "

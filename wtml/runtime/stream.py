@@ -4,13 +4,23 @@ Samples arrive as interleaved little-endian float32 pairs ``(e, i)`` (V, and A o
 of the I–V converter scaled by ``i_scale``) at the model's sampling rate, from standard input
 (a pipe from the acquisition program) or a file. They are read in fixed chunks of
 ``chunk_samples`` pairs (the graph's chunk, or a whole multiple of it); each graph chunk runs
-with the state the previous one left (zeros at the start), and its frames go through
+with the state the previous one left, and its frames go through
 :class:`wtml.runtime.contacts.ContactTracker`, the offline timing rule run online. Each
-contact is printed as soon as it is decided: its onset, then its detachment with the wall's
-location (the running ``gap`` and ``sigma`` after the chunk that ended it) and the domain
-flag; each line says when, in signal time, the frame that decided it ended and how long after
-the arrival of the read that held that frame it was printed. A stream has no record: its
-contacts are not capped at the scene's ``max_contacts``. Numpy and onnxruntime only.
+contact is printed as soon as it is decided: its onset, then its detachment; each line says
+when, in signal time, the frame that decided it ended and how long after the arrival of the
+read that held that frame it was printed. A stream has no cap on its contacts (the scene's
+``max_contacts`` is a record's).
+
+The graph answers records of the trained length (``n_samples``: whole whisk cycles), so a
+stream is read as such records one after the other: the state starts from zeros at each
+record's first sample (the whisk's phase then is the trained record's), and after its last
+chunk the record's answer is printed (:class:`RecordAnswer`: the offline graph's on that
+record), the wall's location with its σ and domain flag. From the second record on, each is
+judged with the record before as ``wtml predict`` judges the two pieces of a recording of
+twice the trained length (:func:`wtml.runtime.onset.combine_pieces`, the export's
+``domain.pieces_limit``): a still wall is met alike in both, one that moves with the floor
+elsewhere. An export without that limit (before format 4, or a scene whose records do not
+hold whole cycles) answers the first record only. Numpy and onnxruntime only.
 """
 
 from __future__ import annotations
@@ -27,7 +37,7 @@ import numpy as np
 
 from wtml.files import within_ceiling
 from wtml.runtime.contacts import ContactTracker, Event, Timing
-from wtml.runtime.onset import read_onset_calibration
+from wtml.runtime.onset import combine_pieces, read_onset_calibration
 from wtml.runtime.predict import InputError, load_export, task_of
 
 PAIR_BYTES = 8
@@ -37,61 +47,98 @@ PAIR_BYTES = 8
 @dataclass
 class StreamEvent:
     """One printed contact event: the tracker's :class:`~wtml.runtime.contacts.Event`, the
-    signal time (s) at the end of the frame that decided it, the wall-clock seconds from the
-    arrival of the read that held that frame to the event (the graph's work on the read's
-    earlier chunks included), and (detachment only) the running answers then."""
+    signal time (s) at the end of the frame that decided it, and the wall-clock seconds from
+    the arrival of the read that held that frame to the event (the graph's work on the read's
+    earlier chunks included). The wall's location is its record's (:class:`RecordAnswer`):
+    the graph's running answer before a record's end is not one it was trained to give (at a
+    record's first detachment it lies many of its σ from the wall: README, "Streaming")."""
 
     event: Event
     decided_s: float
     latency_s: float
-    gap_m: float = math.nan
-    sigma_m: float = math.nan
-    sigma_95_m: float = math.nan
-    in_domain: bool = True
 
     def line(self) -> str:
         """The event as one ``key=value`` line."""
         e = self.event
-        text = (f"{e.kind:<10} contact={e.contact} t_s={e.time:.6f} "
+        return (f"{e.kind:<10} contact={e.contact} t_s={e.time:.6f} "
                 f"decided_s={self.decided_s:.6f} latency_ms={1e3 * self.latency_s:.3f}")
-        if e.kind == "detachment":
-            text += (f" gap_m={self.gap_m:.6g} sigma_m={self.sigma_m:.3g} "
-                     f"sigma_95_m={self.sigma_95_m:.3g} in_domain={int(self.in_domain)}")
-        return text
+
+
+@dataclass
+class RecordAnswer:
+    """One record's answer, printed after its last chunk: its number (from 0), its start and
+    end in signal time (s), the wall-clock seconds from the arrival of the read that held its
+    last chunk, the graph's running ``gap``, ``sigma`` and ``sigma_95`` (m; NaN: no wall or
+    out of domain) and ``domain_score`` then. From the second record on, it and the record
+    before are judged as the two pieces of a recording of twice the trained length
+    (:func:`~wtml.runtime.onset.combine_pieces`, the export's limit): ``apart_sigma``, how
+    far they locate the wall apart in their σ (NaN for the first record or where either has
+    no σ; inf where one found a wall and the other none); ``apart``, that over the limit (a
+    wall that moved, came or went between them); ``in_domain``, both records in the graph's
+    domain and not ``apart`` (the first record: its own flag)."""
+
+    number: int
+    start_s: float
+    end_s: float
+    latency_s: float
+    gap_m: float
+    sigma_m: float
+    sigma_95_m: float
+    domain_score: float
+    apart_sigma: float
+    apart: bool
+    in_domain: bool
+
+    def line(self) -> str:
+        """The answer as one ``key=value`` line."""
+        return (f"record     number={self.number} t_s={self.start_s:.6f} "
+                f"decided_s={self.end_s:.6f} latency_ms={1e3 * self.latency_s:.3f} "
+                f"gap_m={self.gap_m:.6g} sigma_m={self.sigma_m:.3g} "
+                f"sigma_95_m={self.sigma_95_m:.3g} domain_score={self.domain_score:.3g} "
+                f"apart_sigma={self.apart_sigma:.3g} apart={int(self.apart)} "
+                f"in_domain={int(self.in_domain)}")
 
 
 @dataclass
 class StreamSummary:
     """What a stream took: graph chunks run, seconds of signal, wall seconds spent in the
-    graph and the tracker per graph chunk (``(n_chunks,)``), the events in order, and whether
-    it ended by Ctrl-C."""
+    graph and the tracker per graph chunk (``(n_chunks,)``), the contact events in order, the
+    records' answers in order, whether it ended by Ctrl-C, and why it stopped before the end
+    of its input (empty: it did not)."""
 
     chunks: int = 0
     signal_s: float = 0.0
     per_chunk_s: list[float] = field(default_factory=list)
     events: list[StreamEvent] = field(default_factory=list)
+    records: list[RecordAnswer] = field(default_factory=list)
     interrupted: bool = False
+    stopped: str = ""
 
     def stats(self) -> dict:
         """``chunks``, ``signal_s``, ``work_s`` (s), ``real_time_factor`` (work over signal),
-        ``median_chunk_ms``, ``p99_chunk_ms`` and ``contacts``; at least one chunk run."""
+        ``median_chunk_ms``, ``p99_chunk_ms``, ``contacts``, ``records`` (whole records
+        answered) and ``records_apart``; at least one chunk run."""
         busy = np.array(self.per_chunk_s)
         return {"chunks": self.chunks, "signal_s": self.signal_s, "work_s": float(busy.sum()),
                 "real_time_factor": float(busy.sum() / self.signal_s),
                 "median_chunk_ms": 1e3 * float(np.median(busy)),
                 "p99_chunk_ms": 1e3 * float(np.quantile(busy, 0.99)),
-                "contacts": sum(e.event.kind == "onset" for e in self.events)}
+                "contacts": sum(e.event.kind == "onset" for e in self.events),
+                "records": len(self.records),
+                "records_apart": sum(r.apart for r in self.records)}
 
     def text(self) -> str:
         """One line: chunks, signal, real-time factor, per-chunk latency."""
         if not self.chunks:
             return "no whole chunk arrived"
-        end = " (stopped by Ctrl-C)" if self.interrupted else ""
+        end = (" (stopped by Ctrl-C)" if self.interrupted
+               else f" (stopped: {self.stopped})" if self.stopped else "")
         s = self.stats()
         return (f"{s['chunks']} chunks, {s['signal_s']:.3f} s of signal in {s['work_s']:.3f} s "
                 f"of work: real-time factor {s['real_time_factor']:.4f}; per chunk median "
                 f"{s['median_chunk_ms']:.3f} ms, 99th percentile {s['p99_chunk_ms']:.3f} ms; "
-                f"{s['contacts']} contacts{end}")
+                f"{s['contacts']} contacts; {s['records']} records, {s['records_apart']} "
+                f"apart from the one before{end}")
 
 
 def read_chunk(source: BinaryIO, size: int) -> bytes:
@@ -155,38 +202,62 @@ class Streamer:
         self.calibration = read_onset_calibration(calibration, float(self.model.frequency_hz[0]),
                                                   1)
         self.timing = Timing.of(meta)
+        self.record = meta.n_samples
+        # records one after the other need whole graph chunks per record and the export's
+        # limit for two of them (else the first record only)
+        self.limit = meta.domain.pieces_limit if self.record % self.graph_chunk == 0 else 0.0
 
-    def run(self, source: BinaryIO, emit: Callable[[StreamEvent], None] | None = None
-            ) -> StreamSummary:
-        """Run the graph over ``source`` (interleaved float32 ``(e, i)`` pairs) until its end
-        or Ctrl-C (either closes the open contact), calling ``emit`` with each event as it is
-        decided.
+    def run(self, source: BinaryIO, emit: Callable[[StreamEvent | RecordAnswer], None] | None
+            = None) -> StreamSummary:
+        """Run the graph over ``source`` (interleaved float32 ``(e, i)`` pairs), record after
+        record, until its end, Ctrl-C (either closes the open contact) or, for an export
+        without a limit for records one after the other, the end of the first record;
+        calling ``emit`` with each contact event as it is decided and each record's answer
+        after its last chunk.
 
         Raises:
             InputError: NaN or inf in the stream (naming the sample).
         """
-        meta, frame_s = self.model.meta, self.timing.frame_s
+        meta, frame_s, rate = self.model.meta, self.timing.frame_s, self.model.meta.sample_rate_hz
         tracker = ContactTracker(self.timing)
-        state = np.zeros((1, meta.state_size), np.float32)
+        zeros = np.zeros((1, meta.state_size), np.float32)
         summary = StreamSummary()
         out: dict = {}
+        previous: dict = {}  # the record before's own gap, sigma, in_domain, domain_score
+
+        def send(item: StreamEvent | RecordAnswer) -> None:
+            (summary.records if isinstance(item, RecordAnswer) else summary.events).append(item)
+            if emit is not None:
+                emit(item)
 
         def report(events: list[Event], arrived: float) -> None:
             for event in events:
-                item = StreamEvent(event, (event.decided_frame + 1) * frame_s,
-                                   time.perf_counter() - arrived)
-                if event.kind == "detachment":
-                    item.gap_m, item.sigma_m = float(out["gap"][0]), float(out["sigma"][0])
-                    wide = self.model.half_widths(out)
-                    item.sigma_95_m = float(wide["sigma_95"][0]) if wide else math.nan
-                    item.in_domain = bool(out["in_domain"][0])
-                summary.events.append(item)
-                if emit is not None:
-                    emit(item)
+                send(StreamEvent(event, (event.decided_frame + 1) * frame_s,
+                                 time.perf_counter() - arrived))
 
-        read, step = 0, self.graph_chunk
+        def answer(number: int, arrived: float) -> None:
+            """The record's answer after its last chunk, judged with the one before as the
+            two pieces of a longer recording are (:func:`combine_pieces`)."""
+            wide = self.model.half_widths(out)
+            own = {key: np.asarray(out[key][:1], float if key != "in_domain" else bool)
+                   for key in ("gap", "sigma", "in_domain", "domain_score")}
+            pair = (combine_pieces({key: np.concatenate([previous[key], own[key]])
+                                    for key in own}, 2, self.limit)
+                    if previous else None)
+            previous.update(own)
+            send(RecordAnswer(number, number * self.record / rate,
+                              (number + 1) * self.record / rate,
+                              time.perf_counter() - arrived, float(own["gap"][0]),
+                              float(own["sigma"][0]),
+                              float(wide["sigma_95"][0]) if wide else math.nan,
+                              float(own["domain_score"][0]),
+                              float(pair["pieces_spread"][0]) if pair else math.nan,
+                              bool(pair["pieces_apart"][0]) if pair else False,
+                              bool((pair or own)["in_domain"][0])))
+
+        read, step, state = 0, self.graph_chunk, zeros
         try:
-            while True:
+            while not summary.stopped:
                 data = read_chunk(source, self.chunk * PAIR_BYTES)
                 arrived = time.perf_counter()
                 whole = len(data) // (step * PAIR_BYTES) * step
@@ -203,6 +274,16 @@ class Streamer:
                     raise InputError(f"stream: {'ei'[c]} is NaN or inf at sample {read + k}")
                 e, i = pairs[:, 0] * self.scales[0], pairs[:, 1] * self.scales[1]
                 for k in range(0, whole, step):
+                    at = read + k  # the chunk's first sample in the stream
+                    if not self.limit and at + step > self.record:
+                        summary.stopped = (
+                            f"this export answers one record of {self.record / rate:g} s; "
+                            "records one after the other need its limit for two of them "
+                            "(metadata domain.pieces_limit) and records of whole chunks: "
+                            "export it again")
+                        break
+                    if at and at % self.record == 0:  # a new record, from the trained phase
+                        state = zeros
                     start = time.perf_counter() if k else arrived
                     out = self.model.run(e[None, k:k + step], i[None, k:k + step],
                                          *self.calibration, state)
@@ -212,10 +293,12 @@ class Streamer:
                         events += tracker.push(out["contact"][0, f], out["detach_margin"][0, f],
                                                out["touch"][0, f])
                     report(events, arrived)
+                    if (at + step) % self.record == 0:
+                        answer((at + step) // self.record - 1, arrived)
                     summary.per_chunk_s.append(time.perf_counter() - start)
                     summary.chunks += 1
+                    summary.signal_s = (at + step) / rate
                 read += whole
-                summary.signal_s = read / meta.sample_rate_hz
                 if whole < self.chunk:
                     break
         except KeyboardInterrupt:

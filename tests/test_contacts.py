@@ -9,7 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from wtml.cli import main
 from wtml.runtime.contacts import ContactTracker, Timing, contacts_from
+from wtml.runtime.predict import InputError
 
 
 def online(pred: dict, timing: Timing, max_contacts: int | None) -> tuple[list, list, list]:
@@ -72,9 +74,9 @@ class FakeStream:
     probability 0.9 where its mean e passes 0, its margin the mean i, a touch where e's mean
     jumps by more than 0.5 from the frame before (the state carries the last mean), the
     running gap the mean of the frames' mean i so far (the state carries their count and
-    sum), in domain below 0.5 (σ 0.05; NaN outside), the score the frames seen; records of
-    ``record`` samples (default: the test's whole stream) and a limit of ``limit`` σ for two
-    of them."""
+    sum): no wall from 5 on (NaN, in domain), in domain below 0.5 (σ 0.05; NaN outside), the
+    score the frames seen; records of ``record`` samples (default: the test's whole stream)
+    and a limit of ``limit`` σ for two of them."""
 
     def __init__(self, chunk: int, record: int = 960, limit: float = 3.0) -> None:
         from types import SimpleNamespace
@@ -98,10 +100,10 @@ class FakeStream:
         out = self.frames(e[0], i[0], state[0, 0])
         n = state[0, 1] + out["contact"].shape[1]
         total = state[0, 2] + out["detach_margin"].sum()
-        inside = total / n < 0.5
-        return {**out, "gap": np.array([total / n]),
+        wall, inside = total / n < 5.0, total / n < 0.5
+        return {**out, "gap": np.array([total / n if wall else np.nan]),
                 "sigma": np.array([0.05 if inside else np.nan]),
-                "in_domain": np.array([inside]), "domain_score": np.array([n]),
+                "in_domain": np.array([inside or not wall]), "domain_score": np.array([n]),
                 "next_state": np.array([[e[0, -self.meta.chunk_samples:].mean(), n, total]])}
 
     def half_widths(self, out: dict) -> dict:
@@ -121,17 +123,18 @@ def _stream_data(chunk: int, n_frames: int, offsets: list[float]) -> tuple[np.nd
     return e, i
 
 
-OFFSETS = [0.0, 0.01, 0.3, 0.31, 1.0, 0.0]
-"""Six records' margins (the stand-in's gaps): alike, moved 4 σ, alike, out of domain, back."""
+OFFSETS = [1.0, 0.0, 0.01, 0.3, 0.31, 10.0, 10.0, 0.0]
+"""Eight records' margins (the stand-in's gaps): out of domain, in, alike, moved 4 σ, alike,
+no wall, none again, a wall back."""
 
-
-@pytest.mark.parametrize("records", [1, 6])
+@pytest.mark.parametrize("records", [1, 8])
 def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeypatch, records):
     """``wtml stream``'s loop (run_stream) on a stand-in graph, read in chunks of one, three
     and seven graph chunks (a trailing piece shorter than a chunk left out), as one record or
-    six: the offline rule's contacts on the frames of each record from a fresh state, every
-    time; each record's answer after its last chunk, judged with the record before as two
-    pieces (:data:`OFFSETS`: in domain where both are and their walls lie within 3 σ)."""
+    eight: the offline rule's contacts on the frames of each record from a fresh state, every
+    time; each record's answer after its last chunk's contact lines, judged with the record
+    before as two pieces (:data:`OFFSETS`: in domain where both are and their walls lie within
+    3 σ, or neither finds one)."""
     import io
 
     from wtml.runtime import stream as stream_module
@@ -150,36 +153,48 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
     want = on[0][np.isfinite(on[0])], off[0][np.isfinite(on[0])]
     assert len(want[0]) >= 3
     gaps = frames["detach_margin"][0].reshape(records, -1).mean(1)
-    own = gaps < 0.5
-    apart = np.abs(np.diff(gaps)) / np.hypot(0.05, 0.05)
-    apart[~(own[1:] & own[:-1])] = np.nan  # no σ to measure a pair by
-    inside = np.concatenate([own[:1], own[1:] & own[:-1] & ~(apart > 3.0)])
     if records > 1:
-        assert list(inside) == [True, True, False, True, False, False]
+        inside = [False, False, True, False, True, False, True, False]
+        step = np.abs(np.diff(gaps[1:5])) / np.hypot(0.05, 0.05)
+        apart = [np.nan, *step, np.inf, 0.0, np.inf]
+        assert list(step > 3.0) == [False, True, False]
+        gaps[gaps > 5] = np.nan
+    else:
+        inside, apart = [True], []
     data = np.stack([e, i], -1).astype("<f4").tobytes() + b"\0" * 20  # a trailing piece
     for reads in (1, 3, 7):
+        emitted: list = []
         got = stream_module.run_stream("fake", io.BytesIO(data), tmp_path / "cal.npz",
-                                       chunk_samples=reads * chunk)
+                                       emit=emitted.append, chunk_samples=reads * chunk)
         onsets = [x.event.time for x in got.events if x.event.kind == "onset"]
         ends = [x.event.time for x in got.events if x.event.kind == "detachment"]
         np.testing.assert_allclose(onsets, want[0], atol=1e-12)
         np.testing.assert_allclose(ends, want[1], atol=1e-12)
-        # the wall is the record's: no contact line claims one
+        # the wall is the record's: no contact line claims one; each record's line comes
+        # after the contacts its last chunk decided
         assert all("gap_m" not in x.line() for x in got.events)
+        order = [(getattr(x, "decided_s", getattr(x, "end_s", None)), hasattr(x, "end_s"))
+                 for x in emitted]
+        assert order == sorted(order) and len(emitted) == len(got.events) + records
         assert got.chunks == n_frames and abs(got.signal_s - n_frames * chunk / 1e3) < 1e-12
+        assert got.unanswered_s == 0 and "not answered" not in got.text()
         assert [r.number for r in got.records] == list(range(records))
-        assert [r.domain_score for r in got.records] == [n_frames / records] * records
         np.testing.assert_allclose([r.gap_m for r in got.records], gaps, rtol=1e-6)
         np.testing.assert_allclose([r.end_s for r in got.records],
                                    np.arange(1, records + 1) * per / 1e3)
-        np.testing.assert_allclose([r.apart_sigma for r in got.records[1:]], apart, rtol=1e-4)
+        np.testing.assert_allclose([r.apart_sigma for r in got.records[1:]], apart, rtol=1e-3)
         assert np.isnan(got.records[0].apart_sigma)
-        assert [r.apart for r in got.records] == [False] + list(apart > 3.0)
-        assert [r.in_domain for r in got.records] == list(inside)
-        assert got.stats()["records_apart"] == (1 if records > 1 else 0)
+        assert [r.apart for r in got.records] == [False] + [a > 3.0 for a in apart]
+        assert [r.in_domain for r in got.records] == inside
+        # a pair's score: the larger of the records' (the frames seen) and its spread over
+        # the limit
+        np.testing.assert_allclose([r.domain_score for r in got.records[1:]], np.fmax(
+            n_frames / records, np.array(apart, float) / 3.0), rtol=1e-3)
+        assert got.records[0].domain_score == n_frames / records
+        assert got.stats()["records_apart"] == (3 if records > 1 else 0)
         assert "apart=" in got.records[-1].line() and "sigma_95_m=" in got.records[-1].line()
-        assert [r.sigma_95_m for r in got.records] == pytest.approx([1.5 * g for g in gaps],
-                                                                    rel=1e-6)
+        assert [r.sigma_95_m for r in got.records] == pytest.approx(
+            list(1.5 * gaps), rel=1e-6, nan_ok=True)
 
 
 def test_a_stream_past_one_record_needs_the_exports_limit_for_two(tmp_path, monkeypatch):
@@ -199,4 +214,33 @@ def test_a_stream_past_one_record_needs_the_exports_limit_for_two(tmp_path, monk
     got = stream_module.run_stream("fake", io.BytesIO(np.stack([e, i], -1).astype(
         "<f4").tobytes()), tmp_path / "cal.npz", chunk_samples=7 * chunk)
     assert got.chunks == n_frames // 4 and len(got.records) == 1
+    assert abs(got.signal_s - n_frames * chunk / 4e3) < 1e-12 and got.unanswered_s == 0
     assert "domain.pieces_limit" in got.stopped and "stopped:" in got.text()
+    path = tmp_path / "stream.f32"
+    path.write_bytes(np.stack([e, i], -1).astype("<f4").tobytes())
+    assert main(["stream", "--model", "fake", "--calibration", str(tmp_path / "cal.npz"),
+                 "--input", str(path)]) == 1  # stopped before the input's end
+
+
+def test_a_stream_says_what_it_left_unanswered(tmp_path, monkeypatch):
+    """A stream that ends inside a record: its contacts printed, the whole records answered,
+    the rest named in the summary."""
+    import io
+
+    from wtml.runtime import stream as stream_module
+
+    chunk, n_frames = 8, 120
+    e, i = _stream_data(chunk, n_frames, [0.0])
+    fake = FakeStream(chunk, record=50 * chunk)
+    monkeypatch.setattr(stream_module, "task_of", lambda model_dir: "onset")
+    monkeypatch.setattr(stream_module, "load_export", lambda *a, **k: (None, None, fake))
+    np.savez(tmp_path / "cal.npz", frequency_hz=fake.frequency_hz, t=np.eye(2)[None] + 0j,
+             hue0=1.0)
+    got = stream_module.run_stream("fake", io.BytesIO(np.stack([e, i], -1).astype(
+        "<f4").tobytes()), tmp_path / "cal.npz")
+    assert len(got.records) == 2 and got.chunks == n_frames
+    assert got.unanswered_s == pytest.approx(20 * chunk / 1e3)
+    assert "the last 0.160 s, less than a record, not answered" in got.text()
+    fake.meta.n_samples = 50 * chunk + 3  # no chunk ends a record
+    with pytest.raises(InputError, match="not whole chunks of its streaming graph"):
+        stream_module.run_stream("fake", io.BytesIO(b""), tmp_path / "cal.npz")

@@ -510,8 +510,9 @@ def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
     answers make one: the mean gap, σ not shrunk by √k (the pieces share their errors), in
     domain only where every piece is and their walls lie within the limit, the score the
     larger of the pieces' and the spread over the limit; pieces that disagree on whether
-    there is a wall at all are flagged; a path without σ is checked for that alone. Longer
-    records are refused (the limit is fitted on two pieces)."""
+    there is a wall at all are flagged; a path without σ is checked for that alone. A record
+    of k pieces is judged on its k − 1 pairs one after the other (as the limit is fitted);
+    one of more than MAX_PIECES is refused."""
     x = np.arange(2 * 3 * 20, dtype=np.float32).reshape(2, 3, 20)
     cut, k = cut_pieces(x, 10, "rec.npz", 5.0)
     assert k == 2 and cut.shape == (2, 6, 10)
@@ -521,8 +522,11 @@ def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
     with pytest.raises(InputError, match=r"rec.npz: records of 4 s \(20 samples at 5 Hz\); "
                                          r"the model takes records of 3 s"):
         cut_pieces(x, 15, "rec.npz", 5.0)
-    with pytest.raises(InputError, match="or of 2 of them one after the other"):
-        cut_pieces(x, 5, "rec.npz", 5.0)  # four pieces
+    four, k = cut_pieces(x, 5, "rec.npz", 5.0)  # four pieces
+    assert k == 4 and four.shape == (2, 12, 5)
+    np.testing.assert_array_equal(four[:, 7], x[:, 1, 15:])
+    with pytest.raises(InputError, match="or of 2 to 8 of them one after the other"):
+        cut_pieces(np.zeros((2, 1, 90)), 10, "rec.npz", 5.0)  # nine pieces
     um = 1e-6
     gap = np.array([[3.0, 3.02], [3.0, 3.1], [3.0, 3.02], [np.nan, 3.0], [np.nan, np.nan]]) * um
     sigma = np.full_like(gap, 0.1 * um)
@@ -534,6 +538,9 @@ def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
     assert pieces_spread(three, np.array([[0.1, 0.1, np.nan]]) * um)[0] == pytest.approx(
         2 / np.hypot(0.1, 0.1))  # one (out of domain) hides nothing of the others
     assert np.isnan(pieces_spread(gap[:1], np.full((1, 2), np.nan))[0])
+    drift = np.array([[1.0, 1.2, 1.4, 1.6]]) * um  # each piece against the one before only
+    assert pieces_spread(drift, np.full((1, 4), 0.1 * um))[0] == pytest.approx(
+        0.2 / np.hypot(0.1, 0.1))
     assert pieces_spread(gap[:, :1], sigma[:, :1])[0] == 0
     pred = {"gap": gap.ravel(), "sigma": sigma.ravel(), "sigma_95": 2 * sigma.ravel(),
             "in_domain": np.array([1, 1, 1, 1, 1, 0, 1, 1, 1, 1], bool),
@@ -672,7 +679,7 @@ def test_predict_reads_a_record_of_two_pieces_as_the_device_would(onset_export, 
     assert flags.endswith("(pieces 1, 2 of 2)") and flags.count("outside") == 1
     odd = tmp_path / "odd.npz"
     np.savez(odd, e=rec["e"][:, :3 * n // 2], i=rec["i"][:, :3 * n // 2], sample_rate_hz=rate)
-    with pytest.raises(InputError, match="or of 2 of them one after the other"):
+    with pytest.raises(InputError, match="or of 2 to 8 of them one after the other"):
         predict_records(onset_export["model"], odd, calibration=cal)
     load = onset_runtime.load_export
 
@@ -687,6 +694,44 @@ def test_predict_reads_a_record_of_two_pieces_as_the_device_would(onset_export, 
     with pytest.raises(InputError, match="export it again"):
         predict_records(onset_export["model"], whole, calibration=cal)
     assert predict_records(onset_export["model"], halves, calibration=tmp_path / "cal4.npz")
+
+
+def test_predict_reads_a_record_of_three_pieces_judging_each_with_the_one_before(
+        onset_export, scene, tmp_path, monkeypatch):
+    """A record of six whisk cycles is three records: contacts in each, one answer; a wall
+    that steps between the second and third pieces is flagged, one that drifts by less than
+    the limit between each piece and the next is not (each pair as the limit was fitted)."""
+    rec = dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, cycles=6.0)
+                              ).simulate(1, np.random.default_rng(22), gaps=[5e-6])
+    rate, n = scene.acquisition.sample_rate_hz, scene.n_samples
+    cal = calibration_file(tmp_path / "cal.npz", scene, rec)
+    path = tmp_path / "three.npz"
+    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=rate)
+    rows = [r for r in predict_records(onset_export["model"], path, calibration=cal)
+            if r["method"] == "classical"]
+    assert max(r["onset (s)"] for r in rows) > 2 * n / rate  # the third piece's contacts
+    limit = OnnxModel(onset_export["model"] / "model.onnx").meta.domain.pieces_limit
+    run = OnnxModel.run
+
+    def walls(gaps):
+        def patched(self, *inputs):
+            out = run(self, *inputs)
+            if self.meta.kind == "decoder":
+                out |= {"gap": np.array(gaps) * 1e-6, "sigma": np.full(3, 1e-7),
+                        "in_domain": np.ones(3, bool), "domain_score": np.full(3, 0.1)}
+            return out
+        return patched
+
+    step = 0.9 * limit * np.hypot(0.1, 0.1)  # µm: within the limit between neighbours
+    for gaps, flagged in (([4.0, 4.0 + step, 4.0 + 2 * step], False), ([4.0, 4.0, 6.0], True)):
+        with monkeypatch.context() as m:
+            m.setattr(OnnxModel, "run", walls(gaps))
+            (dec,) = {r["record"]: r for r in predict_records(
+                onset_export["model"], path, calibration=cal)
+                if r["method"] == "decoder"}.values()
+        assert dec["in_domain"] != flagged and dec["gap (m)"] == pytest.approx(
+            np.mean(gaps) * 1e-6)
+        assert ("3 pieces locate the wall" in dec["flags"]) == flagged
 
 
 def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_path):

@@ -71,10 +71,12 @@ def read_onset_calibration(path: str | Path | None, probe_hz: float, n: int
     return tuple(np.asarray(x, np.float32) for x in (t.real, t.imag, hue0))
 
 
-MAX_PIECES = 2
-"""The most records of the trained length one recording may hold (one after the other): the
-export's ``domain.pieces_limit`` is fitted on records of two, and a record of k pieces would
-be judged on k(k − 1)/2 pairs against it, its false alarms growing with k."""
+MAX_PIECES = 8
+"""The most records of the trained length one recording may hold (one after the other). Each
+piece is judged with the one before, as the export's ``domain.pieces_limit`` was fitted (on
+two records one after the other), so a recording of k pieces is judged on k − 1 pairs and a
+still wall's false alarms grow about k − 1 times (0.8 % a pair at the main job's export):
+longer recordings are for ``wtml stream``, which answers each record."""
 
 
 def cut_pieces(x: np.ndarray, n_samples: int, where: str, rate_hz: float
@@ -94,21 +96,21 @@ def cut_pieces(x: np.ndarray, n_samples: int, where: str, rate_hz: float
     if length % n_samples or not 1 <= k <= MAX_PIECES:
         raise InputError(f"{where}: records of {length / rate_hz:g} s ({length} samples at "
                          f"{rate_hz:g} Hz); the model takes records of {n_samples / rate_hz:g} "
-                         f"s ({n_samples} samples) or of {MAX_PIECES} of them one after the "
-                         f"other ({MAX_PIECES * n_samples} samples): cut a longer recording "
-                         "into such records")
+                         f"s ({n_samples} samples) or of 2 to {MAX_PIECES} of them one after "
+                         f"the other (up to {MAX_PIECES * n_samples} samples): cut a longer "
+                         "recording into such records, or stream it (wtml stream)")
     return x.reshape(*x.shape[:-2], n * k, n_samples), k
 
 
 def pieces_spread(gap: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """How far a record's pieces locate the wall apart, in their σ: ``gap``, ``sigma`` ``(n,
-    k)`` (m) -> ``(n,)``, the largest ``|g_a − g_b| / sqrt(σ_a² + σ_b²)`` over its pairs of
-    pieces with a σ; 0 for one piece or where every piece finds no wall (NaN gap); +inf
-    where some find a wall and others none; NaN where no pair has a σ (a path without σ,
-    the classical one, or pieces out of domain)."""
-    a, b = np.triu_indices(gap.shape[1], 1)
+    k)`` (m), the pieces in their order -> ``(n,)``, the largest ``|g_j − g_(j+1)| /
+    sqrt(σ_j² + σ_(j+1)²)`` over its pairs of pieces one after the other with a σ; 0 for one
+    piece or where every piece finds no wall (NaN gap); +inf where some find a wall and
+    others none; NaN where no such pair has a σ (a path without σ, the classical one, or
+    pieces out of domain)."""
     with np.errstate(invalid="ignore"):
-        apart = np.abs(gap[:, a] - gap[:, b]) / np.hypot(sigma[:, a], sigma[:, b])
+        apart = np.abs(np.diff(gap, axis=1)) / np.hypot(sigma[:, :-1], sigma[:, 1:])
     measured = np.isfinite(apart)
     out = np.where(measured.any(1), np.max(np.where(measured, apart, -np.inf), 1,
                                            initial=-np.inf), np.nan)

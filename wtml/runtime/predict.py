@@ -76,11 +76,12 @@ ratio is one of whole numbers, else refused) and the device's calibration (--cal
 .npz with frequency_hz [the probe's], t, its calibrated T there, complex (1, 2, 2) or
 (n_records, 1, 2, 2), and hue0, its HUE(0) in m/V); they return one row per contact: onset and
 detachment (s), the wall's location gap (m), sigma (m) and the decoder's sigma_95 (m). A
-recording of twice the trained record (two records of its whisk cycles, one after the
-other) is read as two and answered once: the mean gap, the mean sigma (not reduced by
-sqrt 2: the two share their errors), flagged where they locate the wall further apart than
-the export's limit (an object that moves); its contacts are numbered and timed across the
-whole recording (each piece starts with the whisker retracted).
+recording of 2 to 8 times the trained record (records of its whisk cycles, one after the
+other) is read as that many records and answered once: the mean gap, the mean sigma (not
+reduced by sqrt k: they share their errors), flagged where a record and the one before
+locate the wall further apart than the export's limit (an object that moves); its contacts
+are numbered and timed across the whole recording (each piece starts with the whisker
+retracted). Longer recordings: wtml stream.
 Texture models take recordings of any length from one window up (the same .npz as onset);
 a long one is cut into whole windows, run in batches.
 Recordings (onset, texture) may also be as instruments write them: LabVIEW .tdms, a

@@ -66,16 +66,19 @@ class StreamEvent:
 
 @dataclass
 class RecordAnswer:
-    """One record's answer, printed after its last chunk: its number (from 0), its start and
-    end in signal time (s), the wall-clock seconds from the arrival of the read that held its
-    last chunk, the graph's running ``gap``, ``sigma`` and ``sigma_95`` (m; NaN: no wall or
-    out of domain) and ``domain_score`` then. From the second record on, it and the record
-    before are judged as the two pieces of a recording of twice the trained length
+    """One record's answer, printed after its last chunk (after that chunk's contact lines):
+    its number (from 0), its start and end in signal time (s), the wall-clock seconds from the
+    arrival of the read that held its last chunk, and the graph's running ``gap``, ``sigma``
+    and ``sigma_95`` then (m; ``gap`` NaN where it found no wall, ``sigma`` NaN there and out
+    of domain). From the second record on, it and the record before are judged as the two
+    pieces of a recording of twice the trained length
     (:func:`~wtml.runtime.onset.combine_pieces`, the export's limit): ``apart_sigma``, how
-    far they locate the wall apart in their σ (NaN for the first record or where either has
-    no σ; inf where one found a wall and the other none); ``apart``, that over the limit (a
-    wall that moved, came or went between them); ``in_domain``, both records in the graph's
-    domain and not ``apart`` (the first record: its own flag)."""
+    far they locate the wall apart in their σ (0 where neither found a wall; inf where one
+    found a wall and the other none; NaN where either has no σ, and for the first record);
+    ``apart``, that over the limit (a wall that moved, came or went between them);
+    ``in_domain``, both records in the graph's domain and not ``apart``; ``domain_score``,
+    the larger of theirs and the spread over the limit (the first record: its own flag and
+    score)."""
 
     number: int
     start_s: float
@@ -103,8 +106,9 @@ class RecordAnswer:
 class StreamSummary:
     """What a stream took: graph chunks run, seconds of signal, wall seconds spent in the
     graph and the tracker per graph chunk (``(n_chunks,)``), the contact events in order, the
-    records' answers in order, whether it ended by Ctrl-C, and why it stopped before the end
-    of its input (empty: it did not)."""
+    records' answers in order, whether it ended by Ctrl-C, why it stopped before the end of
+    its input (empty: it did not), and the seconds of signal run after the last whole record
+    (less than a record: their contacts printed, no answer)."""
 
     chunks: int = 0
     signal_s: float = 0.0
@@ -113,6 +117,7 @@ class StreamSummary:
     records: list[RecordAnswer] = field(default_factory=list)
     interrupted: bool = False
     stopped: str = ""
+    unanswered_s: float = 0.0
 
     def stats(self) -> dict:
         """``chunks``, ``signal_s``, ``work_s`` (s), ``real_time_factor`` (work over signal),
@@ -131,8 +136,10 @@ class StreamSummary:
         """One line: chunks, signal, real-time factor, per-chunk latency."""
         if not self.chunks:
             return "no whole chunk arrived"
-        end = (" (stopped by Ctrl-C)" if self.interrupted
-               else f" (stopped: {self.stopped})" if self.stopped else "")
+        end = (f"; the last {self.unanswered_s:.3f} s, less than a record, not answered"
+               if self.unanswered_s else "")
+        end += (" (stopped by Ctrl-C)" if self.interrupted
+                else f" (stopped: {self.stopped})" if self.stopped else "")
         s = self.stats()
         return (f"{s['chunks']} chunks, {s['signal_s']:.3f} s of signal in {s['work_s']:.3f} s "
                 f"of work: real-time factor {s['real_time_factor']:.4f}; per chunk median "
@@ -170,8 +177,9 @@ class Streamer:
 
     Raises:
         InputError: not an onset export, another rate, a chunk that is not a whole multiple of
-            the graph's or whose read would pass the memory ceiling, a scale that is not a
-            positive finite number, a bad calibration.
+            the graph's or whose read would pass the memory ceiling, a graph whose chunks do
+            not make whole records, a scale that is not a positive finite number, a bad
+            calibration.
     """
 
     def __init__(self, model_dir: str | Path, calibration: str | Path | None, *,
@@ -203,9 +211,12 @@ class Streamer:
                                                   1)
         self.timing = Timing.of(meta)
         self.record = meta.n_samples
-        # records one after the other need whole graph chunks per record and the export's
-        # limit for two of them (else the first record only)
-        self.limit = meta.domain.pieces_limit if self.record % self.graph_chunk == 0 else 0.0
+        if self.record % self.graph_chunk:
+            raise InputError(f"{model_dir}: its records ({self.record} samples) are not whole "
+                             f"chunks of its streaming graph ({self.graph_chunk} samples), so "
+                             "no chunk ends a record: export it again from a scene whose "
+                             "records hold whole probe periods")
+        self.limit = meta.domain.pieces_limit  # for two records one after the other
 
     def run(self, source: BinaryIO, emit: Callable[[StreamEvent | RecordAnswer], None] | None
             = None) -> StreamSummary:
@@ -250,7 +261,7 @@ class Streamer:
                               time.perf_counter() - arrived, float(own["gap"][0]),
                               float(own["sigma"][0]),
                               float(wide["sigma_95"][0]) if wide else math.nan,
-                              float(own["domain_score"][0]),
+                              float((pair or own)["domain_score"][0]),
                               float(pair["pieces_spread"][0]) if pair else math.nan,
                               bool(pair["pieces_apart"][0]) if pair else False,
                               bool((pair or own)["in_domain"][0])))
@@ -277,10 +288,11 @@ class Streamer:
                     at = read + k  # the chunk's first sample in the stream
                     if not self.limit and at + step > self.record:
                         summary.stopped = (
-                            f"this export answers one record of {self.record / rate:g} s; "
-                            "records one after the other need its limit for two of them "
-                            "(metadata domain.pieces_limit) and records of whole chunks: "
-                            "export it again")
+                            f"this export answers one record of {self.record / rate:g} s: "
+                            "records one after the other need an export that states how far "
+                            "two of them may locate the wall apart (metadata "
+                            "domain.pieces_limit: exports of format 4, since 30 Nov, of a "
+                            "scene whose records hold whole whisk and probe cycles)")
                         break
                     if at and at % self.record == 0:  # a new record, from the trained phase
                         state = zeros
@@ -304,6 +316,8 @@ class Streamer:
         except KeyboardInterrupt:
             summary.interrupted = True
         report(tracker.finish(), time.perf_counter())
+        ran = summary.chunks * step  # samples
+        summary.unanswered_s = (ran - len(summary.records) * self.record) / rate
         return summary
 
 

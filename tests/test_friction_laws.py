@@ -433,3 +433,24 @@ def test_slip_span_below_the_stable_step_is_a_scene_error():
     with pytest.raises(SceneError, match=r"friction.slip_span.*oversample 2"):
         scene_with(law, friction={"law": law, "slip_span": 4.0})
     scene_with(law, friction={"law": law, "slip_span": 2.0})  # 5 mm/s: held at oversample 2
+
+
+def test_the_scene_of_every_law_family_is_texture_yaml_but_for_its_friction():
+    """``configs/scenes/texture_laws.yaml`` (README "Trained across every law family") is the
+    shipped texture scene with every law in its mixture and a span of viscous friction, at
+    LuGre's oversampling, and nothing else changed: the two stay one scene apart."""
+    from pathlib import Path
+
+    import yaml
+
+    from wtml.scenes import load_scene
+
+    shipped, laws = (yaml.safe_load(Path(f"configs/scenes/{name}.yaml").read_text())
+                     for name in ("texture", "texture_laws"))
+    for data in (shipped, laws):
+        data["friction"].pop("law"), data["friction"].pop("viscous_span", None)
+        data.pop("oversample"), data.pop("name")
+    assert shipped == laws
+    scene = load_scene("configs/scenes/texture_laws.yaml")
+    assert np.all(scene.friction.weights > 0) and len(scene.friction.weights) == 3
+    assert scene.friction.viscous_span == 2e-4 and scene.oversample == 4

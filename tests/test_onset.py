@@ -527,6 +527,11 @@ def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
     np.testing.assert_array_equal(four[:, 7], x[:, 1, 15:])
     with pytest.raises(InputError, match="or of 2 to 8 of them one after the other"):
         cut_pieces(np.zeros((2, 1, 90)), 10, "rec.npz", 5.0)  # nine pieces
+    from wtml.runtime.onset import MAX_PIECES
+    from wtml.runtime.predict import INPUT_FORMATS
+
+    assert f"recording of 2 to {MAX_PIECES} times the trained record" in " ".join(
+        INPUT_FORMATS.split())  # wtml predict --help says what the code takes
     um = 1e-6
     gap = np.array([[3.0, 3.02], [3.0, 3.1], [3.0, 3.02], [np.nan, 3.0], [np.nan, np.nan]]) * um
     sigma = np.full_like(gap, 0.1 * um)
@@ -536,7 +541,11 @@ def test_a_records_pieces_are_cut_in_order_and_combined_as_one_answer():
     assert np.isinf(spread[3]) and spread[4] == 0
     three = np.array([[1.0, 3.0, 2.0]]) * um  # the largest pair with a σ: a piece without
     assert pieces_spread(three, np.array([[0.1, 0.1, np.nan]]) * um)[0] == pytest.approx(
-        2 / np.hypot(0.1, 0.1))  # one (out of domain) hides nothing of the others
+        2 / np.hypot(0.1, 0.1))  # one (out of domain) hides nothing of the others, last
+    steps = np.array([[1.0, 3.0, 5.0], [1.0, 5.0, 5.0]]) * um  # or between them: 1 -> 5
+    np.testing.assert_allclose(pieces_spread(steps, np.array([[0.1, np.nan, 0.1]] * 2) * um),
+                               4 / np.hypot(0.1, 0.1))
+    assert np.isinf(pieces_spread(np.array([[1.0, 2.0]]) * um, np.zeros((1, 2)))[0])
     assert np.isnan(pieces_spread(gap[:1], np.full((1, 2), np.nan))[0])
     drift = np.array([[1.0, 1.2, 1.4, 1.6]]) * um  # each piece against the one before only
     assert pieces_spread(drift, np.full((1, 4), 0.1 * um))[0] == pytest.approx(
@@ -731,7 +740,15 @@ def test_predict_reads_a_record_of_three_pieces_judging_each_with_the_one_before
                 if r["method"] == "decoder"}.values()
         assert dec["in_domain"] != flagged and dec["gap (m)"] == pytest.approx(
             np.mean(gaps) * 1e-6)
-        assert ("3 pieces locate the wall" in dec["flags"]) == flagged
+        assert ("two of its 3 pieces, one after the other, locate the wall" in dec[
+            "flags"]) == flagged
+    nine = tmp_path / "nine.npz"  # refused from its header, before a sample is read
+    np.savez(nine, e=np.zeros((1, 9 * n)), i=np.zeros((1, 9 * n)), sample_rate_hz=rate)
+    import wtml.runtime.recordings as recordings
+
+    monkeypatch.setattr(recordings, "record_cost", lambda *a: pytest.fail("read on"))
+    with pytest.raises(InputError, match="or of 2 to 8 of them one after the other"):
+        predict_records(onset_export["model"], nine, calibration=cal)
 
 
 def test_predict_reads_records_resamples_and_refuses(onset_export, scene, tmp_path):

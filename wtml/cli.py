@@ -835,10 +835,11 @@ def build_parser() -> argparse.ArgumentParser:
               "(apart_sigma, in their sigma) and whether that is over the export's limit "
               "(apart=1: a wall that moved; in_domain=0, as for a record after one out of "
               "its domain). An export "
-              "without that limit answers the first record only (exit 1). The end of the "
-              "input or Ctrl-C closes the open contact; a summary (real-time factor, per-chunk "
-              "latency, records) goes to stderr. Contacts are not capped (a stream is not a "
-              "record).")
+              "without that limit answers the first record only (exit 1); one whose graph's "
+              "chunks do not make whole records is refused. The end of the input or Ctrl-C "
+              "closes the open contact; a summary (real-time factor, per-chunk latency, "
+              "records, the seconds after the last whole record, not answered) goes to "
+              "stderr. Contacts are not capped (a stream is not a record).")
     st.add_argument("--model", required=True, help="an onset export folder (stream.onnx)")
     st.add_argument("--calibration", default=None,
                     help="the device's calibration: .npz with frequency_hz [the probe's], t "

@@ -157,9 +157,9 @@ class Domain:
     ``outputs`` maps output names to :class:`OutputDomain`. A graph that also checks its own
     answer (the onset decoder's whisk cycles' agreement) says what in ``self_check`` and the
     limit at which its domain score reaches 1 in ``self_check_limit`` (empty and 0 without
-    one). ``pieces_limit``: how far (σ) the pieces of a record of several times the graph's
-    length may locate the wall apart (:func:`wtml.runtime.onset.combine_pieces`; 0: such
-    records are refused), and the fresh records of two pieces it flagged
+    one). ``pieces_limit``: how far (σ) two pieces one after the other of a record of several
+    times the graph's length may locate the wall apart (:func:`wtml.runtime.onset.combine_pieces`;
+    0: such records are refused), and the fresh records of two pieces it flagged
     (``pieces_false_alarm_fresh``)."""
 
     score: str

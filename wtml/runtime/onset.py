@@ -73,17 +73,36 @@ def read_onset_calibration(path: str | Path | None, probe_hz: float, n: int
 
 MAX_PIECES = 8
 """The most records of the trained length one recording may hold (one after the other). Each
-piece is judged with the one before, as the export's ``domain.pieces_limit`` was fitted (on
-two records one after the other), so a recording of k pieces is judged on k − 1 pairs and a
-still wall's false alarms grow about k − 1 times (0.8 % a pair at the main job's export):
-longer recordings are for ``wtml stream``, which answers each record."""
+piece is judged with the one before (the nearest before it with a σ), as the export's
+``domain.pieces_limit`` was fitted (on two records one after the other), so a recording of
+k pieces is judged on k − 1 pairs: a still wall's false alarms grow about k − 1 times (0.8 %
+a pair at the main job's export), and k times those of one piece's own domain flag, since
+every piece must be in domain. Longer recordings are for ``wtml stream``, which answers each
+record."""
+
+
+def pieces_of(length: int, n_samples: int, where: str, rate_hz: float) -> int:
+    """How many records of ``n_samples`` a recording of ``length`` samples at ``rate_hz``
+    holds, one after the other: 1 to :data:`MAX_PIECES`.
+
+    Raises:
+        InputError: another length (``where`` names the file).
+    """
+    k = length // n_samples
+    if length % n_samples or not 1 <= k <= MAX_PIECES:
+        raise InputError(f"{where}: records of {length / rate_hz:g} s ({length} samples at "
+                         f"{rate_hz:g} Hz); the model takes records of {n_samples / rate_hz:g} "
+                         f"s ({n_samples} samples) or of 2 to {MAX_PIECES} of them one after "
+                         f"the other (up to {MAX_PIECES * n_samples} samples): cut a longer "
+                         "recording into such records, or stream it (wtml stream)")
+    return k
 
 
 def cut_pieces(x: np.ndarray, n_samples: int, where: str, rate_hz: float
                ) -> tuple[np.ndarray, int]:
     """Records of ``k`` times the decoder's length as ``k`` records each: ``x`` ``(..., n,
     k · n_samples)`` at ``rate_hz`` -> ``(..., n · k, n_samples)``, record r's piece j at row
-    ``r · k + j``, and ``k`` (1 to :data:`MAX_PIECES`). A piece starts where the one before
+    ``r · k + j``, and ``k`` (:func:`pieces_of`). A piece starts where the one before
     ends, at the same phase of the whisk and the probe (the export fits its limit only for a
     scene whose records hold whole cycles of both).
 
@@ -92,31 +111,31 @@ def cut_pieces(x: np.ndarray, n_samples: int, where: str, rate_hz: float
             (``where`` names the file).
     """
     n, length = x.shape[-2:]
-    k = length // n_samples
-    if length % n_samples or not 1 <= k <= MAX_PIECES:
-        raise InputError(f"{where}: records of {length / rate_hz:g} s ({length} samples at "
-                         f"{rate_hz:g} Hz); the model takes records of {n_samples / rate_hz:g} "
-                         f"s ({n_samples} samples) or of 2 to {MAX_PIECES} of them one after "
-                         f"the other (up to {MAX_PIECES * n_samples} samples): cut a longer "
-                         "recording into such records, or stream it (wtml stream)")
+    k = pieces_of(length, n_samples, where, rate_hz)
     return x.reshape(*x.shape[:-2], n * k, n_samples), k
 
 
 def pieces_spread(gap: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """How far a record's pieces locate the wall apart, in their σ: ``gap``, ``sigma`` ``(n,
-    k)`` (m), the pieces in their order -> ``(n,)``, the largest ``|g_j − g_(j+1)| /
-    sqrt(σ_j² + σ_(j+1)²)`` over its pairs of pieces one after the other with a σ; 0 for one
-    piece or where every piece finds no wall (NaN gap); +inf where some find a wall and
-    others none; NaN where no such pair has a σ (a path without σ, the classical one, or
-    pieces out of domain)."""
-    with np.errstate(invalid="ignore"):
-        apart = np.abs(np.diff(gap, axis=1)) / np.hypot(sigma[:, :-1], sigma[:, 1:])
-    measured = np.isfinite(apart)
+    k)`` (m), the pieces in their order -> ``(n,)``, the largest ``|g_a − g_b| / sqrt(σ_a² +
+    σ_b²)`` over each piece b with a σ and the nearest piece a before it with one (a piece
+    without σ, out of domain, hides nothing across it); 0 for one piece or where every piece
+    finds no wall (NaN gap); +inf where some find a wall and others none; NaN where no such
+    pair is (a path without σ, the classical one, or pieces out of domain)."""
+    k = gap.shape[1]
+    has = np.isfinite(sigma)
+    last = np.maximum.accumulate(np.where(has, np.arange(k), -1), axis=1)
+    before = np.concatenate([np.full((len(gap), 1), -1), last[:, :-1]], axis=1)
+    rows = np.arange(len(gap))[:, None]
+    at = np.maximum(before, 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        apart = np.abs(gap - gap[rows, at]) / np.hypot(sigma, sigma[rows, at])
+    measured = has & (before >= 0) & ~np.isnan(apart)
     out = np.where(measured.any(1), np.max(np.where(measured, apart, -np.inf), 1,
                                            initial=-np.inf), np.nan)
     walls = np.isfinite(gap).sum(1)
-    out = np.where((walls == 0) | (gap.shape[1] == 1), 0.0, out)
-    return np.where((walls > 0) & (walls < gap.shape[1]), np.inf, out)
+    out = np.where((walls == 0) | (k == 1), 0.0, out)
+    return np.where((walls > 0) & (walls < k), np.inf, out)
 
 
 def combine_pieces(pred: dict[str, np.ndarray], k: int, limit: float) -> dict[str, np.ndarray]:
@@ -163,8 +182,10 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
     # per sample beyond the record: the classical path's per-sample contact state (float32
     # from the graph, float64 after), and the masks the timing rule makes of it
     x = read_record(input_path, meta.sample_rate_hz, meta.n_samples, at_least=True,
-                    rows_per_record=2 * (1 + meta.scene.get("max_contacts", 8)),
-                    work_per_sample=24, profile=profile)
+                    rows_per_record=2 * MAX_PIECES * (1 + meta.scene.get("max_contacts", 8)),
+                    work_per_sample=24, profile=profile,
+                    length_check=lambda where, length: pieces_of(
+                        length, meta.n_samples, where, meta.sample_rate_hz))
     n = x.shape[1]
     x, k = cut_pieces(x, meta.n_samples, str(input_path), meta.sample_rate_hz)
     limit = meta.domain.pieces_limit
@@ -205,9 +226,12 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
                      for text, pieces in doubts.items()]
             spread = record["pieces_spread"][r]
             if record["pieces_apart"][r]:
-                flags.append(f"its {k} pieces locate the wall " + (
-                    "in some and none in others" if np.isinf(spread) else
-                    f"{spread:.2g} sigma apart (limit {limit:.2g})") + ": an object that moves?")
+                flags.append((f"its {k} pieces locate the wall in some and none in others"
+                              if np.isinf(spread) else
+                              (f"its {k} pieces" if k == 2 else
+                               f"two of its {k} pieces, one after the other,")
+                              + f" locate the wall {spread:.2g} sigma apart (limit {limit:.2g})")
+                             + ": an object that moves?")
             if odd[r * k:(r + 1) * k].any():
                 flags.append("gap physically impossible")
             base = {"record": r, "method": label, "gap (m)": float(record["gap"][r]),

@@ -12,6 +12,7 @@ read after the memory the work will take has been checked (:func:`read_record`).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from fractions import Fraction
 from pathlib import Path
 
@@ -124,11 +125,13 @@ def resample(x: np.ndarray, up: int, down: int, where: str) -> np.ndarray:
 
 def read_record(path: str | Path, sample_rate_hz: float, n_samples: int, *,
                 at_least: bool = False, rows_per_record: int = 2,
-                work_per_sample: int = 0, profile: RecordingProfile | None = None
-                ) -> np.ndarray:
+                work_per_sample: int = 0, profile: RecordingProfile | None = None,
+                length_check: Callable[[str, int], object] | None = None) -> np.ndarray:
     """``e`` and ``i`` of a recording (:func:`open_recording`; ``profile``: how to read an
     instrument's file) as float32 ``(2, n, n_samples)`` at the trained rate (``at_least``: any
-    length from ``n_samples`` up, for models fed windows).
+    length from ``n_samples`` up, for models fed windows; ``length_check(where, n_out)``:
+    the caller's own rule for the length at the trained rate, raising :class:`InputError`,
+    applied before any sample is read).
 
     Another rate is resampled (polyphase, when the two rates have a ratio of small whole
     numbers) or refused; the duration must match the trained record's (or reach it,
@@ -153,6 +156,8 @@ def read_record(path: str | Path, sample_rate_hz: float, n_samples: int, *,
                          f"({n_out / sample_rate_hz:g} s); the model takes records of "
                          f"{'at least ' if at_least else ''}{n_samples} "
                          f"({n_samples / sample_rate_hz:g} s)")
+    if length_check is not None:
+        length_check(rec.where, n_out)
     need = (record_cost(n, n_in, n_out, rec.itemsize)
             + rows_per_record * n * ROW_BYTES + work_per_sample * n * n_out)
     within_ceiling(f"{rec.where}: e and i {rec.shape} at {rec.rate:g} Hz", need,

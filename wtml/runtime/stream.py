@@ -317,7 +317,7 @@ class Streamer:
             summary.interrupted = True
         report(tracker.finish(), time.perf_counter())
         ran = summary.chunks * step  # samples
-        summary.unanswered_s = (ran - len(summary.records) * self.record) / rate
+        summary.unanswered_s = max(0, ran - len(summary.records) * self.record) / rate
         return summary
 
 

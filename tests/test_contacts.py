@@ -4,12 +4,16 @@ than it can be."""
 
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from wtml.cli import main
+from wtml.runtime import stream as stream_module
 from wtml.runtime.contacts import ContactTracker, Timing, contacts_from
 from wtml.runtime.predict import InputError
 
@@ -123,6 +127,15 @@ def _stream_data(chunk: int, n_frames: int, offsets: list[float]) -> tuple[np.nd
     return e, i
 
 
+def _serve(fake: FakeStream, monkeypatch, tmp_path: Path) -> Path:
+    """``wtml stream`` loading ``fake`` for any model folder; the calibration file it reads."""
+    monkeypatch.setattr(stream_module, "task_of", lambda model_dir: "onset")
+    monkeypatch.setattr(stream_module, "load_export", lambda *a, **k: (None, None, fake))
+    np.savez(tmp_path / "cal.npz", frequency_hz=fake.frequency_hz, t=np.eye(2)[None] + 0j,
+             hue0=1.0)
+    return tmp_path / "cal.npz"
+
+
 OFFSETS = [1.0, 0.0, 0.01, 0.3, 0.31, 10.0, 10.0, 0.0]
 """Eight records' margins (the stand-in's gaps): out of domain, in, alike, moved 4 σ, alike,
 no wall, none again, a wall back."""
@@ -135,17 +148,10 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
     time; each record's answer after its last chunk's contact lines, judged with the record
     before as two pieces (:data:`OFFSETS`: in domain where both are and their walls lie within
     3 σ, or neither finds one)."""
-    import io
-
-    from wtml.runtime import stream as stream_module
-
     chunk, n_frames = 8, 120
     e, i = _stream_data(chunk, n_frames, OFFSETS if records > 1 else [0.0])
     fake = FakeStream(chunk, record=n_frames * chunk // records)
-    monkeypatch.setattr(stream_module, "task_of", lambda model_dir: "onset")
-    monkeypatch.setattr(stream_module, "load_export", lambda *a, **k: (None, None, fake))
-    np.savez(tmp_path / "cal.npz", frequency_hz=fake.frequency_hz, t=np.eye(2)[None] + 0j,
-             hue0=1.0)
+    cal = _serve(fake, monkeypatch, tmp_path)
     per = fake.meta.n_samples
     frames = [fake.frames(e[k:k + per], i[k:k + per], 0.0) for k in range(0, len(e), per)]
     frames = {key: np.concatenate([f[key] for f in frames], 1) for key in frames[0]}
@@ -164,7 +170,7 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
     data = np.stack([e, i], -1).astype("<f4").tobytes() + b"\0" * 20  # a trailing piece
     for reads in (1, 3, 7):
         emitted: list = []
-        got = stream_module.run_stream("fake", io.BytesIO(data), tmp_path / "cal.npz",
+        got = stream_module.run_stream("fake", io.BytesIO(data), cal,
                                        emit=emitted.append, chunk_samples=reads * chunk)
         onsets = [x.event.time for x in got.events if x.event.kind == "onset"]
         ends = [x.event.time for x in got.events if x.event.kind == "detachment"]
@@ -200,47 +206,33 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
 def test_a_stream_past_one_record_needs_the_exports_limit_for_two(tmp_path, monkeypatch):
     """An export without ``domain.pieces_limit`` answers one record of a stream: the loop
     stops at its end, saying why, its contacts and its answer given."""
-    import io
-
-    from wtml.runtime import stream as stream_module
-
     chunk, n_frames = 8, 120
     e, i = _stream_data(chunk, n_frames, [0.0])
     fake = FakeStream(chunk, record=n_frames * chunk // 4, limit=0.0)
-    monkeypatch.setattr(stream_module, "task_of", lambda model_dir: "onset")
-    monkeypatch.setattr(stream_module, "load_export", lambda *a, **k: (None, None, fake))
-    np.savez(tmp_path / "cal.npz", frequency_hz=fake.frequency_hz, t=np.eye(2)[None] + 0j,
-             hue0=1.0)
+    cal = _serve(fake, monkeypatch, tmp_path)
     got = stream_module.run_stream("fake", io.BytesIO(np.stack([e, i], -1).astype(
-        "<f4").tobytes()), tmp_path / "cal.npz", chunk_samples=7 * chunk)
+        "<f4").tobytes()), cal, chunk_samples=7 * chunk)
     assert got.chunks == n_frames // 4 and len(got.records) == 1
     assert abs(got.signal_s - n_frames * chunk / 4e3) < 1e-12 and got.unanswered_s == 0
     assert "domain.pieces_limit" in got.stopped and "stopped:" in got.text()
     path = tmp_path / "stream.f32"
     path.write_bytes(np.stack([e, i], -1).astype("<f4").tobytes())
-    assert main(["stream", "--model", "fake", "--calibration", str(tmp_path / "cal.npz"),
+    assert main(["stream", "--model", "fake", "--calibration", str(cal),
                  "--input", str(path)]) == 1  # stopped before the input's end
 
 
 def test_a_stream_says_what_it_left_unanswered(tmp_path, monkeypatch):
     """A stream that ends inside a record: its contacts printed, the whole records answered,
     the rest named in the summary."""
-    import io
-
-    from wtml.runtime import stream as stream_module
-
     chunk, n_frames = 8, 120
     e, i = _stream_data(chunk, n_frames, [0.0])
     fake = FakeStream(chunk, record=50 * chunk)
-    monkeypatch.setattr(stream_module, "task_of", lambda model_dir: "onset")
-    monkeypatch.setattr(stream_module, "load_export", lambda *a, **k: (None, None, fake))
-    np.savez(tmp_path / "cal.npz", frequency_hz=fake.frequency_hz, t=np.eye(2)[None] + 0j,
-             hue0=1.0)
+    cal = _serve(fake, monkeypatch, tmp_path)
     got = stream_module.run_stream("fake", io.BytesIO(np.stack([e, i], -1).astype(
-        "<f4").tobytes()), tmp_path / "cal.npz")
+        "<f4").tobytes()), cal)
     assert len(got.records) == 2 and got.chunks == n_frames
     assert got.unanswered_s == pytest.approx(20 * chunk / 1e3)
     assert "the last 0.160 s, less than a record, not answered" in got.text()
     fake.meta.n_samples = 50 * chunk + 3  # no chunk ends a record
     with pytest.raises(InputError, match="not whole chunks of its streaming graph"):
-        stream_module.run_stream("fake", io.BytesIO(b""), tmp_path / "cal.npz")
+        stream_module.run_stream("fake", io.BytesIO(b""), cal)

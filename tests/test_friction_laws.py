@@ -414,8 +414,8 @@ def test_slip_span_draws_each_specimens_regularisation_and_changes_nothing_else(
     pre-sliding without being LuGre); its draws come after every other, so the records'
     other nuisance is unchanged, and span 1 is the fixed v_r of before."""
     law = {"coulomb": 0.5, "stribeck": 0.5}
-    fixed = scene_with(law, oversample=4)
-    spanned = scene_with(law, oversample=4, friction={"law": law, "slip_span": 4.0})
+    fixed = scene_with(law, oversample=6)
+    spanned = scene_with(law, oversample=6, friction={"law": law, "slip_span": 4.0})
     a, b = (s.specimens(np.random.default_rng(3)) for s in (fixed, spanned))
     np.testing.assert_array_equal(a["slip_speed"], 0.01)
     assert np.all((b["slip_speed"] >= 0.0025) & (b["slip_speed"] <= 0.01))
@@ -432,7 +432,37 @@ def test_slip_span_below_the_stable_step_is_a_scene_error():
     law = {"coulomb": 1.0}
     with pytest.raises(SceneError, match=r"friction.slip_span.*oversample 2"):
         scene_with(law, friction={"law": law, "slip_span": 4.0})
-    scene_with(law, friction={"law": law, "slip_span": 2.0})  # 5 mm/s: held at oversample 2
+    scene_with(law, friction={"law": law, "slip_span": 1.6})  # 6.25 mm/s: held at oversample 2
+
+
+def test_least_slip_speed_marks_where_the_explicit_friction_step_chatters():
+    """Coulomb records at the scene's step (oversample 2, 21 modes) against the same stepped 8×
+    finer: at the least v_r the band above 5 kHz holds the finer records' power (within 1 %);
+    at a sixth of it the explicit step chatters there (several times the power). The least
+    v_r grows with the modes kept (their velocity under a held force) and is ``dt Σφb²`` times
+    the worst force where every mode is slow."""
+    from scipy.signal import welch
+
+    from wtml.scenes.texture import WORST_FORCE_N
+
+    worst = {"normal_force": [4.1e-4, 4.1e-4], "angle_deg": [5.0, 5.0]}
+    base = scene_with({"coulomb": 1.0}, contact=worst, drive={"record_s": 0.1, "lead_s": 0.05})
+    least = base.least_slip_speed()
+
+    def high_band(slip_speed, oversample):
+        scene = replace(base, oversample=oversample,
+                        friction=replace(base.friction, slip_speed=slip_speed, asperity=0.0))
+        i = scene.simulate(5, np.random.default_rng(0))["i"].astype(float)
+        f, p = welch(i, fs=scene.acquisition.sample_rate_hz, nperseg=512)
+        return p[:, f > 5e3].sum()
+
+    assert high_band(least, 2) == pytest.approx(high_band(least, 16), rel=0.01)
+    assert high_band(least / 6, 2) > 3 * high_band(least / 6, 16)
+    fewer = replace(base, n_modes=14)
+    assert fewer.least_slip_speed() < 0.8 * least
+    model = fewer.transducer()
+    slow = WORST_FORCE_N * np.sum(model.tip**2) / (2 * fewer.acquisition.sample_rate_hz)
+    assert fewer.least_slip_speed() == pytest.approx(slow, rel=0.03)
 
 
 def test_the_scene_of_every_law_family_is_texture_yaml_but_for_its_friction():

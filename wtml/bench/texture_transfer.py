@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from collections.abc import Callable
 
 import numpy as np
@@ -24,12 +23,7 @@ from wtml.bench.resampling import group_interval
 from wtml.bench.transfer import Variant, acquisition_variants, member_variants
 from wtml.physics.friction import LAWS
 from wtml.physics.spread import CLASSES, DeviceSpread
-from wtml.scenes.texture import (
-    LUGRE_OVERSAMPLE,
-    TextureScene,
-    fit_friction_law,
-    least_slip_speed,
-)
+from wtml.scenes.texture import LUGRE_OVERSAMPLE, TextureScene, fit_friction_law
 from wtml.schema import field_range
 
 REFERENCE_SPREAD = DeviceSpread(length=0.005, thickness=0.005, modulus=0.03, loss_factor=0.25,
@@ -60,12 +54,13 @@ def presliding(scene):
     """The scene with :data:`PRESLIDING_SPAN` (its own span where wider; narrower where the
     finest step a scene takes, ``oversample``'s upper bound, could not hold the least v_r),
     stepped as finely as the least v_r needs (the explicit friction step's stability,
-    :func:`~wtml.scenes.texture.least_slip_speed`)."""
+    :meth:`~wtml.scenes.texture.TextureScene.least_slip_speed`)."""
     f = scene.friction
     finest = field_range(scene, "oversample")[1]
-    span = max(f.slip_span, min(PRESLIDING_SPAN, f.slip_speed / least_slip_speed(finest)))
+    span = max(f.slip_span, min(PRESLIDING_SPAN, f.slip_speed / scene.least_slip_speed(finest)))
     least = f.slip_speed / span
-    step = max(scene.oversample, math.ceil(least_slip_speed(1) / least - 1e-9))
+    step = next(o for o in range(scene.oversample, finest + 1)
+                if scene.least_slip_speed(o) <= least * (1 + 1e-9))
     return dataclasses.replace(scene, oversample=step, friction=dataclasses.replace(
         scene.friction, slip_span=span))
 

@@ -26,13 +26,15 @@ The force is evaluated once per step from the tip's velocity and position at the
 over the step (the linear part is stepped exactly, in the free tip's eigenbasis):
 
 - Coulomb and Stribeck: a smooth function of v, held at its mid-step extrapolation from the last
-  two samples (explicit, second order). Stable where the force's slope ``dF/dv · dt Σφb²``
-  stays below 1 (the extrapolation's real stability interval): at the texture scene's step
-  (9.8 µs; Σφb² ≈ 1.0e6 /kg for the macro WT) the slope at rest ``μ_s N cos θ / v_r + c`` ≈
-  0.03 N·s/m gives ≈ 0.3; Stribeck's falling branch is a negative slope (a growth the scheme
-  follows). A v_r of 0.5 mm/s (slope ×20) is unstable there.
+  two samples (explicit, second order). Stable where the force's slope ``dF/dv`` times the
+  tip's velocity after a step under a unit force held over it (``dt Σφb²`` where every mode
+  is slow) stays below 1 (the extrapolation's real stability interval): at the texture scene's step
+  (9.8 µs; 13.8 m/s per N for the macro WT's 21 modes) the slope at rest
+  ``μ_s N cos θ / v_r + c`` ≈ 0.03 N·s/m gives ≈ 0.4; Stribeck's falling branch is a negative
+  slope (a growth the scheme follows). Below it the step chatters in the current's high band
+  (:meth:`wtml.scenes.texture.TextureScene.least_slip_speed`, which the scene checks).
 - LuGre: sticking, the bristle is a spring σ0 on the tip (up to ~1.7e4 N/m, ``σ0 dt² Σφb²`` ≈
-  1.7 at that step), which explicit feedback would not hold. The force held over the step is
+  2.6 at that step), which explicit feedback would not hold. The force held over the step is
   instead solved implicitly: the step's mean force ``σ0 z̄ + σ1 (z_{k+1} − z_k)/dt + c v̄`` with
   v held at the step's mean ``v̄ = (v_k + v_{k+1})/2``, where v_{k+1} answers the force through
   the exact step (one scalar per record, Newton's method in a bracket). Over the step z relaxes

@@ -67,9 +67,6 @@ FEPA_GRADES = {"P2500": 8.4, "P2000": 10.3, "P1500": 12.6, "P1000": 18.3, "P600"
 TABLE_4_10_RMS_SPEED = {"P1200": 0.361, "P800": 0.335, "P400": 0.293, "P320": 0.242,
                         "P280": 0.213}
 """The thesis's RMS tip speed per grade at 10 V, 36 Hz (Table 4.10), m/s."""
-SPECTRUM_TOP_HZ = 1e4
-"""Hz: the top of the thesis's measured texture spectra (Table 4.11's peaks reach 9.39 kHz),
-the band's top for ``n_modes: auto``."""
 NOMINAL_V, NOMINAL_HZ, NOMINAL_N, NOMINAL_ANGLE_DEG = 10.0, 36.0, 3.3e-4, 10.0
 """The thesis's set-up (§4.5): drive amplitude V, whisking frequency Hz, normal force N and
 contact angle, degrees."""
@@ -142,18 +139,11 @@ halving the step moves the current's fundamental by up to ~3 × a 0.25 s window'
 204.8 kS/s by less than it."""
 
 
-SLIP_SPEED_AT_2 = 4.3e-3
-"""m/s: the least regularisation v_r that the explicit Coulomb/Stribeck step holds at
-``oversample`` 2 (scaled by 2/oversample): the force's slope at rest ``μ_s N cos θ / v_r``
-times ``dt Σφb²`` below 1 (:mod:`wtml.physics.friction`) at the scene's worst case, μ_s =
-1.5 × 0.69 (the Stribeck's largest ratio at P280), N cos θ = 4.1e-4 cos 5° N, Σφb² = 1.03e6 /kg
-(the macro WT's 14 modes), dt = 9.77 µs: ``4.3e-3 / v_r``."""
-
-
-def least_slip_speed(oversample: int) -> float:
-    """The least regularisation v_r (m/s) that the explicit Coulomb/Stribeck step holds at
-    ``oversample`` × the sampling rate (:data:`SLIP_SPEED_AT_2` scaled by 2/oversample)."""
-    return SLIP_SPEED_AT_2 * 2 / oversample
+WORST_FORCE_N = 4.3e-4
+"""N: the largest force at rest of the scene's Coulomb/Stribeck draws, ``μ_s N cos θ`` with μ_s =
+1.5 × 0.69 (the Stribeck's largest ratio at P280), N cos θ = 4.1e-4 cos 5° N: with the v_r it
+is divided by, the slope at rest of the force the explicit step feeds back
+(:meth:`TextureScene.least_slip_speed`)."""
 
 
 @dataclass(frozen=True)
@@ -270,7 +260,7 @@ class TextureScene:
     grades: str = one_of("thesis", "fepa", default="thesis")
     specimens_per_grade: int = bounded(1, 1000, default=2)
     device: BeamDevice = field(default_factory=shipped("macro"))
-    n_modes: int = bounded(1, 40, default=14)
+    n_modes: int = bounded(1, 40, default=21)
     reach_m: float = bounded(1e-4, 0.1, default=5e-3)
     drive: TextureDrive = field(default_factory=TextureDrive)
     contact: Contact = field(default_factory=Contact)
@@ -326,11 +316,11 @@ class TextureScene:
             raise SceneError(f"{pre}oversample: LuGre friction (friction.law.lugre > 0) needs "
                              f"oversample >= {LUGRE_OVERSAMPLE} (its bristle resolved), got "
                              f"{self.oversample}")
-        least, f = least_slip_speed(self.oversample), self.friction
-        if f.slip_span > 1 and f.slip_speed / f.slip_span < least:
+        f = self.friction
+        if f.slip_span > 1 and f.slip_speed / f.slip_span < (least := self.least_slip_speed()):
             raise SceneError(f"{pre}friction.slip_span: the least v_r, slip_speed/slip_span = "
                              f"{f.slip_speed / f.slip_span:g} m/s, must be "
-                             f">= {least:g} m/s at oversample {self.oversample} (the explicit "
+                             f">= {least:.3g} m/s at oversample {self.oversample} (the explicit "
                              "friction step's stability)")
         if self.drive.whisk_hz[1] >= self.acquisition.sample_rate_hz / 8:
             raise SceneError(f"{pre}drive.whisk_hz: must stay below an eighth of the sample "
@@ -382,10 +372,26 @@ class TextureScene:
 
     def modal_band_hz(self) -> tuple[float, float]:
         """The band (Hz) that ``n_modes: auto`` holds the modal model to
-        (:mod:`wtml.scenes.modes`): the slowest whisk up to :data:`SPECTRUM_TOP_HZ` (or the
-        sampling rate's Nyquist, if lower), where friction excites the structure's modes."""
-        top = min(SPECTRUM_TOP_HZ, self.acquisition.sample_rate_hz / 2)
-        return self.drive.whisk_hz[0], top
+        (:mod:`wtml.scenes.modes`): the slowest whisk up to the sampling rate's Nyquist, the
+        band the decoder reads. The asperities' impulses arrive at |v|/d, 4-33 kHz at the
+        thesis's speeds, and ring every mode there: a model cut at 10 kHz (the top of the
+        thesis's measured spectra, 14 modes) leaves the current above 13 kHz at ~1 % of its
+        power, and a decoder trained on it flags every record of the full model."""
+        return self.drive.whisk_hz[0], self.acquisition.sample_rate_hz / 2
+
+    def least_slip_speed(self, oversample: int | None = None) -> float:
+        """The least regularisation v_r (m/s) the explicit Coulomb/Stribeck step holds at
+        ``oversample`` × the sampling rate (default the scene's own): the force's slope at
+        rest, :data:`WORST_FORCE_N` / v_r, times the tip's velocity after a step under a unit
+        force held over it, ``max over 0 < t <= dt of Σ φb² sin(ω t)/ω`` (the nominal
+        model's undamped modes; ``dt Σφb²`` where every mode is slow), below 1
+        (:mod:`wtml.physics.friction`). 5.9e-3 m/s at the shipped 21 modes and 102.4 kS/s
+        (4.2e-3 at 14 modes: the higher modes add velocity to the feedback)."""
+        dt = 1 / (self.acquisition.sample_rate_hz * (oversample or self.oversample))
+        model = self.transducer()
+        t = dt * np.arange(1, 65)[:, None] / 64
+        w = model.omega_n
+        return WORST_FORCE_N * float(np.max(np.sum(model.tip**2 * np.sin(w * t) / w, axis=1)))
 
     CALIBRATION_POINTS: ClassVar[int] = 5
 

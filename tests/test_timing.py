@@ -64,3 +64,37 @@ def test_duration_reads_like_a_person_writes_it():
     assert duration(12.34) == "12.3 s"
     assert duration(245.0) == "4 min 05 s"
     assert duration(float("nan")) == "?"
+
+
+def test_another_process_busy_while_timing_is_seen_and_said(tmp_path):
+    """A child spinning one core while the bench runs counts as another process's load (its
+    CPU is not the bench's own until it is waited for); the report warns above BUSY_SHARE and
+    says the share below it; without /proc/stat (not Linux) there is no verdict."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from wtml.bench.frontier import busy_lines
+    from wtml.bench.timing import BUSY_SHARE, busy_elsewhere, cpu_snapshot
+
+    spin = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.3)
+        start = cpu_snapshot()
+        time.sleep(1.0)
+        end = cpu_snapshot()
+    finally:
+        spin.kill()
+        spin.wait()
+    share = busy_elsewhere(start, end)
+    assert share > 0.6 / (os.cpu_count() or 1)
+    assert busy_elsewhere(start, start) is None and busy_elsewhere(None, end) is None
+    assert cpu_snapshot(tmp_path / "stat") is None
+    assert busy_elsewhere((10.0, 0.0, 0.0), (11.0, 1.0, 1.0), cores=2) == 0.0  # all its own
+    assert busy_elsewhere((10.0, 0.0, 0.0), (12.0, 1.0, 1.0), cores=2) == 0.5
+    busy = "\n".join(busy_lines({"busy_elsewhere": 2 * BUSY_SHARE}))
+    assert "**Busy machine:**" in busy and "Re-run it alone" in busy
+    calm = "\n".join(busy_lines({"busy_elsewhere": BUSY_SHARE / 2}))
+    assert "Busy" not in calm and "other processes kept" in calm
+    assert busy_lines({"busy_elsewhere": None}) == []

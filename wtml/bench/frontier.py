@@ -38,7 +38,14 @@ from typing import Any
 
 import numpy as np
 
-from wtml.bench.timing import latency_p50, paired_ratio, throughput
+from wtml.bench.timing import (
+    BUSY_SHARE,
+    busy_elsewhere,
+    cpu_snapshot,
+    latency_p50,
+    paired_ratio,
+    throughput,
+)
 
 BUDGETS_S = (10e-6, 100e-6, 1e-3, 10e-3)
 """The budgets of the report, seconds per unit (a sample, or a second of signal)."""
@@ -592,7 +599,24 @@ def report_lines(problem: Problem, result: dict) -> list[str]:
                          f"[{b['low']:.3g}, {b['high']:.3g}] {problem.unit} | "
                          f"{_time(b['latency_s'])} |")
     verdict = speed_verdict(problem, rows)
-    return lines + ["", *([verdict, ""] if verdict else []), *problem.notes, ""]
+    return lines + ["", *([verdict, ""] if verdict else []), *busy_lines(result),
+                    *problem.notes, ""]
+
+
+def busy_lines(result: dict) -> list[str]:
+    """What else ran while the task was timed (:func:`~wtml.bench.timing.busy_elsewhere`):
+    a line, and a warning above :data:`~wtml.bench.timing.BUSY_SHARE`; none where unknown."""
+    share = result.get("busy_elsewhere")
+    if share is None:
+        return []
+    cores = os.cpu_count()
+    if share <= BUSY_SHARE:
+        return [f"While this task was timed, other processes kept {100 * share:.0f} % of the "
+                f"{cores} cores busy.", ""]
+    return [f"**Busy machine:** while this task was timed, other processes kept "
+            f"{100 * share:.0f} % of the {cores} cores busy (more than "
+            f"{100 * BUSY_SHARE:.0f} %): its times and the speed target's verdict are not this "
+            "machine's own. Re-run it alone.", ""]
 
 
 def plot(problem: Problem, result: dict, path: Path) -> None:
@@ -645,6 +669,7 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
         methods.append(Method(f"decoder {variant} ONNX", "decoder",
                               open_graph(path, problem.graph, threads), path))
     rows = []
+    start = cpu_snapshot()
     for m in [*methods, *problem.methods]:
         progress(f"{problem.task}: {m.name}")
         rows.append(measure(problem, m, threads=threads, latency_repeats=latency_repeats,
@@ -682,6 +707,7 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
         result["reference"] = f"decoder {variant} ONNX"
         predictors = {m.name: m.predictor for m in methods + problem.methods} | quantised
         side_by_side(problem, rows, predictors, result["reference"], budget_s, progress)
+    result["busy_elsewhere"] = busy_elsewhere(start, cpu_snapshot())
     result["pareto"] = pareto(problem, usable(rows))
     result["budgets"] = budget_rows(problem, rows)
     result["lines"] = report_lines(problem, result)

@@ -3,19 +3,27 @@
 Each measurement stops at its repeat count or once it has run ``budget_s`` seconds (at
 least one call), and its warm-up once it has run a third of that, so a slow method (the
 physics inversion takes ~7 s per call at batch 4096) does not hold up a benchmark; the median
-is robust to the count. Two methods compared side by side: :func:`paired_ratio`. Also
+is robust to the count. Two methods compared side by side: :func:`paired_ratio`. Whether
+other processes shared the machine while it was timed: :func:`cpu_snapshot` and
+:func:`busy_elsewhere`. Also
 :func:`duration`, the one way wtml prints a wall-clock time
 (training's epoch lines, the main job's stages)."""
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
 Clock = Callable[[], float]
 """Seconds (``time.perf_counter``; a test drives its own)."""
+BUSY_SHARE = 0.1
+"""The share of the machine's cores that other processes may keep busy while a bench is timed
+before its report calls the machine busy (beside a unit-test run, fluid's throughput read
+5.1e5/s against 1.4e6/s alone)."""
 
 
 def _median_call(predictor, ze, repeats: int, warmup: int, budget_s: float,
@@ -91,3 +99,29 @@ def duration(seconds: float) -> str:
     if not seconds < 60:
         return f"{int(seconds // 60)} min {int(seconds % 60):02d} s" if seconds == seconds else "?"
     return f"{seconds:.1f} s"
+
+
+def cpu_snapshot(stat: Path = Path("/proc/stat")) -> tuple[float, float, float] | None:
+    """``(the machine's busy CPU seconds, this process's and its finished children's CPU
+    seconds, wall-clock seconds)`` now, or None where ``stat`` (Linux's ``/proc/stat``) is not
+    there. Busy: user, nice, system, irq, softirq and steal time over every core."""
+    try:
+        fields = stat.read_text().splitlines()[0].split()
+    except OSError:
+        return None
+    tick = os.sysconf("SC_CLK_TCK")
+    busy = sum(int(fields[i]) for i in (1, 2, 3, 6, 7, 8)) / tick
+    own = os.times()
+    mine = own.user + own.system + own.children_user + own.children_system
+    return busy, mine, time.monotonic()
+
+
+def busy_elsewhere(start, end, cores: int | None = None) -> float | None:
+    """The share of ``cores`` (default every core) that other processes kept busy between two
+    snapshots of :func:`cpu_snapshot`: ``(machine busy - own) / (wall × cores)``, at least 0;
+    None where either is None or no time passed."""
+    if start is None or end is None or end[2] <= start[2]:
+        return None
+    other = (end[0] - start[0]) - (end[1] - start[1])
+    return max(0.0, other / ((end[2] - start[2]) * (cores or os.cpu_count() or 1)))
+

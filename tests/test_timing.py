@@ -88,13 +88,16 @@ def test_another_process_busy_while_timing_is_seen_and_said(tmp_path):
         spin.kill()
         spin.wait()
     share = busy_elsewhere(start, end)
-    assert share > 0.6 / (os.cpu_count() or 1)
+    assert end[3] == len(os.sched_getaffinity(0)) and share > 0.6 / end[3]
     assert busy_elsewhere(start, start) is None and busy_elsewhere(None, end) is None
-    assert cpu_snapshot(tmp_path / "stat") is None
-    assert busy_elsewhere((10.0, 0.0, 0.0), (11.0, 1.0, 1.0), cores=2) == 0.0  # all its own
-    assert busy_elsewhere((10.0, 0.0, 0.0), (12.0, 1.0, 1.0), cores=2) == 0.5
-    busy = "\n".join(busy_lines({"busy_elsewhere": 2 * BUSY_SHARE}))
-    assert "**Busy machine:**" in busy and "Re-run it alone" in busy
-    calm = "\n".join(busy_lines({"busy_elsewhere": BUSY_SHARE / 2}))
+    assert cpu_snapshot(tmp_path / "stat") is None  # no file
+    (tmp_path / "stat").write_text("cpu  1 2 3\ncpu0 x y\n")
+    assert cpu_snapshot(tmp_path / "stat") is None  # not /proc/stat's form
+    assert busy_elsewhere((10.0, 0.0, 0.0, 2), (11.0, 1.0, 1.0, 2)) == 0.0  # all its own
+    assert busy_elsewhere((10.0, 0.0, 0.0, 2), (12.0, 1.0, 1.0, 2)) == 0.5
+    assert busy_elsewhere((10.0, 0.0, 0.0, 2), (19.0, 1.0, 1.0, 2)) == 1.0  # clipped
+    busy = "\n".join(busy_lines({"busy_elsewhere": 2 * BUSY_SHARE, "cores": 2}))
+    assert "**Busy machine:**" in busy and "Re-run it alone" in busy and "2 cores" in busy
+    calm = "\n".join(busy_lines({"busy_elsewhere": BUSY_SHARE / 2, "cores": 2}))
     assert "Busy" not in calm and "other processes kept" in calm
     assert busy_lines({"busy_elsewhere": None}) == []

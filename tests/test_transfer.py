@@ -105,6 +105,12 @@ def test_texture_rows_hold_out_a_presliding_compliance_stepped_stably():
     assert slow.oversample == 16
     assert slow.friction.slip_span == pytest.approx(2e-3 / scene.least_slip_speed(16))
     assert 2.0 < slow.friction.slip_span < 4.0
+    # the clamped span's v_r is held at the finest step (within the check's 1e-9), not below
+    f = slow.friction
+    assert f.slip_speed / f.slip_span >= slow.least_slip_speed() * (1 - 1e-9)
+    with pytest.raises(SceneError, match="friction.slip_span: a least v_r of 0.000625 m/s"):
+        presliding(dataclasses.replace(scene, friction=dataclasses.replace(
+            scene.friction, slip_span=16.0)))  # its own span: no step holds it
 
 
 def test_texture_rows_hold_out_more_viscous_friction_that_table_4_10_cannot_tell():

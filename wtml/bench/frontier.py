@@ -606,10 +606,9 @@ def report_lines(problem: Problem, result: dict) -> list[str]:
 def busy_lines(result: dict) -> list[str]:
     """What else ran while the task was timed (:func:`~wtml.bench.timing.busy_elsewhere`):
     a line, and a warning above :data:`~wtml.bench.timing.BUSY_SHARE`; none where unknown."""
-    share = result.get("busy_elsewhere")
+    share, cores = result.get("busy_elsewhere"), result.get("cores")
     if share is None:
         return []
-    cores = os.cpu_count()
     if share <= BUSY_SHARE:
         return [f"While this task was timed, other processes kept {100 * share:.0f} % of the "
                 f"{cores} cores busy.", ""]
@@ -707,7 +706,9 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
         result["reference"] = f"decoder {variant} ONNX"
         predictors = {m.name: m.predictor for m in methods + problem.methods} | quantised
         side_by_side(problem, rows, predictors, result["reference"], budget_s, progress)
-    result["busy_elsewhere"] = busy_elsewhere(start, cpu_snapshot())
+    end = cpu_snapshot()
+    result["busy_elsewhere"] = busy_elsewhere(start, end)
+    result["cores"] = None if end is None else end[3]
     result["pareto"] = pareto(problem, usable(rows))
     result["budgets"] = budget_rows(problem, rows)
     result["lines"] = report_lines(problem, result)

@@ -91,6 +91,13 @@ def check_paired(low: TextureScene, high: TextureScene) -> None:
         diff = [f.name for f in dataclasses.fields(low)
                 if getattr(same, f.name) != getattr(low, f.name)]
         raise ValueError(f"the two scenes differ in {diff}, not only in the acquisition")
+    for scene in (low, high):
+        top = scene.transducer().omega_n[-1] / (2 * np.pi)
+        if top < scene.acquisition.sample_rate_hz / 2:
+            raise ValueError(f"{scene.name}: n_modes: its {scene.n_modes} modes end at "
+                             f"{top:.0f} Hz, below its Nyquist "
+                             f"({scene.acquisition.sample_rate_hz / 2:g} Hz): the grains ring "
+                             "every mode the records hold")
 
 
 def paired_features(scenes: dict[str, TextureScene], peers: dict[str, tuple[str, BandPowerPeer]],

@@ -56,13 +56,10 @@ def presliding(scene):
     stepped as finely as the least v_r needs (the explicit friction step's stability,
     :meth:`~wtml.scenes.texture.TextureScene.least_slip_speed`)."""
     f = scene.friction
-    finest = field_range(scene, "oversample")[1]
+    finest = int(field_range(scene, "oversample")[1])
     span = max(f.slip_span, min(PRESLIDING_SPAN, f.slip_speed / scene.least_slip_speed(finest)))
-    least = f.slip_speed / span
-    step = next(o for o in range(scene.oversample, finest + 1)
-                if scene.least_slip_speed(o) <= least * (1 + 1e-9))
-    return dataclasses.replace(scene, oversample=step, friction=dataclasses.replace(
-        scene.friction, slip_span=span))
+    return dataclasses.replace(scene, friction=dataclasses.replace(
+        f, slip_span=span)).stepped_stably()
 
 
 VISCOUS = 2e-4

@@ -101,27 +101,31 @@ def duration(seconds: float) -> str:
     return f"{seconds:.1f} s"
 
 
-def cpu_snapshot(stat: Path = Path("/proc/stat")) -> tuple[float, float, float] | None:
-    """``(the machine's busy CPU seconds, this process's and its finished children's CPU
-    seconds, wall-clock seconds)`` now, or None where ``stat`` (Linux's ``/proc/stat``) is not
-    there. Busy: user, nice, system, irq, softirq and steal time over every core."""
+def cpu_snapshot(stat: Path = Path("/proc/stat")) -> tuple[float, float, float, int] | None:
+    """``(the busy CPU seconds of the cores this process may run on, this process's and its
+    finished children's CPU seconds, wall-clock seconds, those cores' count)`` now, or None
+    where ``stat`` (Linux's ``/proc/stat``) cannot be read. Busy: user, nice, system, irq,
+    softirq and steal time of each ``cpuN`` line in the process's affinity."""
+    mine = set(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
     try:
-        fields = stat.read_text().splitlines()[0].split()
-    except OSError:
+        rows = [line.split() for line in stat.read_text().splitlines()]
+        cores = [r for r in rows if r and r[0][3:].isdigit() and r[0].startswith("cpu")
+                 and (mine is None or int(r[0][3:]) in mine)]
+        busy = sum(int(r[i]) for r in cores for i in (1, 2, 3, 6, 7, 8))
+    except (OSError, ValueError, IndexError):
         return None
-    tick = os.sysconf("SC_CLK_TCK")
-    busy = sum(int(fields[i]) for i in (1, 2, 3, 6, 7, 8)) / tick
+    if not cores:
+        return None
     own = os.times()
-    mine = own.user + own.system + own.children_user + own.children_system
-    return busy, mine, time.monotonic()
+    spent = own.user + own.system + own.children_user + own.children_system
+    return busy / os.sysconf("SC_CLK_TCK"), spent, time.monotonic(), len(cores)
 
 
-def busy_elsewhere(start, end, cores: int | None = None) -> float | None:
-    """The share of ``cores`` (default every core) that other processes kept busy between two
-    snapshots of :func:`cpu_snapshot`: ``(machine busy - own) / (wall × cores)``, at least 0;
-    None where either is None or no time passed."""
+def busy_elsewhere(start, end) -> float | None:
+    """The share of the snapshots' cores that other processes kept busy between two
+    snapshots of :func:`cpu_snapshot`: ``(those cores' busy time - own) / (wall × cores)``,
+    clipped to [0, 1]; None where either is None or no time passed."""
     if start is None or end is None or end[2] <= start[2]:
         return None
     other = (end[0] - start[0]) - (end[1] - start[1])
-    return max(0.0, other / ((end[2] - start[2]) * (cores or os.cpu_count() or 1)))
-
+    return min(1.0, max(0.0, other / ((end[2] - start[2]) * end[3])))

@@ -26,13 +26,14 @@ The force is evaluated once per step from the tip's velocity and position at the
 over the step (the linear part is stepped exactly, in the free tip's eigenbasis):
 
 - Coulomb and Stribeck: a smooth function of v, held at its mid-step extrapolation from the last
-  two samples (explicit, second order). Stable where the force's slope ``dF/dv`` times the
-  tip's velocity after a step under a unit force held over it (``dt Σφb²`` where every mode
-  is slow) stays below 1 (the extrapolation's real stability interval): at the texture scene's step
-  (9.8 µs; 13.8 m/s per N for the macro WT's 21 modes) the slope at rest
-  ``μ_s N cos θ / v_r + c`` ≈ 0.03 N·s/m gives ≈ 0.4; Stribeck's falling branch is a negative
-  slope (a growth the scheme follows). Below it the step chatters in the current's high band
-  (:meth:`wtml.scenes.texture.TextureScene.least_slip_speed`, which the scene checks).
+  two samples (explicit, second order). Stable where the force's slope ``dF/dv`` stays below
+  :func:`largest_stable_slope`, the linearised loop's limit (about ``1 / (dt Σφb²)`` where
+  every mode is slow: 0.065 N·s/m at the texture scene's step, 9.8 µs, for the macro WT's 21
+  modes, which the faster modes lower to 0.0605): there the slope at rest
+  ``μ_s N cos θ / v_r + c`` ≈ 0.03 N·s/m is about half of it; Stribeck's falling branch is a
+  negative slope (a growth the scheme follows). Past it the step chatters in the current's
+  high band (:meth:`wtml.scenes.texture.TextureScene.least_slip_speed`, which the scene
+  checks).
 - LuGre: sticking, the bristle is a spring σ0 on the tip (up to ~1.7e4 N/m, ``σ0 dt² Σφb²`` ≈
   2.6 at that step), which explicit feedback would not hold. The force held over the step is
   instead solved implicitly: the step's mean force ``σ0 z̄ + σ1 (z_{k+1} − z_k)/dt + c v̄`` with
@@ -167,6 +168,35 @@ class Friction:
     def _law_arrays(self) -> tuple[np.ndarray, ...]:
         return (self.law, self.coulomb, self.slip_speed, self.viscous, self.static_ratio,
                 self.stribeck_speed, self.bristle_stiffness, self.bristle_damping)
+
+
+def largest_stable_slope(model, dt: float) -> float:
+    """N·s/m: the steepest force law ``dF/dv`` the explicit Coulomb/Stribeck step holds on
+    ``model`` (a :class:`~wtml.physics.modal.ModalTransducer`, free tip) at the step ``dt``
+    (s): the largest s at which the linearised loop, the exact step under the force held at
+    its mid-step extrapolation ``F_k = s (1.5 v_k − 0.5 v_{k−1})`` against the motion, has
+    spectral radius at most 1 (bisection to 1e-6 of s). Where every mode is slow this is
+    about ``1 / (dt Σφb²)``; the faster modes, rung within the step, hold less: 0.0605 N·s/m
+    for the macro WT's 21 modes at 102.4 kS/s, against ``1 / (dt Σφb²)`` = 0.065."""
+    maps = model.step_matrices(dt, 0.0, 0.0, force_input=True)[0]
+    ns = maps.shape[1] - 4
+    a, b, c = maps[:ns, :ns], maps[:ns, ns + 2], maps[ns + 1, :ns]  # x' = a x + b F; v = c x
+    against = -np.sign(c @ b)  # the force the tip applies slows it: F along v
+
+    def radius(slope: float) -> float:
+        loop = np.zeros((ns + 1, ns + 1))
+        loop[:ns, :ns] = a + 1.5 * against * slope * np.outer(b, c)
+        loop[:ns, ns] = -0.5 * against * slope * b
+        loop[ns, :ns] = c  # v_{k-1} for the next step
+        return float(np.max(np.abs(np.linalg.eigvals(loop))))
+
+    low, high = 0.0, 1.0 / abs(c @ b)
+    while radius(high) <= 1.0:
+        low, high = high, 2.0 * high
+    while high - low > 1e-6 * high:
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if radius(mid) <= 1.0 else (low, mid)
+    return low
 
 
 def describing_function(coulomb, speed, static_ratio=1.0, stribeck_speed=1.0) -> np.ndarray:

@@ -100,9 +100,13 @@ def auto_request(cls: type, data: Mapping, path: str = "") -> tuple[dict, AutoMo
 def with_auto_modes(scene, request: AutoModes, path: str = ""):
     """``scene`` with the count ``request`` picks (:meth:`AutoModes.count`).
 
+    The scene is checked again at its count (a check may depend on the modes: texture's
+    friction step's stability).
+
     Raises:
         SceneError: ``n_modes`` when the count exceeds the scene's largest (its field's
-            range): loosen ``modes_tolerance`` or narrow ``modes_band_hz``.
+            range): loosen ``modes_tolerance`` or narrow ``modes_band_hz``; or the scene's
+            own check at that count.
     """
     n, errors, band = request.count(scene)
     high = field_range(scene, "n_modes")[1]
@@ -112,4 +116,6 @@ def with_auto_modes(scene, request: AutoModes, path: str = ""):
                          f"more than the {high:g} a scene takes (at {high:g} modes: "
                          f"{errors[int(high) - 1]:.2g}); loosen modes_tolerance or narrow "
                          "modes_band_hz")
-    return dataclasses.replace(scene, n_modes=n)
+    scene = dataclasses.replace(scene, n_modes=n)
+    scene.check(path)
+    return scene

@@ -51,12 +51,12 @@ from wtml.device_calibration import StoredCalibration
 from wtml.devices import BeamDevice, shipped
 from wtml.interface import OutputRange
 from wtml.physics.beam_presets import build
-from wtml.physics.friction import LAWS, Friction, grains, pad_grains
+from wtml.physics.friction import LAWS, Friction, grains, largest_stable_slope, pad_grains
 from wtml.physics.modal import ModalTransducer
 from wtml.physics.spread import DeviceSpread, draw_factors
 from wtml.physics.twoport import flat_parts
 from wtml.scenes.onset import Acquisition, check_shard_memory
-from wtml.schema import SceneError, bounded, mixture, one_of
+from wtml.schema import SceneError, bounded, field_range, mixture, one_of
 from wtml.signals.excitation import lead_in
 
 THESIS_GRADES = {"P1200": 15.3, "P800": 21.8, "P400": 35.0, "P320": 46.2, "P280": 52.2}
@@ -120,7 +120,8 @@ class LuGreLaw(StribeckLaw):
     specimen's bristles: ``presliding_m``, the pre-sliding distance ``μ_s N cos θ / σ0`` at
     the nominal N and θ (m, log-uniform; it sets the stiffness σ0, a property of the
     specimen), and ``bristle_damping`` σ1 (N·s/m, uniform: up to about 0.15 of the critical
-    damping of a 1e3 N/m bristle on the tip's modal mass ``1/Σφb²`` ≈ 1 mg). σ2 is ``viscous``.
+    damping of a 1e3 N/m bristle on the tip's modal mass ``1/Σφb²`` ≈ 1 mg at 14 modes,
+    0.63 mg at the 21 kept since 30 Nov: the range was chosen at 14). σ2 is ``viscous``.
     The default line is the fit's (intercept 0.4862, slope 0.003869 /µm), and its shift per c.
     """
 
@@ -137,13 +138,6 @@ LUGRE_OVERSAMPLE = 4
 while it sticks (σ0 ≈ 1.4e4 N/m), excited by the grains at each reversal; at 102.4 kS/s
 halving the step moves the current's fundamental by up to ~3 × a 0.25 s window's noise, at
 204.8 kS/s by less than it."""
-
-
-WORST_FORCE_N = 4.3e-4
-"""N: the largest force at rest of the scene's Coulomb/Stribeck draws, ``μ_s N cos θ`` with μ_s =
-1.5 × 0.69 (the Stribeck's largest ratio at P280), N cos θ = 4.1e-4 cos 5° N: with the v_r it
-is divided by, the slope at rest of the force the explicit step feeds back
-(:meth:`TextureScene.least_slip_speed`)."""
 
 
 @dataclass(frozen=True)
@@ -316,12 +310,13 @@ class TextureScene:
             raise SceneError(f"{pre}oversample: LuGre friction (friction.law.lugre > 0) needs "
                              f"oversample >= {LUGRE_OVERSAMPLE} (its bristle resolved), got "
                              f"{self.oversample}")
-        f = self.friction
-        if f.slip_span > 1 and f.slip_speed / f.slip_span < (least := self.least_slip_speed()):
-            raise SceneError(f"{pre}friction.slip_span: the least v_r, slip_speed/slip_span = "
+        f, least = self.friction, self.least_slip_speed()
+        if f.slip_speed / f.slip_span < least * (1 - 1e-9):
+            key = "slip_span" if f.slip_span > 1 else "slip_speed"
+            raise SceneError(f"{pre}friction.{key}: the least v_r, slip_speed/slip_span = "
                              f"{f.slip_speed / f.slip_span:g} m/s, must be "
                              f">= {least:.3g} m/s at oversample {self.oversample} (the explicit "
-                             "friction step's stability)")
+                             "friction step's stability: raise oversample)")
         if self.drive.whisk_hz[1] >= self.acquisition.sample_rate_hz / 8:
             raise SceneError(f"{pre}drive.whisk_hz: must stay below an eighth of the sample "
                              f"rate ({self.acquisition.sample_rate_hz / 8:g} Hz)")
@@ -375,23 +370,61 @@ class TextureScene:
         (:mod:`wtml.scenes.modes`): the slowest whisk up to the sampling rate's Nyquist, the
         band the decoder reads. The asperities' impulses arrive at |v|/d, 4-33 kHz at the
         thesis's speeds, and ring every mode there: a model cut at 10 kHz (the top of the
-        thesis's measured spectra, 14 modes) leaves the current above 13 kHz at ~1 % of its
-        power, and a decoder trained on it flags every record of the full model."""
+        thesis's measured spectra, 14 modes) leaves the current above 13 kHz at 0.1-1 % of
+        its power, and a decoder trained on it flags every record of the full model."""
         return self.drive.whisk_hz[0], self.acquisition.sample_rate_hz / 2
+
+    def worst_force(self) -> float:
+        """N: the largest force at rest of the scene's Coulomb and Stribeck draws, ``μ_s N
+        cos θ``: the larger law's line at the scene's largest grade (Stribeck's times its
+        largest ``static_ratio``), three ``mu_spread`` above it, at the largest normal force
+        and the smallest contact angle (4.3e-4 N for texture.yaml: 1.5 × 0.69 at P280, N cos θ
+        = 4.1e-4 cos 5° N); 0 where the mixture holds neither law (LuGre is stepped
+        implicitly). With the v_r it is divided by, the slope at rest of the force that the
+        explicit step feeds back (:meth:`least_slip_speed`)."""
+        f, d = self.friction, max(self.grade_table.values())
+        lines = [mu for name, mu in (
+            ("coulomb", f.mu_0 + f.mu_per_um * d),
+            ("stribeck", (f.stribeck.mu_0 + f.stribeck.mu_per_um * d)
+             * f.stribeck.static_ratio[1])) if f.law.get(name, 0) > 0]
+        if not lines:
+            return 0.0
+        c = self.contact
+        return ((max(lines) + 3 * f.mu_spread) * c.normal_force[1]
+                * np.cos(np.radians(c.angle_deg[0])))
 
     def least_slip_speed(self, oversample: int | None = None) -> float:
         """The least regularisation v_r (m/s) the explicit Coulomb/Stribeck step holds at
         ``oversample`` × the sampling rate (default the scene's own): the force's slope at
-        rest, :data:`WORST_FORCE_N` / v_r, times the tip's velocity after a step under a unit
-        force held over it, ``max over 0 < t <= dt of Σ φb² sin(ω t)/ω`` (the nominal
-        model's undamped modes; ``dt Σφb²`` where every mode is slow), below 1
-        (:mod:`wtml.physics.friction`). 5.9e-3 m/s at the shipped 21 modes and 102.4 kS/s
-        (4.2e-3 at 14 modes: the higher modes add velocity to the feedback)."""
+        rest, :meth:`worst_force` / v_r, at most the nominal model's
+        :func:`~wtml.physics.friction.largest_stable_slope` (the linearised loop's limit).
+        7.1e-3 m/s at the shipped 21 modes and 102.4 kS/s (4.4e-3 at 14 modes: the higher
+        modes add velocity to the feedback)."""
+        force = self.worst_force()
+        if force == 0:
+            return 0.0
         dt = 1 / (self.acquisition.sample_rate_hz * (oversample or self.oversample))
-        model = self.transducer()
-        t = dt * np.arange(1, 65)[:, None] / 64
-        w = model.omega_n
-        return WORST_FORCE_N * float(np.max(np.sum(model.tip**2 * np.sin(w * t) / w, axis=1)))
+        return force / largest_stable_slope(self.transducer(), dt)
+
+    def stepped_stably(self, least: float | None = None) -> TextureScene:
+        """The scene at the least ``oversample``, its own or more, whose explicit friction
+        step holds the v_r ``least`` (m/s; default the scene's least,
+        ``slip_speed / slip_span``): :meth:`least_slip_speed` is not monotonic in the step
+        once a mode rings near the step's rate (30 modes of the macro WT: 37.7 mm/s at 2,
+        47.8 at 3, 10.7 at 4), so each step is tried in turn.
+
+        Raises:
+            SceneError: ``friction.slip_span``, where no step up to the finest (16) holds it.
+        """
+        f = self.friction
+        least = f.slip_speed / f.slip_span if least is None else least
+        finest = int(field_range(self, "oversample")[1])
+        for step in range(self.oversample, finest + 1):
+            if self.least_slip_speed(step) <= least * (1 + 1e-9):
+                return replace(self, oversample=step)
+        raise SceneError(f"friction.slip_span: a least v_r of {least:g} m/s is below what the "
+                         f"finest step (oversample {finest}) holds at {self.n_modes} modes, "
+                         f"{self.least_slip_speed(finest):.3g} m/s")
 
     CALIBRATION_POINTS: ClassVar[int] = 5
 

@@ -168,7 +168,7 @@ def modal_cost(model_dir: str | Path, *, records: int = 32, counts=MODE_COUNTS,
 def _stepped(scene):
     """``scene``, a texture scene stepped as finely as its friction needs at its count
     (:meth:`~wtml.scenes.texture.TextureScene.stepped_stably`: 30 modes of the macro WT need
-    oversample 4); an onset scene as it is."""
+    oversample 5); an onset scene as it is."""
     return scene.stepped_stably() if hasattr(scene, "stepped_stably") else scene
 
 

@@ -140,14 +140,18 @@ OFFSETS = [1.0, 0.0, 0.01, 0.3, 0.31, 10.0, 10.0, 0.0]
 """Eight records' margins (the stand-in's gaps): out of domain, in, alike, moved 4 σ, alike,
 no wall, none again, a wall back."""
 
+@pytest.mark.parametrize("first_alone", [True, False])
 @pytest.mark.parametrize("records", [1, 8])
-def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeypatch, records):
+def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeypatch, records,
+                                                               first_alone):
     """``wtml stream``'s loop (run_stream) on a stand-in graph, read in chunks of one, three
     and seven graph chunks (a trailing piece shorter than a chunk left out), as one record or
     eight: the offline rule's contacts on the frames of each record from a fresh state, every
     time; each record's answer after its last chunk's contact lines, judged with the record
     before as two pieces (:data:`OFFSETS`: in domain where both are and their walls lie within
-    3 σ, or neither finds one)."""
+    3 σ, or neither finds one). The first record: answered at its end, alone, with
+    ``first_alone``; otherwise held, then answered after the second with the pair's verdict
+    (a stream of one record: alone, at its end)."""
     chunk, n_frames = 8, 120
     e, i = _stream_data(chunk, n_frames, OFFSETS if records > 1 else [0.0])
     fake = FakeStream(chunk, record=n_frames * chunk // records)
@@ -170,8 +174,8 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
     data = np.stack([e, i], -1).astype("<f4").tobytes() + b"\0" * 20  # a trailing piece
     for reads in (1, 3, 7):
         emitted: list = []
-        got = stream_module.run_stream("fake", io.BytesIO(data), cal,
-                                       emit=emitted.append, chunk_samples=reads * chunk)
+        got = stream_module.run_stream("fake", io.BytesIO(data), cal, emit=emitted.append,
+                                       chunk_samples=reads * chunk, first_alone=first_alone)
         onsets = [x.event.time for x in got.events if x.event.kind == "onset"]
         ends = [x.event.time for x in got.events if x.event.kind == "detachment"]
         np.testing.assert_allclose(onsets, want[0], atol=1e-12)
@@ -179,8 +183,7 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
         # the wall is the record's: no contact line claims one; each record's line comes
         # after the contacts its last chunk decided
         assert all("gap_m" not in x.line() for x in got.events)
-        order = [(getattr(x, "decided_s", getattr(x, "end_s", None)), hasattr(x, "end_s"))
-                 for x in emitted]
+        order = [(x.decided_s, hasattr(x, "end_s")) for x in emitted]
         assert order == sorted(order) and len(emitted) == len(got.events) + records
         assert got.chunks == n_frames and abs(got.signal_s - n_frames * chunk / 1e3) < 1e-12
         assert got.unanswered_s == 0 and "not answered" not in got.text()
@@ -189,14 +192,23 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
         np.testing.assert_allclose([r.end_s for r in got.records],
                                    np.arange(1, records + 1) * per / 1e3)
         np.testing.assert_allclose([r.apart_sigma for r in got.records[1:]], apart, rtol=1e-3)
-        assert np.isnan(got.records[0].apart_sigma)
-        assert [r.apart for r in got.records] == [False] + [a > 3.0 for a in apart]
-        assert [r.in_domain for r in got.records] == inside
+        assert [r.apart for r in got.records[1:]] == [a > 3.0 for a in apart]
+        assert [r.in_domain for r in got.records[1:]] == inside[1:]
         # a pair's score: the larger of the records' (the frames seen) and its spread over
         # the limit
         np.testing.assert_allclose([r.domain_score for r in got.records[1:]], np.fmax(
             n_frames / records, np.array(apart, float) / 3.0), rtol=1e-3)
-        assert got.records[0].domain_score == n_frames / records
+        first = got.records[0]
+        if first_alone or records == 1:  # judged alone, at its own end
+            assert np.isnan(first.apart_sigma) and not first.apart
+            assert first.in_domain == inside[0] and first.domain_score == n_frames / records
+            assert first.decided_s == first.end_s
+        else:  # held, then judged with the second: the pair's verdict, the second's end
+            second = got.records[1]
+            assert (first.apart_sigma, first.apart, first.in_domain, first.domain_score) == (
+                second.apart_sigma, second.apart, second.in_domain, second.domain_score)
+            assert first.decided_s == second.end_s == second.decided_s
+            assert emitted.index(first) == emitted.index(second) - 1
         assert got.stats()["records_apart"] == (3 if records > 1 else 0)
         assert "apart=" in got.records[-1].line() and "sigma_95_m=" in got.records[-1].line()
         assert [r.sigma_95_m for r in got.records] == pytest.approx(
@@ -236,3 +248,30 @@ def test_a_stream_says_what_it_left_unanswered(tmp_path, monkeypatch):
     fake.meta.n_samples = 50 * chunk + 3  # no chunk ends a record
     with pytest.raises(InputError, match="not whole chunks of its streaming graph"):
         stream_module.run_stream("fake", io.BytesIO(b""), cal)
+
+
+def test_the_first_record_held_is_flagged_by_a_wall_that_moved(tmp_path, monkeypatch, capsys):
+    """Two records whose walls lie 4 σ apart (a floor that moved): judged alone, the first is
+    in domain; held (the default), it takes the pair's verdict, apart and out of domain, and
+    its line comes after the second's last chunk (``wtml stream``; ``--first-alone`` prints
+    it at its end, judged alone)."""
+    chunk, n_frames = 8, 120
+    e, i = _stream_data(chunk, n_frames, [0.0, 0.3])
+    fake = FakeStream(chunk, record=n_frames * chunk // 2)
+    cal = _serve(fake, monkeypatch, tmp_path)
+    path = tmp_path / "stream.f32"
+    path.write_bytes(np.stack([e, i], -1).astype("<f4").tobytes())
+    lines = {}
+    for flag in ([], ["--first-alone"]):
+        assert main(["stream", "--model", "fake", "--calibration", str(cal), "--input",
+                     str(path), *flag]) == 0
+        lines[bool(flag)] = [x for x in capsys.readouterr().out.splitlines()
+                             if x.startswith("record")]
+    alone, held = lines[True][0], lines[False][0]
+    assert "number=0" in alone and "in_domain=1" in alone and "apart=0" in alone
+    assert "decided_s=0.480000" in alone and "apart_sigma=nan" in alone
+    assert "number=0" in held and "in_domain=0" in held and "apart=1" in held
+    assert "decided_s=0.960000" in held
+    assert lines[True][1] == lines[False][1].replace(
+        lines[False][1].split("latency_ms=")[1].split()[0],
+        lines[True][1].split("latency_ms=")[1].split()[0])  # the second's line alike

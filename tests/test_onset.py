@@ -184,7 +184,8 @@ def test_wtml_stream_answers_a_longer_stream_record_by_record(onset_export, scen
     each record's answer is the offline graph's on that record alone (the state starts
     afresh at its first sample: a state carried on would sum the first record's frames into
     the second's score), and the second is judged with the first as two pieces of one
-    recording are (combine_pieces, the export's limit)."""
+    recording are (combine_pieces, the export's limit); the first, held by default, takes
+    that verdict too."""
     import io
 
     from wtml.exporters.onset import twice_as_long
@@ -198,7 +199,7 @@ def test_wtml_stream_answers_a_longer_stream_record_by_record(onset_export, scen
                                                  for c in record_inputs(rec)[2:]))
     cal = calibration_file(tmp_path / "cal.npz", scene, rec)
     pairs = np.stack([rec["e"][0], rec["i"][0]], -1).astype("<f4").tobytes()
-    got = run_stream(onset_export["model"], io.BytesIO(pairs), cal)
+    got = run_stream(onset_export["model"], io.BytesIO(pairs), cal, first_alone=True)
     assert [r.number for r in got.records] == [0, 1] and not got.stopped
     np.testing.assert_allclose([r.domain_score for r in got.records], offline["domain_score"],
                                rtol=1e-2, atol=1e-3)
@@ -212,6 +213,12 @@ def test_wtml_stream_answers_a_longer_stream_record_by_record(onset_export, scen
     np.testing.assert_allclose(got.records[1].apart_sigma, pair["pieces_spread"][0], rtol=1e-3)
     assert got.records[1].end_s == pytest.approx(2 * scene.n_samples
                                                  / scene.acquisition.sample_rate_hz)
+    # by default the first record is held and judged with the second: the pair's verdict
+    held = run_stream(onset_export["model"], io.BytesIO(pairs), cal).records
+    np.testing.assert_array_equal([r.gap_m for r in held], [r.gap_m for r in got.records])
+    assert held[0].in_domain == held[1].in_domain == pair["in_domain"][0]
+    assert held[0].apart == pair["pieces_apart"][0]
+    assert held[0].decided_s == held[1].end_s
 
 
 def test_the_whisk_cycles_agreement_is_their_weighted_distance_from_the_answer_in_sigma():

@@ -280,7 +280,8 @@ def _stream(args: argparse.Namespace) -> int:
 
     streamer = Streamer(args.model, args.calibration, chunk_samples=args.chunk_samples,
                         e_scale=args.e_scale, i_scale=args.i_scale,
-                        sample_rate_hz=args.sample_rate, threads=args.threads)
+                        sample_rate_hz=args.sample_rate, threads=args.threads,
+                        first_alone=args.first_alone)
     if args.input != "-" and Path(args.input).is_dir():
         raise InputError(f"--input {args.input}: is a folder; give a file or named pipe of "
                          "float32 (e, i) pairs, or - for stdin")
@@ -834,7 +835,8 @@ def build_parser() -> argparse.ArgumentParser:
               "the domain flag, how far it and the record before locate the wall apart "
               "(apart_sigma, in their sigma) and whether that is over the export's limit "
               "(apart=1: a wall that moved; in_domain=0, as for a record after one out of "
-              "its domain). An export "
+              "its domain). The first record is held until the second ends and judged with "
+              "it (its line then, decided_s the second's end), unless --first-alone. An export "
               "without that limit answers the first record only (exit 1); one whose graph's "
               "chunks do not make whole records is refused. The end of the input or Ctrl-C "
               "closes the open contact; a summary (real-time factor, per-chunk latency, "
@@ -854,6 +856,10 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--sample-rate", type=RATE, default=None,
                     help="the acquisition's rate (Hz), checked against the model's")
     st.add_argument("--threads", type=THREADS, default=1, help="onnxruntime threads")
+    st.add_argument("--first-alone", action="store_true",
+                    help="print the first record's answer at its end, judged alone (a floor "
+                         "that moves goes unseen in it), instead of one record later, judged "
+                         "with the second")
     st.set_defaults(func=_stream)
 
     be = verb("bench", "speed and accuracy of every method of a task, side by side; the "

@@ -205,8 +205,9 @@ def test_run_stream_carries_its_state_across_reads_of_any_size(tmp_path, monkeyp
             assert first.decided_s == first.end_s
         else:  # held, then judged with the second: the pair's verdict, the second's end
             second = got.records[1]
-            assert (first.apart_sigma, first.apart, first.in_domain, first.domain_score) == (
-                second.apart_sigma, second.apart, second.in_domain, second.domain_score)
+            np.testing.assert_equal(
+                (first.apart_sigma, first.apart, first.in_domain, first.domain_score),
+                (second.apart_sigma, second.apart, second.in_domain, second.domain_score))
             assert first.decided_s == second.end_s == second.decided_s
             assert emitted.index(first) == emitted.index(second) - 1
         assert got.stats()["records_apart"] == (3 if records > 1 else 0)
@@ -265,8 +266,10 @@ def test_the_first_record_held_is_flagged_by_a_wall_that_moved(tmp_path, monkeyp
     for flag in ([], ["--first-alone"]):
         assert main(["stream", "--model", "fake", "--calibration", str(cal), "--input",
                      str(path), *flag]) == 0
-        lines[bool(flag)] = [x for x in capsys.readouterr().out.splitlines()
-                             if x.startswith("record")]
+        out = capsys.readouterr()
+        lines[bool(flag)] = [x for x in out.out.splitlines() if x.startswith("record")]
+        # the moved floor counts once: the second record is apart from the one before
+        assert "2 records, 1 apart from the one before" in out.err
     alone, held = lines[True][0], lines[False][0]
     assert "number=0" in alone and "in_domain=1" in alone and "apart=0" in alone
     assert "decided_s=0.480000" in alone and "apart_sigma=nan" in alone
@@ -275,3 +278,23 @@ def test_the_first_record_held_is_flagged_by_a_wall_that_moved(tmp_path, monkeyp
     assert lines[True][1] == lines[False][1].replace(
         lines[False][1].split("latency_ms=")[1].split()[0],
         lines[True][1].split("latency_ms=")[1].split()[0])  # the second's line alike
+
+
+def test_a_held_first_record_is_answered_alone_where_the_stream_ends_in_the_second(
+        tmp_path, monkeypatch):
+    """A stream that ends part-way into the second record: the held first record is answered
+    once, judged alone, decided at the stream's end (after the second record's contact lines,
+    whose decided_s stay below it); the rest is named unanswered."""
+    chunk, n_frames = 8, 120
+    e, i = _stream_data(chunk, n_frames, [0.0])
+    fake = FakeStream(chunk, record=80 * chunk)  # a record and a half
+    cal = _serve(fake, monkeypatch, tmp_path)
+    emitted: list = []
+    got = stream_module.run_stream("fake", io.BytesIO(np.stack([e, i], -1).astype(
+        "<f4").tobytes()), cal, emit=emitted.append)
+    (first,) = got.records
+    assert first.number == 0 and np.isnan(first.apart_sigma) and first.in_domain
+    assert first.end_s == pytest.approx(0.64) and first.decided_s == pytest.approx(0.96)
+    assert emitted[-1] is first and all(x.decided_s <= first.decided_s for x in emitted)
+    assert any(x.decided_s > first.end_s for x in got.events)  # the second's contacts first
+    assert got.unanswered_s == pytest.approx(0.32) and got.stats()["records_apart"] == 0

@@ -495,11 +495,19 @@ def test_the_largest_stable_slope_is_where_the_linearised_loop_stops_decaying(n_
 
 
 def test_the_worst_force_is_the_largest_force_at_rest_the_scene_draws():
-    """texture.yaml: Stribeck's 1.5 × μ(P280) (and three μ spreads) at 4.1e-4 N and 5°; the
-    FEPA grades reach 82 µm, so more; a LuGre-only scene has no explicit friction step."""
+    """texture.yaml: Stribeck's 1.5 × (μ(P280) and three μ spreads) at 4.1e-4 N and 5°; a line
+    that falls with grain size peaks at the finest grade; the FEPA grades reach 82 µm, so
+    more; a LuGre-only scene has no explicit friction step; a viscous c past the step's
+    largest slope leaves no v_r it holds."""
     thesis = scene_with({"coulomb": 0.5, "stribeck": 0.5})
-    assert thesis.worst_force() == pytest.approx(
-        (1.5 * (0.488 + 0.0039 * 52.2) + 0.015) * 4.1e-4 * np.cos(np.radians(5.0)), rel=1e-3)
+    assert thesis.worst_force() == pytest.approx(  # μ_c three spreads up, times the ratio
+        1.5 * (0.488 + 0.0039 * 52.2 + 3 * 0.005) * 4.1e-4 * np.cos(np.radians(5.0)), rel=1e-3)
+    falling = scene_with({"coulomb": 1.0}, friction={"law": {"coulomb": 1.0}, "mu_0": 0.9,
+                                                     "mu_per_um": -0.005})
+    assert falling.worst_force() == pytest.approx(  # a line that falls: the finest grade's
+        (0.9 - 0.005 * 15.3 + 0.015) * 4.1e-4 * np.cos(np.radians(5.0)), rel=1e-3)
+    with pytest.raises(SceneError, match=r"friction.slip_speed.*must be >= inf"):
+        scene_with({"coulomb": 1.0}, friction={"law": {"coulomb": 1.0}, "viscous": 0.1})
     assert scene_with({"coulomb": 1.0}).worst_force() < 0.7 * thesis.worst_force()
     assert scene_with({"coulomb": 0.5, "stribeck": 0.5},
                       grades="fepa").worst_force() > 1.1 * thesis.worst_force()

@@ -46,8 +46,20 @@ def test_a_scene_is_checked_again_at_the_count_auto_picks():
     spanned = data | {"friction": data["friction"] | {"slip_span": 3.0}}
     assert scene_from_dict(spanned | {"n_modes": 21}).n_modes == 21
     for n_modes in (33, "auto"):
-        with pytest.raises(SceneError, match="friction.slip_span.*must be >= 0.00402"):
+        with pytest.raises(SceneError, match="friction.slip_span.*must be >= 0.00405"):
             scene_from_dict(spanned | {"n_modes": n_modes})
+
+
+def test_auto_is_not_refused_for_the_placeholder_count():
+    """A scene whose friction step holds its v_r at the count auto picks (texture at 25.6
+    kS/s: 14 modes) but not at the shipped 21 loads with n_modes: auto (the scene is first
+    built at one mode, then checked at its count)."""
+    data = shipped("texture") | {"acquisition": shipped("texture")["acquisition"]
+                                 | {"sample_rate_hz": 25600.0},
+                                 "drive": shipped("texture")["drive"] | {"lead_s": 0.01}}
+    with pytest.raises(SceneError, match="friction.slip_speed"):
+        scene_from_dict(data | {"n_modes": 21})
+    assert scene_from_dict(data | {"n_modes": "auto"}).n_modes == 14
 
 
 def test_fewest_modes_returns_the_errors_it_stopped_at():

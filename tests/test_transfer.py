@@ -90,7 +90,7 @@ def test_texture_rows_hold_out_a_presliding_compliance_stepped_stably():
     name = "pre-sliding: each specimen's v_r in [v_r/4, v_r] (held out)"
     assert rows[name].kind == "held out"
     spanned = presliding(scene)
-    # 2.5 mm/s: the least oversample that holds it at 21 modes (3.2 mm/s at 4, 2.6 at 5)
+    # 2.5 mm/s: the least oversample that holds it at 21 modes (3.38 mm/s at 4, 2.69 at 5)
     assert (spanned.friction.slip_span, spanned.oversample) == (4.0, 6)
     spanned.check("")
     with pytest.raises(SceneError, match="friction.slip_span"):
@@ -111,6 +111,9 @@ def test_texture_rows_hold_out_a_presliding_compliance_stepped_stably():
     with pytest.raises(SceneError, match="friction.slip_span: a least v_r of 0.000625 m/s"):
         presliding(dataclasses.replace(scene, friction=dataclasses.replace(
             scene.friction, slip_span=16.0)))  # its own span: no step holds it
+    lugre = presliding(dataclasses.replace(scene, oversample=4, friction=dataclasses.replace(
+        scene.friction, law={"lugre": 1.0})))  # no explicit step: the span, no finer step
+    assert (lugre.friction.slip_span, lugre.oversample) == (4.0, 4)
 
 
 def test_texture_rows_hold_out_more_viscous_friction_that_table_4_10_cannot_tell():

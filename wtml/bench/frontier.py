@@ -658,8 +658,10 @@ def frontier(problem: Problem, decoders: dict[str, Path], out: Path, *, threads:
              progress: Callable[[str], None] = print) -> dict:
     """Measure every method of ``problem`` and every decoder variant (``{variant: its ONNX
     decoder graph}``) with its quantisations; write ``out/<task>.png`` and return
-    ``{"task", "threads", "rows", "reference", "budgets", "pareto", "lines"}`` (``reference``:
-    the row the side-by-side times are over). ``budget_s``: the most seconds one latency or
+    ``{"task", "threads", "rows", "reference", "budgets", "pareto", "busy_elsewhere",
+    "cores", "lines"}`` (``reference``: the row the side-by-side times are over;
+    ``busy_elsewhere``: the share of ``cores`` other processes kept busy meanwhile,
+    :func:`~wtml.bench.timing.busy_elsewhere`). ``budget_s``: the most seconds one latency or
     throughput measurement runs (:mod:`wtml.bench.timing`)."""
     out.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault("OMP_NUM_THREADS", str(threads))

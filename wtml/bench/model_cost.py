@@ -217,7 +217,8 @@ def format_modal(r: dict) -> list[str]:
              f"{r['reference']} modes; band {lo:g}–{hi:g} Hz)", "",
              "| modes (oversample) | highest mode (Hz) | Ze error vs every mode, over the "
              "band | s per s of "
-             f"signal | × real time | current vs {r['reference']} modes (rel. RMS) | decoder "
+             f"signal | × real time | current vs {r['reference']} modes (rel. RMS; each at its "
+             f"own step) | decoder "
              f"ONNX: {what} | flagged |", "|---|---|---|---|---|---|---|---|"]
     for x in r["rows"]:
         tags = [t for t, on in (("the scene's", x["scene"]), ("auto", x["auto"])) if on]

@@ -56,8 +56,9 @@ def presliding(scene):
     stepped as finely as the least v_r needs (the explicit friction step's stability,
     :meth:`~wtml.scenes.texture.TextureScene.least_slip_speed`)."""
     f = scene.friction
-    finest = int(field_range(scene, "oversample")[1])
-    span = max(f.slip_span, min(PRESLIDING_SPAN, f.slip_speed / scene.least_slip_speed(finest)))
+    floor = scene.least_slip_speed(int(field_range(scene, "oversample")[1]))
+    span = max(f.slip_span, min(PRESLIDING_SPAN, f.slip_speed / floor) if floor else
+               PRESLIDING_SPAN)  # floor 0: no explicit friction step (LuGre alone)
     return dataclasses.replace(scene, friction=dataclasses.replace(
         f, slip_span=span)).stepped_stably()
 

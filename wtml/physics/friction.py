@@ -181,7 +181,9 @@ def largest_stable_slope(model, dt: float) -> float:
     maps = model.step_matrices(dt, 0.0, 0.0, force_input=True)[0]
     ns = maps.shape[1] - 4
     a, b, c = maps[:ns, :ns], maps[:ns, ns + 2], maps[ns + 1, :ns]  # x' = a x + b F; v = c x
-    against = -np.sign(c @ b)  # the force the tip applies slows it: F along v
+    if c @ b >= 0:  # the stepper applies +b F with F = law(v): it must slow the tip
+        raise ValueError("model: the tip's velocity does not fall under the force it applies")
+    against = 1.0
 
     def radius(slope: float) -> float:
         loop = np.zeros((ns + 1, ns + 1))
@@ -191,11 +193,12 @@ def largest_stable_slope(model, dt: float) -> float:
         return float(np.max(np.abs(np.linalg.eigvals(loop))))
 
     low, high = 0.0, 1.0 / abs(c @ b)
-    while radius(high) <= 1.0:
+    stable = 1.0 + 1e-12  # the held force's own state has eigenvalue 1 exactly
+    while radius(high) <= stable:
         low, high = high, 2.0 * high
     while high - low > 1e-6 * high:
         mid = 0.5 * (low + high)
-        low, high = (mid, high) if radius(mid) <= 1.0 else (low, mid)
+        low, high = (mid, high) if radius(mid) <= stable else (low, mid)
     return low
 
 

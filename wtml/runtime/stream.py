@@ -71,10 +71,10 @@ class StreamEvent:
 class RecordAnswer:
     """One record's answer, printed once decided (after the contact lines of the chunk that
     decided it): its number (from 0), its start and end in signal time (s), when it was
-    decided (s: its end, or the second record's for a first record held to be judged with
-    it), the wall-clock seconds from the arrival of the read that held the deciding chunk
-    (its own last for a first record answered alone at the stream's end: the wait for the end
-    included), and the graph's ``gap``,
+    decided (s: its end; the second record's for a first record held to be judged with it,
+    or the stream's end where none came), the wall-clock seconds from the arrival of the
+    read that held the deciding chunk (its own last for a first record answered alone at the
+    stream's end: the wait for the end included), and the graph's ``gap``,
     ``sigma`` and ``sigma_95`` at the record's end (m; ``gap`` NaN where it found no wall,
     ``sigma`` NaN there and out of domain). It and its neighbour (the record before; for the
     first record, the second) are judged as the two pieces of a
@@ -137,7 +137,7 @@ class StreamSummary:
                 "p99_chunk_ms": 1e3 * float(np.quantile(busy, 0.99)),
                 "contacts": sum(e.event.kind == "onset" for e in self.events),
                 "records": len(self.records),
-                "records_apart": sum(r.apart for r in self.records)}
+                "records_apart": sum(r.apart for r in self.records if r.number)}
 
     def text(self) -> str:
         """One line: chunks, signal, real-time factor, per-chunk latency."""
@@ -284,10 +284,10 @@ class Streamer:
             if pair is None and self.limit and not self.first_alone:
                 held.append((this | verdict, arrived))  # alone only if no second comes
                 return
-            for first, _ in held:  # judged with this one: the pair's verdict
+            firsts, held[:] = held[:], []  # taken before printing: Ctrl-C prints none twice
+            for first, _ in firsts:  # judged with this one: the pair's verdict
                 send(RecordAnswer(**first | verdict, decided_s=end,
                                   latency_s=time.perf_counter() - arrived))
-            held.clear()
             send(RecordAnswer(**this | verdict, decided_s=end,
                               latency_s=time.perf_counter() - arrived))
 
@@ -340,8 +340,8 @@ class Streamer:
                     break
         except KeyboardInterrupt:
             summary.interrupted = True
-        for first, arrived in held:  # no second record came: the first judged alone
-            send(RecordAnswer(**first, decided_s=first["end_s"],
+        for first, arrived in held:  # no second record came: the first judged alone, now
+            send(RecordAnswer(**first, decided_s=summary.signal_s,
                               latency_s=time.perf_counter() - arrived))
         report(tracker.finish(), time.perf_counter())
         ran = summary.chunks * step  # samples

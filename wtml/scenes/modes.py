@@ -30,6 +30,10 @@ POINTS_PER_DECADE = 400
 """Log-spaced frequencies per decade of the band: a resonance of the shipped devices (ζ = 0.01,
 half-power width 2 % of its frequency) spans several of them."""
 AUTO = "auto"
+PLACEHOLDER = 1
+"""``n_modes`` while the scene is first built, before its count is picked: the count a check
+that depends on it holds best (texture's friction step: one mode adds the least velocity
+under a held force); :func:`with_auto_modes` checks the scene again at its count."""
 
 
 @dataclass(frozen=True)
@@ -68,8 +72,8 @@ def band_omega(band_hz: tuple[float, float]) -> np.ndarray:
 def auto_request(cls: type, data: Mapping, path: str = "") -> tuple[dict, AutoModes | None]:
     """Split ``n_modes: auto`` and its keys off a scene mapping of class ``cls``.
 
-    Returns the mapping without them (``n_modes`` left out: the scene's default stands in
-    until :func:`with_auto_modes`) and the request, or the mapping unchanged and None.
+    Returns the mapping without them (``n_modes`` :data:`PLACEHOLDER` until
+    :func:`with_auto_modes`) and the request, or the mapping unchanged and None.
 
     Raises:
         SceneError: naming the key: ``n_modes`` neither a count nor ``auto``, a scene without
@@ -89,7 +93,7 @@ def auto_request(cls: type, data: Mapping, path: str = "") -> tuple[dict, AutoMo
             raise SceneError(f"{pre}n_modes: must be an integer in [{low:g}, {high:g}] or "
                              f"'{AUTO}', got {value!r:.80}")
         rest = {k: v for k, v in data.items() if k != "n_modes" and k not in extra}
-        return rest, build(AutoModes, extra, path)
+        return rest | {"n_modes": PLACEHOLDER}, build(AutoModes, extra, path)
     if extra:
         key = sorted(extra)[0]
         raise SceneError(f"{pre}{key}: only with n_modes: {AUTO} (n_modes is "

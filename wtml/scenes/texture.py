@@ -40,6 +40,7 @@ float32 ``(n, n_samples)``, 2 × 4 bytes × 51200 = 410 kB per 1 s record.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import ClassVar
@@ -376,42 +377,46 @@ class TextureScene:
 
     def worst_force(self) -> float:
         """N: the largest force at rest of the scene's Coulomb and Stribeck draws, ``μ_s N
-        cos θ``: the larger law's line at the scene's largest grade (Stribeck's times its
-        largest ``static_ratio``), three ``mu_spread`` above it, at the largest normal force
-        and the smallest contact angle (4.3e-4 N for texture.yaml: 1.5 × 0.69 at P280, N cos θ
-        = 4.1e-4 cos 5° N); 0 where the mixture holds neither law (LuGre is stepped
+        cos θ``: each law's line three ``mu_spread`` above it (Stribeck's then times its
+        largest ``static_ratio``), at whichever end of the scene's grain sizes and of its
+        viscous span (which moves the line) is larger, at the largest normal force and the
+        smallest contact angle (4.3e-4 N for texture.yaml: 1.5 × (0.69 + 0.015) at P280, N
+        cos θ = 4.1e-4 cos 5° N); 0 where the mixture holds neither law (LuGre is stepped
         implicitly). With the v_r it is divided by, the slope at rest of the force that the
         explicit step feeds back (:meth:`least_slip_speed`)."""
-        f, d = self.friction, max(self.grade_table.values())
-        lines = [mu for name, mu in (
-            ("coulomb", f.mu_0 + f.mu_per_um * d),
-            ("stribeck", (f.stribeck.mu_0 + f.stribeck.mu_per_um * d)
-             * f.stribeck.static_ratio[1])) if f.law.get(name, 0) > 0]
-        if not lines:
+        f, sizes = self.friction, (min(self.grade_table.values()),
+                                   max(self.grade_table.values()))
+        mus = [ratio * (line.mu_0 + line.mu_per_um * d
+                        + dc * (line.mu_0_per_c + line.mu_per_um_per_c * d) + 3 * f.mu_spread)
+               for name, line, ratio in (("coulomb", f, 1.0),
+                                         ("stribeck", f.stribeck, f.stribeck.static_ratio[1]))
+               if f.law.get(name, 0) > 0 for d in sizes for dc in (0.0, f.viscous_span)]
+        if not mus:
             return 0.0
         c = self.contact
-        return ((max(lines) + 3 * f.mu_spread) * c.normal_force[1]
-                * np.cos(np.radians(c.angle_deg[0])))
+        return max(mus) * c.normal_force[1] * float(np.cos(np.radians(c.angle_deg[0])))
 
     def least_slip_speed(self, oversample: int | None = None) -> float:
         """The least regularisation v_r (m/s) the explicit Coulomb/Stribeck step holds at
         ``oversample`` × the sampling rate (default the scene's own): the force's slope at
-        rest, :meth:`worst_force` / v_r, at most the nominal model's
-        :func:`~wtml.physics.friction.largest_stable_slope` (the linearised loop's limit).
-        7.1e-3 m/s at the shipped 21 modes and 102.4 kS/s (4.4e-3 at 14 modes: the higher
-        modes add velocity to the feedback)."""
+        rest, :meth:`worst_force` / v_r plus the largest viscous c, at most the nominal
+        model's :func:`~wtml.physics.friction.largest_stable_slope` (the linearised loop's
+        limit); inf where c alone passes it. 7.1e-3 m/s at the shipped 21 modes and 102.4
+        kS/s (4.4e-3 at 14 modes: the higher modes add velocity to the feedback)."""
         force = self.worst_force()
         if force == 0:
             return 0.0
         dt = 1 / (self.acquisition.sample_rate_hz * (oversample or self.oversample))
-        return force / largest_stable_slope(self.transducer(), dt)
+        room = (largest_stable_slope(self.transducer(), dt)
+                - self.friction.viscous - self.friction.viscous_span)
+        return force / room if room > 0 else math.inf
 
     def stepped_stably(self, least: float | None = None) -> TextureScene:
         """The scene at the least ``oversample``, its own or more, whose explicit friction
         step holds the v_r ``least`` (m/s; default the scene's least,
         ``slip_speed / slip_span``): :meth:`least_slip_speed` is not monotonic in the step
-        once a mode rings near the step's rate (30 modes of the macro WT: 37.7 mm/s at 2,
-        47.8 at 3, 10.7 at 4), so each step is tried in turn.
+        once a mode rings near the step's rate (30 modes of the macro WT: 37.9 mm/s at 2,
+        48.1 at 3, 10.7 at 4), so each step is tried in turn.
 
         Raises:
             SceneError: ``friction.slip_span``, where no step up to the finest (16) holds it.

@@ -183,12 +183,11 @@ def largest_stable_slope(model, dt: float) -> float:
     a, b, c = maps[:ns, :ns], maps[:ns, ns + 2], maps[ns + 1, :ns]  # x' = a x + b F; v = c x
     if c @ b >= 0:  # the stepper applies +b F with F = law(v): it must slow the tip
         raise ValueError("model: the tip's velocity does not fall under the force it applies")
-    against = 1.0
 
     def radius(slope: float) -> float:
         loop = np.zeros((ns + 1, ns + 1))
-        loop[:ns, :ns] = a + 1.5 * against * slope * np.outer(b, c)
-        loop[:ns, ns] = -0.5 * against * slope * b
+        loop[:ns, :ns] = a + 1.5 * slope * np.outer(b, c)  # F = law(v) enters as +b F
+        loop[:ns, ns] = -0.5 * slope * b
         loop[ns, :ns] = c  # v_{k-1} for the next step
         return float(np.max(np.abs(np.linalg.eigvals(loop))))
 

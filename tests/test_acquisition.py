@@ -182,8 +182,7 @@ def test_base_motion_moves_the_onset_wall_and_texture_refuses_it():
     np.testing.assert_allclose(onsets[1e-15], onsets[None], atol=1.01 / rate)
     assert np.max(np.abs(onsets[2e-6] - onsets[None])) > 10 / rate
     with pytest.raises(SceneError, match="acquisition.effects.base.enabled: the texture"):
-        build(TextureScene, {"acquisition": {"sample_rate_hz": 51200.0,  # its friction step's
-                                             "effects": {"base": {"enabled": True}}}})
+        build(TextureScene, {"acquisition": {"effects": {"base": {"enabled": True}}}})
 
 
 def test_shipped_scenes_are_bench_top_and_the_probe_band_noise_is_the_budget():

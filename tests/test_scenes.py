@@ -44,6 +44,26 @@ def test_bad_scenes_name_the_key_path(tmp_path, text, match):
         load_scene(write(tmp_path, text))
 
 
+def test_a_texture_scenes_acquisition_mapping_changes_only_the_keys_it_names():
+    """A texture scene's ``acquisition:`` lays its keys over the texture acquisition (51.2
+    kS/s, 20 V and 100 µA full scale), nested mappings alike; a bad key or value in it is
+    still refused by its path; a scene without the mapping is the default's."""
+    from wtml.scenes.texture import TextureScene
+
+    default = build(TextureScene, {}).acquisition
+    got = build(TextureScene, {"acquisition": {"adc_bits": 16,
+                                               "effects": {"hum": {"enabled": True}}}})
+    a = got.acquisition
+    assert (a.sample_rate_hz, a.e_full_scale_v, a.i_full_scale_a) == (51200.0, 20.0, 1e-4)
+    assert a.adc_bits == 16 and a.effects.hum.enabled and not a.effects.iv.enabled
+    assert a.effects.hum.mains_hz == default.effects.hum.mains_hz
+    assert a != default and build(TextureScene, {"acquisition": {}}).acquisition == default
+    with pytest.raises(SceneError, match=r"acquisition.effects.hum.level: must be in"):
+        build(TextureScene, {"acquisition": {"effects": {"hum": {"level": -1.0}}}})
+    with pytest.raises(SceneError, match=r"acquisition.sample_rate: unknown key"):
+        build(TextureScene, {"acquisition": {"sample_rate": 1e5}})
+
+
 def test_fluid_preset_resonates_at_100_hz_free_and_96_hz_in_water():
     """The two thesis numbers the preset was built from (presets.py explains how)."""
     tr = fluid_lumped()

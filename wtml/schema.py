@@ -6,7 +6,8 @@ sidecars, export manifests and metadata) is described by a dataclass here or bes
 A field's allowed range lives in its metadata (:func:`bounded`, :func:`one_of`); :func:`build`
 walks a mapping into nested dataclasses (and lists of them), refusing unknown keys, missing keys,
 wrong types and out-of-range values with a :class:`SchemaError` such as
-``excitation.n_freq: must be in [2, 4096], got 1``. Readers prefix the file's path.
+``excitation.n_freq: must be in [2, 4096], got 1``; a field made by :func:`overrides` reads
+a mapping as changes to its own default. Readers prefix the file's path.
 Imports numpy and pyyaml only: the device runtime uses it too.
 """
 
@@ -54,6 +55,25 @@ def yaml_load(text: str) -> Any:
 def bounded(low: float, high: float, *, default: Any = dataclasses.MISSING) -> Any:
     """A dataclass field whose value (or each element of a pair) must lie in [low, high]."""
     return dataclasses.field(default=default, metadata={"range": (low, high)})
+
+
+def overrides(factory: Any) -> Any:
+    """A dataclass field whose default is ``factory()`` and whose mapping in a file changes only
+    the keys it names (nested mappings alike), the rest staying the default's: a texture scene's
+    ``acquisition: {effects: {hum: {enabled: true}}}`` keeps the texture acquisition's rate and
+    full scales, where a plain field would take the class's own defaults for every key the
+    mapping leaves out."""
+    return dataclasses.field(default_factory=factory, metadata={"overrides": True})
+
+
+def _over(default: Any, given: Any) -> Any:
+    """``given`` laid over ``default`` key by key where both are mappings (a mapping of
+    another ``kind``, a union's other member, replaces it whole); ``given`` otherwise."""
+    if not (isinstance(default, Mapping) and isinstance(given, Mapping)) or (
+            "kind" in given and given["kind"] != default.get("kind")):
+        return given
+    return {**default, **{k: _over(default[k], v) if k in default else v
+                          for k, v in given.items()}}
 
 
 def field_range(cls: Any, name: str) -> tuple[float, float]:
@@ -191,7 +211,10 @@ def build(cls: type, data: Any, path: str = "") -> Any:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
                 raise SchemaError(f"{key_path}: missing")
             continue
-        kwargs[name] = _convert(key_path, hints[name], data[name], f.metadata)
+        value = data[name]
+        if f.metadata.get("overrides") and isinstance(value, Mapping):
+            value = _over(to_dict(f.default_factory()), value)
+        kwargs[name] = _convert(key_path, hints[name], value, f.metadata)
     obj = cls(**kwargs)
     check = getattr(obj, "check", None)
     if check is not None:

@@ -57,7 +57,7 @@ from wtml.physics.modal import ModalTransducer
 from wtml.physics.spread import DeviceSpread, draw_factors
 from wtml.physics.twoport import flat_parts
 from wtml.scenes.onset import Acquisition, check_shard_memory
-from wtml.schema import SceneError, bounded, field_range, mixture, one_of
+from wtml.schema import SceneError, bounded, field_range, mixture, one_of, overrides
 from wtml.signals.excitation import lead_in
 
 THESIS_GRADES = {"P1200": 15.3, "P800": 21.8, "P400": 35.0, "P320": 46.2, "P280": 52.2}
@@ -260,9 +260,11 @@ class TextureScene:
     drive: TextureDrive = field(default_factory=TextureDrive)
     contact: Contact = field(default_factory=Contact)
     friction: FrictionLaw = field(default_factory=FrictionLaw)
-    acquisition: Acquisition = field(default_factory=lambda: Acquisition(
+    acquisition: Acquisition = overrides(lambda: Acquisition(
         sample_rate_hz=51200.0, e_full_scale_v=20.0, i_full_scale_a=1e-4, e_noise_v=1e-4,
         i_noise_a=2e-8))
+    """The texture bench's acquisition; a scene's ``acquisition:`` changes only the keys it
+    names (:func:`~wtml.schema.overrides`)."""
     calibration_error: float = bounded(0.0, 0.2, default=0.01)
     spread: DeviceSpread = field(default_factory=DeviceSpread)
     calibration: StoredCalibration | None = None

@@ -437,13 +437,17 @@ def test_slip_span_below_the_stable_step_is_a_scene_error():
         scene_with(law, oversample=1)  # 19.5 µs: the 21 modes hold 24.8 mm/s at least
 
 
-def test_least_slip_speed_marks_where_the_explicit_friction_step_chatters():
+def test_least_slip_speed_marks_where_the_explicit_friction_step_chatters(monkeypatch):
     """Coulomb records at the scene's step (oversample 2, 21 modes) against the same stepped 8×
     finer: at the least v_r the band above 5 kHz holds the finer records' power (within 1 %);
-    at a sixth of it the explicit step chatters there (several times the power). The least
-    v_r grows with the modes kept (their velocity under a held force) and is close to
+    at a sixth of it the explicit step chatters there (several times the power): what the
+    scene's own guard refuses to step (``check_stepped``, switched off here to show it). The
+    least v_r grows with the modes kept (their velocity under a held force) and is close to
     ``dt Σφb²`` times the worst force where every mode is slow."""
     from scipy.signal import welch
+
+    from wtml.scenes import SceneError
+    from wtml.scenes.texture import TextureScene
 
     worst = {"normal_force": [4.1e-4, 4.1e-4], "angle_deg": [5.0, 5.0]}
     base = scene_with({"coulomb": 1.0}, contact=worst, drive={"record_s": 0.1, "lead_s": 0.05})
@@ -457,6 +461,9 @@ def test_least_slip_speed_marks_where_the_explicit_friction_step_chatters():
         return p[:, f > 5e3].sum()
 
     assert high_band(least, 2) == pytest.approx(high_band(least, 16), rel=0.01)
+    with pytest.raises(SceneError, match="friction.slip_speed: the device does not hold"):
+        high_band(least / 6, 2)
+    monkeypatch.setattr(TextureScene, "check_stepped", lambda *args: None)
     assert high_band(least / 6, 2) > 3 * high_band(least / 6, 16)
     fewer = replace(base, n_modes=14)
     assert fewer.least_slip_speed() < 0.8 * least
@@ -470,8 +477,9 @@ def test_the_largest_stable_slope_is_where_the_linearised_loop_stops_decaying(n_
     """Iterating the exact step under the force held at its mid-step extrapolation, F = s
     (1.5 v_k - 0.5 v_(k-1)) against the motion, from a disturbed state: 2 % below the
     bisected slope the state decays over the last 1500 steps, 2 % above it grows by e^10 or
-    more (the eigenvalues' verdict against iteration)."""
-    from wtml.physics.friction import largest_stable_slope
+    more (the eigenvalues' verdict against iteration); the one-slope test a scene runs on each
+    device it steps (``holds_slope``) agrees with the bisection on either side of it."""
+    from wtml.physics.friction import holds_slope, largest_stable_slope
 
     model = ModalTransducer.from_beam(build("macro"), n_modes)
     dt = 1 / 102400
@@ -492,6 +500,7 @@ def test_the_largest_stable_slope_is_where_the_linearised_loop_stops_decaying(n_
         return sum(logs[steps // 2:])
 
     assert late_growth(0.98 * slope) < 0 < 10 < late_growth(1.02 * slope)
+    assert holds_slope(model, dt, 0.999 * slope) and not holds_slope(model, dt, 1.001 * slope)
 
 
 def test_the_worst_force_is_the_largest_force_at_rest_the_scene_draws():

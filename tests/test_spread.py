@@ -49,6 +49,31 @@ def test_drawn_factors_have_the_stated_spread():
     assert np.max(np.abs(corr - np.eye(len(factors)))) < 0.05
 
 
+def test_a_named_parameters_width_replaces_its_classs_and_is_checked():
+    """``parameters`` widens one named parameter past its class (texture's whisker EI ±10 %,
+    the other moduli ±3 %): its factors span its own band, the class's others theirs; a
+    spread of named widths alone is not ``none``; an unknown name or a width out of [0, 0.3]
+    is refused naming ``spread.parameters.<name>`` (radius and tip mass: not a beam's);
+    a named whisker length widens the radial scene's whisker margin."""
+    spread = dataclasses.replace(SPREAD, parameters={"whisker.modulus": 0.1})
+    widths = spread.widths("macro")
+    assert widths["whisker.modulus"] == 0.1 and widths["bimorph.modulus"] == 0.03
+    f = draw_factors("macro", widths, 20000, np.random.default_rng(1))
+    assert 0.099 < np.abs(f["whisker.modulus"] - 1).max() <= 0.1
+    assert np.abs(f["bimorph.modulus"] - 1).max() <= 0.03
+    alone = DeviceSpread(parameters={"whisker.modulus": 0.1})
+    assert not alone.none and alone.tolerances and DeviceSpread().none
+    alone.check_device("", build_config(RadialScene, {}).device)
+    for name, width, match in (("whisker.radius", 0.1, "not a parameter of device"),
+                               ("whisker.modulus", 0.5, r"must be a number in \[0, 0.3\]"),
+                               ("whisker.modulus", "wide", "must be a number")):
+        with pytest.raises(SceneError, match=rf"spread.parameters.{name}: {match}"):
+            build_config(RadialScene, {"spread": {"parameters": {name: width}}})
+    device = build_config(RadialScene, {}).device
+    assert DeviceSpread(length=0.005, parameters={"whisker.length": 0.02}
+                        ).whisker_margin(device) == 0.02
+
+
 def test_drawn_devices_carry_their_factors():
     """The built device's segments scale as drawn: EI of the whisker (square) with
     E t⁴, its length with L, the bimorph's free length, tanδ, the loss factor and the

@@ -43,8 +43,9 @@ def _phasor(x: np.ndarray, hz: np.ndarray, rate: float) -> np.ndarray:
 def test_the_pxi_scene_is_the_texture_scene_at_204k8_with_the_same_noise_density():
     low = load_scene("configs/scenes/texture.yaml")
     high = load_scene("configs/scenes/texture_pxi.yaml")
-    check_paired(low, high)  # nothing but the acquisition, the oversampling and the modes
-    assert (low.n_modes, high.n_modes) == (21, 33)  # each every mode below its Nyquist
+    check_paired(low, high)  # nothing but the acquisition, the oversampling, modes and mesh
+    assert (low.n_modes, high.n_modes) == (22, 40)  # each every mode below its Nyquist
+    assert (low.whisker_elements, high.whisker_elements) == (32, 64)  # each converged there
     a, b = low.acquisition, high.acquisition
     assert (a.sample_rate_hz, b.sample_rate_hz) == RATES
     ratio = np.sqrt(b.sample_rate_hz / a.sample_rate_hz)  # white noise: rms ∝ sqrt(band)
@@ -126,8 +127,8 @@ def test_the_study_refuses_scenes_that_differ_in_more_than_the_acquisition():
     with pytest.raises(ValueError, match="reach_m"):
         check_paired(low, replace(low, reach_m=4e-3))
     high = load_scene("configs/scenes/texture_pxi.yaml")
-    with pytest.raises(ValueError, match="texture_pxi: n_modes: its 21 modes end at 29515 Hz"):
-        check_paired(low, replace(high, n_modes=21))  # below its 102.4 kHz Nyquist
+    with pytest.raises(ValueError, match="texture_pxi: n_modes: its 22 modes end at 29169 Hz"):
+        check_paired(low, replace(high, n_modes=22))  # below its 102.4 kHz Nyquist
 
 
 def test_the_rate_study_is_an_axis_of_the_texture_frontier(tmp_path):

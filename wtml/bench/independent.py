@@ -91,7 +91,6 @@ from scipy.linalg import eigh
 from scipy.sparse import block_diag
 
 from wtml.physics.beam import BeamTransducer
-from wtml.physics.beam_presets import build
 from wtml.physics.validation import check_range
 from wtml.signals.excitation import lead_in
 from wtml.signals.noise import quantize
@@ -741,7 +740,7 @@ def simulate_onset(scene, gaps, stiffness, damping, coupling, *, law: str = "lin
     check_range("substeps", substeps, 1, 256)
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    model = ModalModel.from_beam(build(scene.device), n_modes or scene.n_modes)
+    model = ModalModel.from_beam(scene.beam(), n_modes or scene.n_modes)
     if not model.a_r > 0:
         raise ValueError(f"n_modes: {len(model.omega)} leaves no residual compliance "
                          f"(a_r = {model.a_r:.3g} m/N); keep fewer modes")

@@ -51,7 +51,6 @@ from wtml.cores import available_cores
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.exporters.onset import record_inputs, thesis_pipeline
-from wtml.physics.beam_presets import build
 from wtml.physics.modal import Wall, convergence_table
 from wtml.runtime.contacts import Timing, contacts_from
 from wtml.runtime.onset import stream_record
@@ -427,7 +426,7 @@ def run_bench(data_dir, model_dir, out, *, free_records: int = 50, variant_recor
                           "and the hum unknown)",
                   "rows": location_rows(cramer_rao_bound(scene, test), frac)}]
     band = 2 * np.pi * np.linspace(0.9, 1.1, 41) * scene.drive.probe_hz
-    conv = convergence_table(build(scene.device), band)
+    conv = convergence_table(scene.beam(), band)
     speed = simulator_speed(scene)
     report = _report(results, reference, streaming, flags, held_in, conv, speed, scene,
                      len(test["e"]), free_s, transfer, spread)

@@ -650,8 +650,10 @@ def _report(s: dict) -> str:
     lines += ["", "## Device spread", "",
               "Fresh held-out specimens per row, the same specimens and nuisance in every row "
               "(paired): the nominal device, devices drawn from the trained spread (uniform in "
-              "± the half-widths of the scene's `device` block) and each class of parameter "
-              "alone at its width. Each record goes through its own device's calibrated T, "
+              "± the half-widths of the scene's `device` block), each class of parameter "
+              "and each named parameter alone at its width, then devices off the spread (over "
+              "it): a whisker 2 % longer and shorter, the beam with 8 whisker elements. Each "
+              "record goes through its own device's calibrated T, "
               "the user's calibration. Window accuracy (95 % interval over the specimens) and "
               "the share the domain gate flags; the last column is the decoder's error rate "
               f"over the nominal row's (target over the spread ≤ {DEVICE_TARGET:g}×: "

@@ -83,10 +83,11 @@ def _scene(path: str, per_grade: int, record_s: float | None) -> TextureScene:
 
 def check_paired(low: TextureScene, high: TextureScene) -> None:
     """Refuse two scenes that differ in more than the acquisition, the oversampling and the
-    modes (each keeps those below its own Nyquist): the paired draws would then not be the
-    same specimens."""
+    modes and mesh (each keeps those below its own Nyquist, converged): the paired draws
+    would then not be the same specimens."""
     same = dataclasses.replace(high, name=low.name, acquisition=low.acquisition,
-                               oversample=low.oversample, n_modes=low.n_modes)
+                               oversample=low.oversample, n_modes=low.n_modes,
+                               whisker_elements=low.whisker_elements)
     if same != low:
         diff = [f.name for f in dataclasses.fields(low)
                 if getattr(same, f.name) != getattr(low, f.name)]

@@ -6,6 +6,7 @@ share.
 
 And its device-spread table (issue 21 §1): the methods on records of the nominal device, of
 devices drawn from the trained spread and of each class of parameter alone at its width
+and of devices off the spread (a whisker 2 % longer or shorter, another mesh)
 (:func:`device_variants`); every row on the same specimens and nuisance (paired), each record
 through its own device's calibrated T. Target: the decoder's error rate over the spread within
 1.5× its error rate on the nominal device.
@@ -21,6 +22,7 @@ import numpy as np
 
 from wtml.bench.resampling import group_interval
 from wtml.bench.transfer import Variant, acquisition_variants, member_variants
+from wtml.physics.beam_presets import apply_factors
 from wtml.physics.friction import LAWS
 from wtml.physics.spread import CLASSES, DeviceSpread
 from wtml.scenes.texture import LUGRE_OVERSAMPLE, TextureScene, fit_friction_law
@@ -117,11 +119,21 @@ def texture_variants(scene) -> list[Variant]:
                            lambda n, rng: thick().simulate_independent(n, rng))]
 
 
+OFF_WHISKER = 0.02
+"""The off-spread rows' whisker: this much longer and shorter than nominal (its modes above
+the lowest two move ∓3-4 %, as far as the trained ``whisker.modulus`` spread's edge)."""
+
+
 def device_variants(scene) -> list[Variant]:
-    """The device-spread table's rows: the nominal device, the trained spread, and each class
-    of :data:`~wtml.physics.spread.CLASSES` alone at the trained width (issue 21's,
-    :data:`REFERENCE_SPREAD`, where the scene trains on none); each record its own specimen
-    (:meth:`~wtml.scenes.texture.TextureScene.simulate_independent`)."""
+    """The device-spread table's rows: the nominal device, the trained spread, each class
+    of :data:`~wtml.physics.spread.CLASSES` and each named parameter of
+    ``spread.parameters`` alone at the trained width (issue 21's, :data:`REFERENCE_SPREAD`,
+    where the scene trains on none); then devices off the spread, each over the trained
+    spread: a whisker :data:`OFF_WHISKER` longer and shorter, and the beam meshed with 8
+    whisker elements (modes 14-22 1.5-12 % high: the model the texture scenes had until 30
+    Nov); each record its own specimen
+    (:meth:`~wtml.scenes.texture.TextureScene.simulate_independent`), stepped as its
+    friction needs."""
     spread = REFERENCE_SPREAD if scene.spread.none else scene.spread
     sets = [("nominal device", DeviceSpread(devices=spread.devices)),
             ("devices of the trained spread" if not scene.spread.none
@@ -129,9 +141,20 @@ def device_variants(scene) -> list[Variant]:
     sets += [(f"{cls} ±{100 * getattr(spread, cls):g} % alone",
               DeviceSpread(devices=spread.devices, **{cls: getattr(spread, cls)}))
              for cls in CLASSES if getattr(spread, cls) > 0]
-    scenes = [(label, dataclasses.replace(scene, spread=device)) for label, device in sets]
-    return [Variant(label, "nominal" if s.spread.none else "spread",
-                    s.simulate_independent) for label, s in scenes]
+    sets += [(f"{name} ±{100 * width:g} % alone",
+              DeviceSpread(devices=spread.devices, parameters={name: width}))
+             for name, width in spread.parameters.items() if width > 0]
+    scenes = [(label, "nominal" if device.none else "spread",
+               dataclasses.replace(scene, spread=device)) for label, device in sets]
+    spread_scene = dataclasses.replace(scene, spread=spread)
+    for sign, word in ((1, "longer"), (-1, "shorter")):
+        device = apply_factors(scene.device, {"whisker.length": 1 + sign * OFF_WHISKER})
+        scenes.append((f"whisker {100 * OFF_WHISKER:g} % {word}", "off the spread",
+                       dataclasses.replace(spread_scene, device=device)))
+    scenes.append(("whisker in 8 elements (modes 14-22 1.5-12 % high)", "off the spread",
+                   dataclasses.replace(spread_scene, whisker_elements=8)))
+    return [Variant(label, kind, s.stepped_stably().simulate_independent)
+            for label, kind, s in scenes]
 
 
 def scorer(methods: dict[str, Callable], windows: Callable[[dict], tuple]

@@ -178,6 +178,34 @@ def largest_stable_slope(model, dt: float) -> float:
     spectral radius at most 1 (bisection to 1e-6 of s). Where every mode is slow this is
     about ``1 / (dt Σφb²)``; the faster modes, rung within the step, hold less: 0.0605 N·s/m
     for the macro WT's 21 modes at 102.4 kS/s, against ``1 / (dt Σφb²)`` = 0.065."""
+    radius = _loop_radius(model, dt)
+    c_b = radius.c_b
+    low, high = 0.0, 1.0 / abs(c_b)
+    while radius(high) <= STABLE:
+        low, high = high, 2.0 * high
+    while high - low > 1e-6 * high:
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if radius(mid) <= STABLE else (low, mid)
+    return low
+
+
+STABLE = 1.0 + 1e-12
+"""The friction loop's largest spectral radius that is stable (the held force's own state
+has eigenvalue 1 exactly)."""
+
+
+def holds_slope(model, dt: float, slope: float) -> bool:
+    """Whether the explicit friction step on ``model`` at ``dt`` (s) holds a force law of
+    slope ``slope`` (N·s/m) at rest: one eigenvalue problem of :func:`largest_stable_slope`'s
+    loop (~1 ms), where the bisection takes ~20; what a scene checks on each device it
+    steps."""
+    return _loop_radius(model, dt)(slope) <= STABLE
+
+
+def _loop_radius(model, dt: float):
+    """The spectral radius of the linearised friction loop as a function of the law's slope
+    (:func:`largest_stable_slope`), with the tip's velocity response to the force ``c_b``
+    (its attribute)."""
     maps = model.step_matrices(dt, 0.0, 0.0, force_input=True)[0]
     ns = maps.shape[1] - 4
     a, b, c = maps[:ns, :ns], maps[:ns, ns + 2], maps[ns + 1, :ns]  # x' = a x + b F; v = c x
@@ -191,14 +219,8 @@ def largest_stable_slope(model, dt: float) -> float:
         loop[ns, :ns] = c  # v_{k-1} for the next step
         return float(np.max(np.abs(np.linalg.eigvals(loop))))
 
-    low, high = 0.0, 1.0 / abs(c @ b)
-    stable = 1.0 + 1e-12  # the held force's own state has eigenvalue 1 exactly
-    while radius(high) <= stable:
-        low, high = high, 2.0 * high
-    while high - low > 1e-6 * high:
-        mid = 0.5 * (low + high)
-        low, high = (mid, high) if radius(mid) <= stable else (low, mid)
-    return low
+    radius.c_b = float(c @ b)
+    return radius
 
 
 def describing_function(coulomb, speed, static_ratio=1.0, stribeck_speed=1.0) -> np.ndarray:

@@ -40,6 +40,8 @@ def _width(high: float, default=0.0):
 
 
 CLASSES = ("length", "thickness", "modulus", "loss_factor", "tan_delta", "coupling")
+PARAMETER_MAX = 0.3
+"""The widest half-width :attr:`DeviceSpread.parameters` takes (a modulus's class allows 0.3)."""
 POSTERIOR_MAX = 0.2
 """The widest relative standard deviation (posterior × standard error) a posterior spread
 draws Gaussian factors with: at 0.2, a factor at or below 0 is 5 standard deviations away."""
@@ -68,6 +70,10 @@ class DeviceSpread:
             found them. 0 (default): not drawn.
         devices: distinct devices drawn per simulated batch (records are assigned to them
             uniformly at random).
+        parameters: half-widths of named parameters (of ``beam_presets.device_parameters``)
+            that replace their class's, each in [0, :data:`PARAMETER_MAX`]: texture's
+            ``whisker.modulus: 0.1`` moves the whisker's modes by ±3-4 %, the spread a real
+            whisker's high modes have about any model's (its class's 0.03 moves them ±1 %).
     """
 
     length: float = _width(0.1)
@@ -78,25 +84,38 @@ class DeviceSpread:
     coupling: float = _width(0.3)
     posterior: float = _width(10.0)
     devices: int = field(default=256, metadata={"range": (1, 100_000)})
+    parameters: dict[str, float] = field(default_factory=dict)
 
     @property
     def none(self) -> bool:
         """Whether every width and the posterior are zero (every device is the preset)."""
-        return self.posterior == 0 and all(getattr(self, c) == 0 for c in CLASSES)
+        return self.posterior == 0 and not self.tolerances
 
     @property
     def tolerances(self) -> bool:
-        """Whether any class has a tolerance band (devices that differ by more than a fit's
-        posterior)."""
-        return any(getattr(self, c) != 0 for c in CLASSES)
+        """Whether any class or named parameter has a tolerance band (devices that differ by
+        more than a fit's posterior)."""
+        return (any(getattr(self, c) != 0 for c in CLASSES)
+                or any(w != 0 for w in self.parameters.values()))
 
     def check_device(self, pre: str, device: BeamDevice) -> None:
-        """A posterior spread needs a device with a fit's posterior of parameters it can
-        build (``pre``: the scene's key prefix).
+        """Named widths (:attr:`parameters`) must name the device's parameters, within [0,
+        :data:`PARAMETER_MAX`]; a posterior spread needs a device with a fit's posterior of
+        parameters it can build (``pre``: the scene's key prefix).
 
         Raises:
-            SceneError: one line naming ``spread.posterior`` and what is needed.
+            SceneError: one line naming ``spread.parameters.<name>`` or ``spread.posterior``
+                and what is needed.
         """
+        named = device_parameters(device)
+        for name, width in self.parameters.items():
+            if name not in named:
+                raise SceneError(f"{pre}spread.parameters.{name}: not a parameter of device "
+                                 f"{device.name!r}; allowed: {sorted(named)}")
+            if isinstance(width, bool) or not isinstance(width, int | float) or not (
+                    0 <= width <= PARAMETER_MAX):
+                raise SceneError(f"{pre}spread.parameters.{name}: must be a number in [0, "
+                                 f"{PARAMETER_MAX:g}], got {width!r:.80}")
         if self.posterior == 0:
             return
         post = device.provenance.posterior
@@ -125,7 +144,7 @@ class DeviceSpread:
         se = 0.0
         if self.posterior and post is not None and "whisker.length" in post.parameters:
             se = post.standard_errors[post.parameters.index("whisker.length")]
-        return self.length + 5 * self.posterior * se
+        return self.parameters.get("whisker.length", self.length) + 5 * self.posterior * se
 
     def only(self, parameter: str, preset: BeamDevice | str) -> dict[str, float]:
         """Half-width of each of ``preset``'s parameters with all but ``parameter`` at zero
@@ -137,7 +156,8 @@ class DeviceSpread:
 
     def widths(self, preset: BeamDevice | str) -> dict[str, float]:
         """Half-width of each of ``preset``'s named parameters (a device, or its name)."""
-        return {p: getattr(self, cls) for p, cls in device_parameters(preset).items()}
+        return {p: float(self.parameters.get(p, getattr(self, cls)))
+                for p, cls in device_parameters(preset).items()}
 
 
 def draw_factors(preset: BeamDevice | str, widths: dict[str, float], n: int,

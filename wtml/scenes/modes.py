@@ -52,11 +52,10 @@ class AutoModes:
     def count(self, scene) -> tuple[int, np.ndarray, tuple[float, float]]:
         """The fewest modes for ``scene`` (its device, its band unless ``modes_band_hz``):
         the count, the errors of 1..count modes and the band (Hz)."""
-        from wtml.physics.beam_presets import build as build_beam
         from wtml.physics.modal import fewest_modes
 
         band = self.modes_band_hz or scene.modal_band_hz()
-        n, errors = fewest_modes(build_beam(scene.device), band_omega(band),
+        n, errors = fewest_modes(scene.beam(), band_omega(band),
                                  self.modes_tolerance)
         return n, errors, band
 

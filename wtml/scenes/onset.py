@@ -49,6 +49,7 @@ import wtml.signals.acquisition as acq  # as a module: it imports wtml.schema
 from wtml.device_calibration import StoredCalibration
 from wtml.devices import BeamDevice, shipped
 from wtml.interface import OutputRange
+from wtml.physics.beam import BeamTransducer
 from wtml.physics.beam_presets import build
 from wtml.physics.contact import (
     HUNT_CROSSLEY,
@@ -267,7 +268,12 @@ class OnsetScene:
     def transducer(self, factors: dict[str, float] | None = None) -> ModalTransducer:
         """The calibrated modal model of the preset, or of a device off it (``factors``: each
         named parameter's actual / nominal, ``wtml.physics.spread.draw_factors``)."""
-        return ModalTransducer.from_beam(build(self.device, factors=factors), self.n_modes)
+        return ModalTransducer.from_beam(self.beam(factors), self.n_modes)
+
+    def beam(self, factors: dict[str, float] | None = None) -> BeamTransducer:
+        """The device's finite-element beam (with ``factors`` a device off it), that
+        :meth:`transducer` reduces to its modes."""
+        return build(self.device, factors=factors)
 
     def modal_band_hz(self) -> tuple[float, float]:
         """The band (Hz) that ``n_modes: auto`` holds the modal model to

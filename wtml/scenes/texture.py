@@ -18,7 +18,8 @@ N, θ, and the device's coupling (calibration error, times the temperature drift
 Manufacturing spread (``spread``, :class:`~wtml.physics.spread.DeviceSpread`): each record's
 transducer is drawn around the preset (``min(device.devices, n)`` devices per call of
 :meth:`TextureScene.simulate`, records assigned to them at random), each its own modal model
-``ModalTransducer.from_beam(build(preset, factors=...), n_modes)``. The user calibrates their
+``ModalTransducer.from_beam(build(preset, factors=...), n_modes)`` (its whisker in
+:attr:`TextureScene.whisker_elements` elements). The user calibrates their
 own device (physics.md §4), so each record carries its device's calibrated T at the
 calibration frequencies (:attr:`TextureScene.calibration_hz`) as ``t`` ``(n, K, 2, 2)``: the
 decoder's input; the calibration error and the temperature drift stay on top of it. All widths
@@ -51,8 +52,16 @@ from scipy.signal import resample_poly
 from wtml.device_calibration import StoredCalibration
 from wtml.devices import BeamDevice, shipped
 from wtml.interface import OutputRange
-from wtml.physics.beam_presets import build
-from wtml.physics.friction import LAWS, Friction, grains, largest_stable_slope, pad_grains
+from wtml.physics.beam import BeamTransducer
+from wtml.physics.beam_presets import build, whisker_mesh_error
+from wtml.physics.friction import (
+    LAWS,
+    Friction,
+    grains,
+    holds_slope,
+    largest_stable_slope,
+    pad_grains,
+)
 from wtml.physics.modal import ModalTransducer
 from wtml.physics.spread import DeviceSpread, draw_factors
 from wtml.physics.twoport import flat_parts
@@ -134,6 +143,10 @@ class LuGreLaw(StribeckLaw):
     bristle_damping: tuple[float, float] = bounded(0.0, 1.0, default=(0.0, 0.01))
 
 
+MESH_TOLERANCE = 0.005
+"""The most a natural frequency below the scene's Nyquist may move when the whisker's finite
+elements are doubled (:func:`~wtml.physics.beam_presets.whisker_mesh_error`): 0.5 %, a third
+of what the device spread's moduli move them by."""
 LUGRE_OVERSAMPLE = 4
 """The least ``oversample`` for LuGre records: the bristle rings on the tip at up to ~11 kHz
 while it sticks (σ0 ≈ 1.4e4 N/m), excited by the grains at each reversal; at 102.4 kS/s
@@ -256,6 +269,10 @@ class TextureScene:
     specimens_per_grade: int = bounded(1, 1000, default=2)
     device: BeamDevice = field(default_factory=shipped("macro"))
     n_modes: int = bounded(1, 40, default=21)
+    whisker_elements: int = bounded(1, 512, default=32)
+    """The whisker's finite elements in the beam the modes come from: 32 hold the macro WT's
+    modes below 25.6 kHz within 0.06 % of twice as many; the 8 of the other scenes left modes
+    14-21 (12-26 kHz) 1.5-12 % high (checked: :data:`MESH_TOLERANCE`)."""
     reach_m: float = bounded(1e-4, 0.1, default=5e-3)
     drive: TextureDrive = field(default_factory=TextureDrive)
     contact: Contact = field(default_factory=Contact)
@@ -320,6 +337,12 @@ class TextureScene:
                              f"{f.slip_speed / f.slip_span:g} m/s, must be "
                              f">= {least:.3g} m/s at oversample {self.oversample} (the explicit "
                              "friction step's stability: raise oversample)")
+        mesh = whisker_mesh_error(self.device, self.modal_band_hz()[1], self.whisker_elements)
+        if mesh > MESH_TOLERANCE:
+            raise SceneError(f"{pre}whisker_elements: at {self.whisker_elements} the modes "
+                             f"below {self.modal_band_hz()[1]:g} Hz move by {100 * mesh:.2g} % "
+                             f"when they are doubled; at most {100 * MESH_TOLERANCE:g} %: "
+                             "raise whisker_elements")
         if self.drive.whisk_hz[1] >= self.acquisition.sample_rate_hz / 8:
             raise SceneError(f"{pre}drive.whisk_hz: must stay below an eighth of the sample "
                              f"rate ({self.acquisition.sample_rate_hz / 8:g} Hz)")
@@ -366,7 +389,12 @@ class TextureScene:
     def transducer(self, factors: dict[str, float] | None = None) -> ModalTransducer:
         """The calibrated modal model: the preset's, or with ``factors`` (actual / nominal,
         :func:`~wtml.physics.spread.draw_factors`) a device off it."""
-        return ModalTransducer.from_beam(build(self.device, factors=factors), self.n_modes)
+        return ModalTransducer.from_beam(self.beam(factors), self.n_modes)
+
+    def beam(self, factors: dict[str, float] | None = None) -> BeamTransducer:
+        """The device's finite-element beam (:attr:`whisker_elements` in its whisker), with
+        ``factors`` a device off it, that :meth:`transducer` reduces to its modes."""
+        return build(self.device, factors=factors, whisker_elements=self.whisker_elements)
 
     def modal_band_hz(self) -> tuple[float, float]:
         """The band (Hz) that ``n_modes: auto`` holds the modal model to
@@ -413,12 +441,39 @@ class TextureScene:
                 - self.friction.viscous - self.friction.viscous_span)
         return force / room if room > 0 else math.inf
 
-    def stepped_stably(self, least: float | None = None) -> TextureScene:
+    def check_stepped(self, models: list[ModalTransducer], dt: float) -> None:
+        """Refuse to step records of ``models`` (the devices a call drew) at ``dt`` (s) where
+        the explicit friction step does not hold one of them (:func:`holds_slope` at the
+        slope :meth:`least_slip_speed` bounds): the scene's check holds the nominal device,
+        and the spread moves the bound (±1.6 % at the shipped 22 modes; 9.1 to 14.3 mm/s at
+        every mode of the beam and oversample 3).
+
+        Raises:
+            SceneError: ``friction.slip_speed``, naming the device and ``oversample``.
+        """
+        force = self.worst_force()
+        if force == 0:
+            return
+        f = self.friction
+        slope = force / (f.slip_speed / f.slip_span) + f.viscous + f.viscous_span
+        for k, model in enumerate(models):
+            if not holds_slope(model, dt, slope):
+                who = ("the device" if len(models) == 1 and self.spread.none
+                       else f"device {k} of the {len(models)} drawn from the spread")
+                raise SceneError(f"friction.slip_speed: {who} does not hold "
+                                 f"the explicit friction step at oversample {self.oversample} "
+                                 f"({self.n_modes} modes; a slope of {slope:.3g} N·s/m at "
+                                 "rest): raise oversample (stepped_stably(devices=...) finds one)")
+
+    def stepped_stably(self, least: float | None = None, devices: int = 0) -> TextureScene:
         """The scene at the least ``oversample``, its own or more, whose explicit friction
         step holds the v_r ``least`` (m/s; default the scene's least,
         ``slip_speed / slip_span``): :meth:`least_slip_speed` is not monotonic in the step
         once a mode rings near the step's rate (30 modes of the macro WT: 37.9 mm/s at 2,
-        48.1 at 3, 10.7 at 4), so each step is tried in turn.
+        48.1 at 3, 10.7 at 4), so each step is tried in turn. With ``devices``, it must also
+        hold that many devices drawn from the spread (seed 0; ~20 ms each), for models whose
+        bound the spread moves far (every mode of the beam: records are refused by
+        :meth:`check_stepped` on a device that the nominal step does not hold).
 
         Raises:
             SceneError: ``friction.slip_span``, where no step up to the finest (16) holds it.
@@ -426,8 +481,13 @@ class TextureScene:
         f = self.friction
         least = f.slip_speed / f.slip_span if least is None else least
         finest = int(field_range(self, "oversample")[1])
+        models = ([] if devices == 0 or self.spread.none
+                  else self.devices(devices, np.random.default_rng(0))[0])
+        slope = self.worst_force() / least + f.viscous + f.viscous_span
         for step in range(self.oversample, finest + 1):
-            if self.least_slip_speed(step) <= least * (1 + 1e-9):
+            dt = 1 / (self.acquisition.sample_rate_hz * step)
+            if self.least_slip_speed(step) <= least * (1 + 1e-9) and all(
+                    holds_slope(m, dt, slope) for m in models):
                 return replace(self, oversample=step)
         raise SceneError(f"friction.slip_span: a least v_r of {least:g} m/s is below what the "
                          f"finest step (oversample {finest}) holds at {self.n_modes} modes, "
@@ -621,6 +681,7 @@ class TextureScene:
         models, device = (self.devices(n, rng) if not nominal
                           else ([self.transducer()], np.zeros(n, int)))
         dt = 1 / (a.sample_rate_hz * self.oversample)
+        self.check_stepped(models, dt)
         cur = np.empty((n, self.n_samples))
         vel = np.empty((n, self.n_samples), np.float32)
         volt = np.empty((n, self.n_samples))

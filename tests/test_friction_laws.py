@@ -434,11 +434,11 @@ def test_slip_span_below_the_stable_step_is_a_scene_error():
         scene_with(law, friction={"law": law, "slip_span": 4.0})
     scene_with(law, friction={"law": law, "slip_span": 1.3})  # 7.7 mm/s: held at oversample 2
     with pytest.raises(SceneError, match=r"friction.slip_speed.*oversample 1"):  # no span
-        scene_with(law, oversample=1)  # 19.5 µs: the 21 modes hold 24.8 mm/s at least
+        scene_with(law, oversample=1)  # 19.5 µs: the 22 modes hold 10.6 mm/s at least
 
 
 def test_least_slip_speed_marks_where_the_explicit_friction_step_chatters(monkeypatch):
-    """Coulomb records at the scene's step (oversample 2, 21 modes) against the same stepped 8×
+    """Coulomb records at the scene's step (oversample 2, 22 modes) against the same stepped 8×
     finer: at the least v_r the band above 5 kHz holds the finer records' power (within 1 %);
     at a sixth of it the explicit step chatters there (several times the power): what the
     scene's own guard refuses to step (``check_stepped``, switched off here to show it). The

@@ -176,8 +176,9 @@ def largest_stable_slope(model, dt: float) -> float:
     (s): the largest s at which the linearised loop, the exact step under the force held at
     its mid-step extrapolation ``F_k = s (1.5 v_k − 0.5 v_{k−1})`` against the motion, has
     spectral radius at most 1 (bisection to 1e-6 of s). Where every mode is slow this is
-    about ``1 / (dt Σφb²)``; the faster modes, rung within the step, hold less: 0.0605 N·s/m
-    for the macro WT's 21 modes at 102.4 kS/s, against ``1 / (dt Σφb²)`` = 0.065."""
+    about ``1 / (dt Σφb²)``; the faster modes, rung within the step, hold less: 0.0574 N·s/m
+    for the macro WT's 22 modes (its whisker in 32 elements) at 102.4 kS/s, against
+    ``1 / (dt Σφb²)`` = 0.0617."""
     radius = _loop_radius(model, dt)
     c_b = radius.c_b
     low, high = 0.0, 1.0 / abs(c_b)

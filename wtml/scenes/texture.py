@@ -268,7 +268,7 @@ class TextureScene:
     grades: str = one_of("thesis", "fepa", default="thesis")
     specimens_per_grade: int = bounded(1, 1000, default=2)
     device: BeamDevice = field(default_factory=shipped("macro"))
-    n_modes: int = bounded(1, 40, default=21)
+    n_modes: int = bounded(1, 40, default=22)
     whisker_elements: int = bounded(1, 512, default=32)
     """The whisker's finite elements in the beam the modes come from: 32 hold the macro WT's
     modes below 25.6 kHz within 0.06 % of twice as many; the 8 of the other scenes left modes
@@ -431,7 +431,7 @@ class TextureScene:
         ``oversample`` × the sampling rate (default the scene's own): the force's slope at
         rest, :meth:`worst_force` / v_r plus the largest viscous c, at most the nominal
         model's :func:`~wtml.physics.friction.largest_stable_slope` (the linearised loop's
-        limit); inf where c alone passes it. 7.1e-3 m/s at the shipped 21 modes and 102.4
+        limit); inf where c alone passes it. 7.5e-3 m/s at the shipped 22 modes and 102.4
         kS/s (4.4e-3 at 14 modes: the higher modes add velocity to the feedback)."""
         force = self.worst_force()
         if force == 0:

@@ -74,3 +74,10 @@ def test_the_whiskers_mesh_converges_and_the_texture_scene_keeps_its_band_conver
     with pytest.raises(SceneError, match=r"whisker_elements: at 16 the modes below 25600 Hz "
                                          r"move by 0.86 % .* raise whisker_elements"):
         build_config(TextureScene, {"whisker_elements": 16})
+    from wtml.scenes import scene_from_dict, to_dict
+
+    stored = to_dict(scene)  # a manifest's or export's scene of before the key: 8 elements
+    stored.pop("whisker_elements")
+    with pytest.raises(SceneError, match="at 8 the modes .* stored before 30 Nov had 8"):
+        scene_from_dict(stored)
+    assert scene_from_dict({"task": "texture"}).whisker_elements == 32  # a file: the default

@@ -53,7 +53,8 @@ def test_a_named_parameters_width_replaces_its_classs_and_is_checked():
     """``parameters`` widens one named parameter past its class (texture's whisker EI ±10 %,
     the other moduli ±3 %): its factors span its own band, the class's others theirs; a
     spread of named widths alone is not ``none``; an unknown name or a width out of [0, 0.3]
-    is refused naming ``spread.parameters.<name>`` (radius and tip mass: not a beam's);
+    is refused naming ``spread.parameters.<name>`` and its class's range; an empty mapping
+    leaves the scene's identity (``config_hash``) as it was before the key existed;
     a named whisker length widens the radial scene's whisker margin."""
     spread = dataclasses.replace(SPREAD, parameters={"whisker.modulus": 0.1})
     widths = spread.widths("macro")
@@ -65,11 +66,20 @@ def test_a_named_parameters_width_replaces_its_classs_and_is_checked():
     assert not alone.none and alone.tolerances and DeviceSpread().none
     alone.check_device("", build_config(RadialScene, {}).device)
     for name, width, match in (("whisker.radius", 0.1, "not a parameter of device"),
-                               ("whisker.modulus", 0.5, r"must be a number in \[0, 0.3\]"),
+                               ("whisker.modulus", 0.5, r"must be a number in \[0, 0.3\] "
+                                                        r"\(its class modulus's range\)"),
+                               ("whisker.length", 0.2, r"must be a number in \[0, 0.1\]"),
                                ("whisker.modulus", "wide", "must be a number")):
         with pytest.raises(SceneError, match=rf"spread.parameters.{name}: {match}"):
             build_config(RadialScene, {"spread": {"parameters": {name: width}}})
-    device = build_config(RadialScene, {}).device
+    from wtml.schema import config_hash, to_dict
+
+    radial = build_config(RadialScene, {})
+    assert "parameters" not in to_dict(radial)["spread"]
+    assert config_hash(radial) == config_hash(build_config(RadialScene, {"spread": {
+        "parameters": {}}}))
+    assert "parameters" in to_dict(dataclasses.replace(radial, spread=alone))["spread"]
+    device = radial.device
     assert DeviceSpread(length=0.005, parameters={"whisker.length": 0.02}
                         ).whisker_margin(device) == 0.02
 

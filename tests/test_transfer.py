@@ -182,7 +182,7 @@ def test_texture_device_rows_are_the_nominal_device_the_spread_and_each_class_al
         scene.drive, record_s=0.05, lead_s=0.1))
     rows = device_variants(short)
     off = ["whisker 2 % longer", "whisker 2 % shorter",
-           "whisker in 8 elements (modes 14-22 1.5-12 % high)"]
+           "whisker in 8 elements (modes 13-22 1.5-12 % high)"]
     assert [v.name for v in rows] == ["nominal device", "devices of the trained spread"] + [
         f"{c} ±{100 * getattr(scene.spread, c):g} % alone" for c in CLASSES] + [
         "whisker.modulus ±10 % alone", *off]
@@ -202,7 +202,8 @@ def test_texture_device_rows_are_the_nominal_device_the_spread_and_each_class_al
     np.testing.assert_allclose(tan[..., 0, 0], np.broadcast_to(nominal[..., 0, 0],
                                                                tan[..., 0, 0].shape), rtol=1e-9)
     np.testing.assert_allclose(seen[-1]["t"], seen[1]["t"], rtol=1e-4)  # measured 1.2e-5
-    assert np.abs(seen[-2]["t"] - seen[1]["t"]).max() > 0  # a shorter whisker: another T
+    shorter = np.abs(seen[-2]["t"] / seen[1]["t"] - 1).max()  # a whisker 2 % shorter
+    assert shorter > 1e-3  # moves its T at the whisk far past the mesh's 1.2e-5
     # without a trained spread the rows take the tolerances
     bare = device_variants(dataclasses.replace(short, spread=dataclasses.replace(
         scene.spread, parameters={}, **dict.fromkeys(CLASSES, 0.0))))

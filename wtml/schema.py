@@ -261,9 +261,28 @@ def load_yaml(cls: type, path: str | Path) -> Any:
         raise SchemaError(f"{path}: {err}") from None
 
 
+def omitted_when_empty(**kwargs) -> Any:
+    """A dataclass field (``dataclasses.field``'s arguments) that :func:`to_dict` leaves out
+    while it is empty, so that adding it keeps the identity (:func:`config_hash`) of every
+    config that does not use it."""
+    return dataclasses.field(**kwargs, metadata={"omit_empty": True})
+
+
 def to_dict(obj: Any) -> dict:
-    """The plain mapping a config was built from (tuples as lists)."""
-    return json.loads(json.dumps(dataclasses.asdict(obj)))
+    """The plain mapping a config was built from (tuples as lists; a field made by
+    :func:`omitted_when_empty` left out while empty)."""
+    return json.loads(json.dumps(_plain(obj)))
+
+
+def _plain(obj: Any) -> Any:
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)
+                if not (f.metadata.get("omit_empty") and not getattr(obj, f.name))}
+    if isinstance(obj, list | tuple):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    return obj
 
 
 def mapping_hash(mapping: Any) -> str:

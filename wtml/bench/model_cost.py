@@ -43,6 +43,7 @@ from wtml.physics.modal import ModalTransducer, truncation_errors
 from wtml.runtime.predict import load_export
 from wtml.scenes import SceneError, scene_from_dict
 from wtml.scenes.modes import DEFAULT_TOLERANCE, AutoModes, band_omega
+from wtml.scenes.texture import UNSTABLE_STEP
 
 MODE_COUNTS = (1, 3, 6, 14)
 """The modal orders every time-domain scene is costed at."""
@@ -147,7 +148,7 @@ def modal_cost(model_dir: str | Path, *, records: int = 32, counts=MODE_COUNTS,
                            time.perf_counter() - t0)
                 break
             except SceneError as err:  # a drawn device the nominal's step does not hold
-                if "does not hold the explicit friction step" not in str(err):
+                if UNSTABLE_STEP not in str(err):
                     raise
                 stepped = dataclasses.replace(stepped, oversample=stepped.oversample + 1
                                               ).stepped_stably()

@@ -657,7 +657,7 @@ def _report(s: dict) -> str:
               "the user's calibration. Window accuracy (95 % interval over the specimens) and "
               "the share the domain gate flags; the last column is the decoder's error rate "
               f"over the nominal row's (target over the spread ≤ {DEVICE_TARGET:g}×: "
-              f"{'met' if v['met'] else 'MISSED'}; the class that costs most alone: "
+              f"{'met' if v['met'] else 'MISSED'}; the class or parameter that costs most alone: "
               f"{v['limit']})" + ("." if s["fresh_minirocket"] else "; MiniRocket on the test "
                                  "shard only, as in the transfer table."), ""]
     lines += device_table(s["device_spread"])

@@ -120,8 +120,9 @@ def texture_variants(scene) -> list[Variant]:
 
 
 OFF_WHISKER = 0.02
-"""The off-spread rows' whisker: this much longer and shorter than nominal (its modes above
-the lowest two move ∓3-4 %, as far as the trained ``whisker.modulus`` spread's edge)."""
+"""The off-spread rows' whisker: this much longer and shorter than nominal (the macro WT's
+modes above the first move by 0.8-3.7 %, about the trained ``whisker.modulus`` spread's
+edge: 1.0-4.6 %)."""
 
 
 def device_variants(scene) -> list[Variant]:
@@ -130,7 +131,7 @@ def device_variants(scene) -> list[Variant]:
     ``spread.parameters`` alone at the trained width (issue 21's, :data:`REFERENCE_SPREAD`,
     where the scene trains on none); then devices off the spread, each over the trained
     spread: a whisker :data:`OFF_WHISKER` longer and shorter, and the beam meshed with 8
-    whisker elements (modes 14-22 1.5-12 % high: the model the texture scenes had until 30
+    whisker elements (modes 13-22 1.5-12 % high: the model the texture scenes had until 30
     Nov); each record its own specimen
     (:meth:`~wtml.scenes.texture.TextureScene.simulate_independent`), stepped as its
     friction needs."""
@@ -151,7 +152,7 @@ def device_variants(scene) -> list[Variant]:
         device = apply_factors(scene.device, {"whisker.length": 1 + sign * OFF_WHISKER})
         scenes.append((f"whisker {100 * OFF_WHISKER:g} % {word}", "off the spread",
                        dataclasses.replace(spread_scene, device=device)))
-    scenes.append(("whisker in 8 elements (modes 14-22 1.5-12 % high)", "off the spread",
+    scenes.append(("whisker in 8 elements (modes 13-22 1.5-12 % high)", "off the spread",
                    dataclasses.replace(spread_scene, whisker_elements=8)))
     return [Variant(label, kind, s.stepped_stably().simulate_independent)
             for label, kind, s in scenes]

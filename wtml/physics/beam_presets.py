@@ -53,8 +53,8 @@ PRESETS = THESIS_DEVICES
 WHISKER_ELEMENTS = 8
 """The whisker's finite elements unless a scene asks for more (:func:`whisker_mesh_error`):
 the macro WT's modes below 5 kHz within 0.4 % of a mesh eight times as fine, the micro WT's
-below 50 kHz within 0.01 %; the macro WT's above 9 kHz, which texture's grains ring, were 3-12 %
-off at this count."""
+below 50 kHz within 0.01 %; the macro WT's modes 13-22 (9.6-29 kHz), which texture's grains
+ring, are 1.5-12 % high at this count."""
 
 
 def _whisker(w: Whisker, loss: float, elements: int) -> Segment:

@@ -27,7 +27,7 @@ import numpy as np
 from wtml.devices import BeamDevice
 from wtml.physics.beam import BeamTransducer, contact_transduction_matrices, device_forms
 from wtml.physics.beam_presets import beam_device, build, device_parameters, fit_parameters
-from wtml.schema import SceneError
+from wtml.schema import SceneError, field_range, omitted_when_empty
 
 DEVICE_CHUNK = 64
 """Devices whose beam inverses :func:`device_ze` holds at once."""
@@ -40,12 +40,10 @@ def _width(high: float, default=0.0):
 
 
 CLASSES = ("length", "thickness", "modulus", "loss_factor", "tan_delta", "coupling")
-PARAMETER_MAX = 0.3
-"""The widest half-width :attr:`DeviceSpread.parameters` takes (a modulus's class allows 0.3)."""
+"""The spread's classes of parameter (the fields of :class:`DeviceSpread` that are widths)."""
 POSTERIOR_MAX = 0.2
 """The widest relative standard deviation (posterior × standard error) a posterior spread
 draws Gaussian factors with: at 0.2, a factor at or below 0 is 5 standard deviations away."""
-"""The spread's classes of parameter (the fields of :class:`DeviceSpread` that are widths)."""
 
 
 @dataclass(frozen=True)
@@ -71,9 +69,10 @@ class DeviceSpread:
         devices: distinct devices drawn per simulated batch (records are assigned to them
             uniformly at random).
         parameters: half-widths of named parameters (of ``beam_presets.device_parameters``)
-            that replace their class's, each in [0, :data:`PARAMETER_MAX`]: texture's
-            ``whisker.modulus: 0.1`` moves the whisker's modes by ±3-4 %, the spread a real
-            whisker's high modes have about any model's (its class's 0.03 moves them ±1 %).
+            that replace their class's, each within its class's range: texture's
+            ``whisker.modulus: 0.1`` moves the macro WT's modes above the first by 1-4.6 %
+            (36 Hz by 0.25 %), a stand-in for what no model knows of a real whisker's upper
+            modes (its class's 0.03 moves them by about a third of that).
     """
 
     length: float = _width(0.1)
@@ -84,7 +83,7 @@ class DeviceSpread:
     coupling: float = _width(0.3)
     posterior: float = _width(10.0)
     devices: int = field(default=256, metadata={"range": (1, 100_000)})
-    parameters: dict[str, float] = field(default_factory=dict)
+    parameters: dict[str, float] = omitted_when_empty(default_factory=dict, hash=False)
 
     @property
     def none(self) -> bool:
@@ -99,8 +98,8 @@ class DeviceSpread:
                 or any(w != 0 for w in self.parameters.values()))
 
     def check_device(self, pre: str, device: BeamDevice) -> None:
-        """Named widths (:attr:`parameters`) must name the device's parameters, within [0,
-        :data:`PARAMETER_MAX`]; a posterior spread needs a device with a fit's posterior of
+        """Named widths (:attr:`parameters`) must name the device's parameters, each within
+        its class's range; a posterior spread needs a device with a fit's posterior of
         parameters it can build (``pre``: the scene's key prefix).
 
         Raises:
@@ -112,10 +111,12 @@ class DeviceSpread:
             if name not in named:
                 raise SceneError(f"{pre}spread.parameters.{name}: not a parameter of device "
                                  f"{device.name!r}; allowed: {sorted(named)}")
+            high = field_range(DeviceSpread, named[name])[1]
             if isinstance(width, bool) or not isinstance(width, int | float) or not (
-                    0 <= width <= PARAMETER_MAX):
+                    0 <= width <= high):
                 raise SceneError(f"{pre}spread.parameters.{name}: must be a number in [0, "
-                                 f"{PARAMETER_MAX:g}], got {width!r:.80}")
+                                 f"{high:g}] (its class {named[name]}'s range), got "
+                                 f"{width!r:.80}")
         if self.posterior == 0:
             return
         post = device.provenance.posterior

@@ -103,12 +103,22 @@ LUMPED_PRESETS = {"fluid": "fluid-lumped", "macro": "macro-lumped"}
 """The fluid scene's ``transducer.preset`` names and the device files that hold them."""
 
 
+LEGACY_WHISKER_ELEMENTS = 8
+"""The whisker's elements of every texture scene stored before ``whisker_elements`` (30 Nov)."""
+
+
 def legacy_keys(data: Mapping) -> dict:
     """A scene written before device files, in today's keys: ``preset: micro`` is
     ``device: micro``; a ``device:`` mapping without a ``kind`` (the manufacturing spread's
     half-widths) is ``spread:``; the fluid scene's ``transducer.preset: fluid`` is
-    ``transducer.device: fluid-lumped``. Anything else is left to the schema to judge."""
+    ``transducer.device: fluid-lumped``; a texture scene stored whole (a manifest's or an
+    export's: with ``calibration`` and ``oversample``) without ``whisker_elements`` was made
+    on the 8-element whisker of before 30 Nov, and says so (its check refuses it: its modes
+    were not converged). Anything else is left to the schema to judge."""
     out = dict(data)
+    if (out.get("task") == "texture" and "whisker_elements" not in out
+            and {"calibration", "oversample"} <= set(out)):
+        out["whisker_elements"] = LEGACY_WHISKER_ELEMENTS
     old = out.get("device")
     if isinstance(old, Mapping) and "kind" not in old and "spread" not in out:
         out["spread"] = out.pop("device")

@@ -143,6 +143,9 @@ class LuGreLaw(StribeckLaw):
     bristle_damping: tuple[float, float] = bounded(0.0, 1.0, default=(0.0, 0.01))
 
 
+UNSTABLE_STEP = "does not hold the explicit friction step"
+"""What :meth:`TextureScene.check_stepped`'s refusal says of the device (callers that step
+finer on it match it)."""
 MESH_TOLERANCE = 0.005
 """The most a natural frequency below the scene's Nyquist may move when the whisker's finite
 elements are doubled (:func:`~wtml.physics.beam_presets.whisker_mesh_error`): 0.5 %, a third
@@ -272,7 +275,7 @@ class TextureScene:
     whisker_elements: int = bounded(1, 512, default=32)
     """The whisker's finite elements in the beam the modes come from: 32 hold the macro WT's
     modes below 25.6 kHz within 0.06 % of twice as many; the 8 of the other scenes left modes
-    14-21 (12-26 kHz) 1.5-12 % high (checked: :data:`MESH_TOLERANCE`)."""
+    13-22 (9.6-29 kHz) 1.5-12 % high (checked: :data:`MESH_TOLERANCE`)."""
     reach_m: float = bounded(1e-4, 0.1, default=5e-3)
     drive: TextureDrive = field(default_factory=TextureDrive)
     contact: Contact = field(default_factory=Contact)
@@ -342,7 +345,8 @@ class TextureScene:
             raise SceneError(f"{pre}whisker_elements: at {self.whisker_elements} the modes "
                              f"below {self.modal_band_hz()[1]:g} Hz move by {100 * mesh:.2g} % "
                              f"when they are doubled; at most {100 * MESH_TOLERANCE:g} %: "
-                             "raise whisker_elements")
+                             "raise whisker_elements (a texture scene stored before 30 Nov had "
+                             "8: generate its dataset, train and export again)")
         if self.drive.whisk_hz[1] >= self.acquisition.sample_rate_hz / 8:
             raise SceneError(f"{pre}drive.whisk_hz: must stay below an eighth of the sample "
                              f"rate ({self.acquisition.sample_rate_hz / 8:g} Hz)")
@@ -458,10 +462,10 @@ class TextureScene:
         slope = force / (f.slip_speed / f.slip_span) + f.viscous + f.viscous_span
         for k, model in enumerate(models):
             if not holds_slope(model, dt, slope):
-                who = ("the device" if len(models) == 1 and self.spread.none
+                who = ("the device" if len(models) == 1
                        else f"device {k} of the {len(models)} drawn from the spread")
-                raise SceneError(f"friction.slip_speed: {who} does not hold "
-                                 f"the explicit friction step at oversample {self.oversample} "
+                raise SceneError(f"friction.slip_speed: {who} {UNSTABLE_STEP} "
+                                 f"at oversample {self.oversample} "
                                  f"({self.n_modes} modes; a slope of {slope:.3g} N·s/m at "
                                  "rest): raise oversample (stepped_stably(devices=...) finds one)")
 

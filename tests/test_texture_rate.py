@@ -62,8 +62,9 @@ def test_the_same_seed_draws_the_same_specimens_and_nuisance_at_both_rates(pair)
     assert low["i"].shape[1] * 4 == high["i"].shape[1]
     for key in PAIRED:
         np.testing.assert_array_equal(low[key], high[key], err_msg=key)
-    # the same devices' calibrated T; the 204.8 kS/s model's 12 more modes move it by 1e-7
-    np.testing.assert_allclose(low["t"], high["t"], rtol=1e-6)
+    # the same devices' calibrated T; the 204.8 kS/s model's 18 more modes and its whisker's
+    # 64 elements (32 at 51.2 kS/s) move it by 5.2e-5, under a 1 % calibration error
+    np.testing.assert_allclose(low["t"], high["t"], rtol=1e-4)
 
 
 def test_both_rates_record_the_same_physics_below_the_slower_nyquist(pair):

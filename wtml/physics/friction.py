@@ -179,8 +179,7 @@ def largest_stable_slope(model, dt: float) -> float:
     about ``1 / (dt Σφb²)``; the faster modes, rung within the step, hold less: 0.0574 N·s/m
     for the macro WT's 22 modes (its whisker in 32 elements) at 102.4 kS/s, against
     ``1 / (dt Σφb²)`` = 0.0617."""
-    radius = _loop_radius(model, dt)
-    c_b = radius.c_b
+    radius, c_b = _loop_radius(model, dt)
     low, high = 0.0, 1.0 / abs(c_b)
     while radius(high) <= STABLE:
         low, high = high, 2.0 * high
@@ -200,13 +199,13 @@ def holds_slope(model, dt: float, slope: float) -> bool:
     slope ``slope`` (N·s/m) at rest: one eigenvalue problem of :func:`largest_stable_slope`'s
     loop (~1 ms), where the bisection takes ~20; what a scene checks on each device it
     steps."""
-    return _loop_radius(model, dt)(slope) <= STABLE
+    return _loop_radius(model, dt)[0](slope) <= STABLE
 
 
 def _loop_radius(model, dt: float):
     """The spectral radius of the linearised friction loop as a function of the law's slope
-    (:func:`largest_stable_slope`), with the tip's velocity response to the force ``c_b``
-    (its attribute)."""
+    (:func:`largest_stable_slope`), and the tip's velocity response to the force it applies
+    within one step, ``c b`` (m/s per N)."""
     maps = model.step_matrices(dt, 0.0, 0.0, force_input=True)[0]
     ns = maps.shape[1] - 4
     a, b, c = maps[:ns, :ns], maps[:ns, ns + 2], maps[ns + 1, :ns]  # x' = a x + b F; v = c x
@@ -220,8 +219,7 @@ def _loop_radius(model, dt: float):
         loop[ns, :ns] = c  # v_{k-1} for the next step
         return float(np.max(np.abs(np.linalg.eigvals(loop))))
 
-    radius.c_b = float(c @ b)
-    return radius
+    return radius, float(c @ b)
 
 
 def describing_function(coulomb, speed, static_ratio=1.0, stribeck_speed=1.0) -> np.ndarray:

@@ -29,6 +29,7 @@ from wtml.memory import release_memory
 from wtml.runtime.predict import domain_warning, format_predictions, predict_file
 from wtml.schema import read_yaml
 from wtml.tasks import TASKS, Task
+from wtml.workers import watch_parent
 
 TRANSFER_RECORDS = 4
 """Fresh records per row of the time-domain benches' transfer tables in the main job (a small
@@ -796,7 +797,8 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
             print(f"{len(names)} slices in {lanes} lanes of {threads} thread(s), {first}in "
                   f"the order that ends first ({', '.join(order)}); each slice's log: "
                   f"{LOGS}/<slice>.log, printed when it ends", flush=True)
-        with ProcessPoolExecutor(lanes, mp_context=context, max_tasks_per_child=1) as pool:
+        with ProcessPoolExecutor(lanes, mp_context=context, max_tasks_per_child=1,
+                                 initializer=watch_parent) as pool:
             running = {}
             if warm:  # submitted first: the pool's first free lane takes it
                 running[pool.submit(_lane_warm, warm, threads, LOGS / f"{WARM}.log")] = WARM

@@ -91,6 +91,7 @@ from wtml.runtime.texture import windows
 from wtml.scenes import config_hash, load_scene, scene_from_dict
 from wtml.scenes.texture import TextureScene
 from wtml.schema import read_yaml, to_dict
+from wtml.workers import watch_parent
 
 SCENE = "configs/scenes/texture.yaml"
 """The scene the training and held-out sets are drawn from."""
@@ -322,8 +323,8 @@ def make_sets(scenes: dict[str, TextureScene], work: Path, window: int, workers:
     done = []
     if jobs:
         _progress(f"{len(jobs)} shards to make or check on {workers} processes")
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=get_context("spawn")
-                                 ) as pool:
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=get_context("spawn"),
+                                 initializer=watch_parent) as pool:
             futures = [pool.submit(_shard_job, *job) for job in jobs]
             step = max(1, len(jobs) // 20)
             for count, future in enumerate(as_completed(futures), start=1):

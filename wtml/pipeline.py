@@ -798,7 +798,7 @@ def run_all(task: str = "all", *, max_epochs: int | None = None, lanes: int = LA
                   f"the order that ends first ({', '.join(order)}); each slice's log: "
                   f"{LOGS}/<slice>.log, printed when it ends", flush=True)
         with ProcessPoolExecutor(lanes, mp_context=context, max_tasks_per_child=1,
-                                 initializer=watch_parent) as pool:
+                                 initializer=watch_parent, initargs=(os.getpid(),)) as pool:
             running = {}
             if warm:  # submitted first: the pool's first free lane takes it
                 running[pool.submit(_lane_warm, warm, threads, LOGS / f"{WARM}.log")] = WARM

@@ -324,7 +324,7 @@ def make_sets(scenes: dict[str, TextureScene], work: Path, window: int, workers:
     if jobs:
         _progress(f"{len(jobs)} shards to make or check on {workers} processes")
         with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=get_context("spawn"),
-                                 initializer=watch_parent) as pool:
+                                 initializer=watch_parent, initargs=(os.getpid(),)) as pool:
             futures = [pool.submit(_shard_job, *job) for job in jobs]
             step = max(1, len(jobs) // 20)
             for count, future in enumerate(as_completed(futures), start=1):

@@ -25,12 +25,14 @@ time.sleep(600)
 """
 
 
-def _orphan(watched: bool, method: str = "spawn") -> int:
+def _orphan(watched: bool, folder, method: str = "spawn") -> int:
     """Starts an owner process with one worker (started by ``method``), kills the owner with
-    SIGKILL, and returns the worker's process id."""
+    SIGKILL, and returns the worker's process id. The owner's temporary files (a fork
+    server's socket, which a killed owner leaves) go to ``folder``."""
     owner = subprocess.Popen([sys.executable, "-W", "ignore::UserWarning", "-c", OWNER,
                               "watched" if watched else "bare", method], stdout=subprocess.PIPE,
-                             text=True)  # -W: the killed owner's semaphores, not ours
+                             text=True,  # -W: the killed owner's semaphores, not ours
+                             env=os.environ | {"TMPDIR": str(folder)})
     worker = int(owner.stdout.readline())
     assert not gone(worker)
     owner.send_signal(signal.SIGKILL)
@@ -40,10 +42,10 @@ def _orphan(watched: bool, method: str = "spawn") -> int:
 
 
 @pytest.mark.parametrize("method", ["spawn", "forkserver"])
-def test_worker_ends_with_its_killed_owner(method):
+def test_worker_ends_with_its_killed_owner(method, tmp_path):
     """Spawned (texture-scale's pool) and forked from a fork server (the main job's lanes:
     the worker's parent is the server, which outlives the owner while the worker lives)."""
-    worker = _orphan(watched=True, method=method)
+    worker = _orphan(True, tmp_path, method)
     deadline = time.monotonic() + 30
     while not gone(worker) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -51,9 +53,9 @@ def test_worker_ends_with_its_killed_owner(method):
 
 
 @pytest.mark.parametrize("method", ["spawn", "forkserver"])
-def test_unwatched_worker_is_orphaned(method):
+def test_unwatched_worker_is_orphaned(method, tmp_path):
     """The control: without :func:`watch_parent` the same worker runs on."""
-    worker = _orphan(watched=False, method=method)
+    worker = _orphan(False, tmp_path, method)
     try:
         time.sleep(1.5)
         assert not gone(worker)

@@ -15,6 +15,7 @@ that its owner is gone.
 
 import os
 import threading
+import time
 from pathlib import Path
 
 POLL_S = 1.0
@@ -41,7 +42,7 @@ def _watch(owner: int, parent: int, poll_s: float) -> None:
     while True:
         if os.getppid() != parent or gone(owner):
             os._exit(1)  # no cleanup: the process that would collect our results is gone
-        threading.Event().wait(poll_s)
+        time.sleep(poll_s)
 
 
 def watch_parent(owner: int | None = None, poll_s: float = POLL_S) -> None:

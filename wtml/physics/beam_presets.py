@@ -24,6 +24,7 @@ Assumptions (not in the thesis):
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
 
 import numpy as np
@@ -134,11 +135,14 @@ def build(device: BeamDevice | str, fit_values: tuple[float, ...] | None = None,
     return BeamTransducer(tuple(segs), masses, tan_delta=d.losses.tan_delta * f("tan_delta"))
 
 
+@functools.lru_cache(maxsize=64)
 def whisker_mesh_error(device: BeamDevice | str, top_hz: float, whisker_elements: int
                        ) -> float:
     """How far (relative) the device's natural frequencies below ``top_hz`` (Hz) move when
     its whisker's ``whisker_elements`` are doubled: the whisker's discretisation error over a
-    band (the macro WT below 25.6 kHz: 0.12 at 8 elements, 6e-4 at 32)."""
+    band (the macro WT below 25.6 kHz: 0.12 at 8 elements, 6e-4 at 32). Kept per process
+    (a frozen device, a float): every texture scene's load checks it, 35-50 ms each, and a
+    generation worker loads the same scene for every shard."""
     coarse, fine = (build(device, whisker_elements=k) for k in (whisker_elements,
                                                                 2 * whisker_elements))
     count = len(coarse.matrices()[2])  # every mode of the coarse mesh

@@ -135,7 +135,7 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
         "no decoder": json.dumps(manifest | {"files": manifest["files"][1:]}),
         "size a string": json.dumps(manifest | {"files": [
             manifest["files"][0] | {"bytes": "12"}, manifest["files"][1]]}),
-        "format 5": json.dumps(manifest | {"format": 5, "wtml_version": "9.1"}),
+        "format 6": json.dumps(manifest | {"format": 6, "wtml_version": "9.1"}),
         "format 1": json.dumps(manifest | {"format": 1}),
         "format 0": json.dumps(manifest | {"format": 0}),
         "format true": json.dumps(manifest | {"format": True}),
@@ -147,10 +147,10 @@ def test_a_folder_without_a_manifest_or_with_a_bad_one_is_refused(fluid_copy, ca
                "a list": "must be a mapping", "no files": "files: missing",
                "a path": "files[0].name", "no decoder": "files: must list one 'decoder'",
                "size a string": "files[0].bytes",
-               "format 5": f"format: 5, exported by a newer wtml (9.1) than this one "
-                           f"({__version__}, reads formats 2-4): install that wtml's runtime",
-               "format 0": "format: must be in [2, 4]",
-               "format true": "format: must be a number in [2, 4], got True",
+               "format 6": f"format: 6, exported by a newer wtml (9.1) than this one "
+                           f"({__version__}, reads formats 2-5): install that wtml's runtime",
+               "format 0": "format: must be in [2, 5]",
+               "format true": "format: must be a number in [2, 5], got True",
                "format 1": "format: 1, exported by an older wtml (it names no device)",
                "no device": "device: missing",
                "another device": "metadata scene's device is not manifest.json's fluid-lumped"}
@@ -183,7 +183,8 @@ def _schema_keys(cls, path: str = "") -> dict[str, str]:
 
 
 SCHEMA_FINGERPRINT = {3: "2cff5e5e4ffc8d4e0184f3ea75e2abfca729ff7b50ebb54626e76a16d8e9e788",
-                      4: "56215c9ff1b2939b9a4e1d973928c12f3b0c0f0247d7f29847b0036aced875a8"}
+                      4: "56215c9ff1b2939b9a4e1d973928c12f3b0c0f0247d7f29847b0036aced875a8",
+                      5: "a92cebd37efc23d8ea2bc4b5603c534d4e0e07f154b900d025f05c4ed3762a08"}
 """Per export format, the sha256 of every key the runtime's metadata schemas read
 (:func:`_schema_keys` of the manifest and each task's graph metadata) and of the tables
 they check graphs against (inputs, outputs, references, required keys, kinds)."""

@@ -280,7 +280,7 @@ def score(decoder, module, names: tuple[str, ...], sets: list[RecordSet], progre
             out["intervals"][r.sigma].append({
                 "name": s.name, "kind": s.kind, "truth": truth[r.value], "err": err,
                 "groups": truth.get("groups"),
-                "sigma": np.where(inside, sigma, np.nan), "wide": r.wide(after[r.by]),
+                "sigma": np.where(inside, sigma, np.nan), "wide": r.wide(after[r.by], after),
                 "raw": None if raw is None else np.where(inside, raw, np.nan),
                 "flagged": flagged})
         if u.probabilities is not None:

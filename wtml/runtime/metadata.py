@@ -42,11 +42,12 @@ from wtml.schema import SchemaError, bounded, build, mapping_hash, one_of
 from wtml.tasks import UNNAMED
 
 MANIFEST = "manifest.json"
-MANIFEST_FORMAT = 4
+MANIFEST_FORMAT = 5
 """The export format this wtml writes. Raised whenever a graph's metadata or the manifest
 gains a key that an older runtime's schema would refuse (3: the texture decoder's
 ``uncertainty.top_slope``, ``top_bias``, 29 Nov; 4: the onset graphs' ``domain.pieces_limit``,
-``pieces_false_alarm_fresh``, 30 Nov), so that an older runtime refuses a newer
+``pieces_false_alarm_fresh``, 30 Nov; 5: an interval's ``classes``, ``class_values``,
+``thresholds``, ``thresholds_wide``, 1 Dec), so that an older runtime refuses a newer
 export by its format, not by the first key it does not know."""
 OLDEST_FORMAT = 2
 """The oldest export format this runtime reads (1 named no device)."""
@@ -107,6 +108,35 @@ WIDE = 1.96
 """The 95 % interval's half-width in σ of a Gaussian error: an export's 95 % width where its
 metadata states none."""
 PLAIN = ("wtml_version", "task", "kind", "label", "scene_hash")
+CLASS_MARGIN = 1e-3
+"""A class's reach (:func:`class_reach`) is its distance from the answer times 1 + this, so
+that a window of that class is inside its interval in float32 too."""
+NEVER = 2.0
+"""A class threshold above every probability: that class never widens an interval."""
+
+
+def class_reach(value: np.ndarray, probabilities: np.ndarray, class_values, thresholds,
+                log_value: bool) -> np.ndarray:
+    """How far an interval about each answer must reach to hold every class whose probability
+    is at or above its threshold: ``max_k [p_k >= τ_k] · |f(value) - f(v_k)| · (1 +``
+    :data:`CLASS_MARGIN` ``)``, f = ln where ``log_value`` (else the identity), 0 where no
+    class is that likely; ``value`` ``(n,)``, ``probabilities`` ``(n, C)``, ``class_values``
+    and ``thresholds`` ``(C,)``. Compared and computed as the graph does (float32), returned
+    as float64 ``(n,)`` in σ's unit."""
+    likely = np.asarray(probabilities, np.float32) >= np.asarray(thresholds, np.float32)
+    distance = class_distance(value, class_values, log_value)
+    return np.max(np.where(likely, distance, np.float32(0)), -1).astype(float)
+
+
+def class_distance(value: np.ndarray, class_values, log_value: bool) -> np.ndarray:
+    """Each class value's distance from each answer ``value`` ``(n,)``, ``(n, C)`` float32,
+    in σ's unit and with :data:`CLASS_MARGIN` (:func:`class_reach`)."""
+    value = np.asarray(value, np.float32)
+    values = np.asarray(class_values, np.float32)
+    if log_value:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            value, values = np.log(np.maximum(value, np.float32(1e-30))), np.log(values)
+    return np.abs(value[..., None] - values) * np.float32(1 + CLASS_MARGIN)
 """Metadata keys stored as plain strings; every other key holds JSON."""
 
 _HEX64 = re.compile(r"^[0-9a-f]{64}$")
@@ -191,7 +221,16 @@ class IntervalRecalibration:
     ``"none"`` (no σ of its own: σ = scale). Fitted on ``n`` held-out answers in domain (too
     few: scale 1, width :data:`WIDE`), whose coverage of the 68 % and 95 % intervals was
     ``coverage_before`` (±1σ and ±1.96σ; empty without a σ) and is ``coverage_after``
-    (empty without answers)."""
+    (empty without answers).
+
+    A value that takes one value per class of a classifier output ``classes`` (texture's
+    grain: each grade's mean size, ``class_values`` in the value's unit, in the classes'
+    order) has each interval also reach every class at least as likely as its threshold
+    (``thresholds`` for the 68 % interval, ``thresholds_wide`` for the 95 %;
+    :func:`class_reach`): σ is ``max(scale·σ_net, reach68)`` and the 95 % half-width
+    ``max(width·σ, reach95)`` (:meth:`wide`). Fitted per class on held-out answers of known
+    class (:func:`wtml.decoders.recalibration.class_thresholds`), so that the intervals
+    cover each class at their levels, not only each range of the answer."""
 
     sigma: str
     value: str
@@ -204,8 +243,23 @@ class IntervalRecalibration:
     n: int = bounded(0, 10**9, default=0)
     coverage_before: tuple[float, ...] = bounded(0.0, 1.0, default=())
     coverage_after: tuple[float, ...] = bounded(0.0, 1.0, default=())
+    classes: str = ""
+    class_values: tuple[float, ...] = bounded(-1e300, 1e300, default=())
+    thresholds: tuple[float, ...] = bounded(0.0, NEVER, default=())
+    thresholds_wide: tuple[float, ...] = bounded(0.0, NEVER, default=())
 
     def check(self, path: str) -> None:
+        n = len(self.class_values)
+        if bool(self.classes) != bool(n):
+            raise _fail(f"{path}.class_values", f"must be given with classes (the output whose "
+                        f"classes they are), and only then, got {n} for {self.classes!r}")
+        for name in ("thresholds", "thresholds_wide"):
+            if len(getattr(self, name)) != n:
+                raise _fail(f"{path}.{name}", f"must hold one threshold per class value ({n}), "
+                            f"got {len(getattr(self, name))}")
+        if self.log_value and any(v <= 0 for v in self.class_values):
+            raise _fail(f"{path}.class_values", f"must be > 0 for a value of ln, got "
+                        f"{list(self.class_values)}")
         if len(self.scales) != len(self.edges) + 1:
             raise _fail(f"{path}.scales", f"must hold one scale per range, len(edges) + 1 = "
                         f"{len(self.edges) + 1}, got {len(self.scales)}")
@@ -220,12 +274,11 @@ class IntervalRecalibration:
                             f"{list(getattr(self, name))}")
 
     @functools.cached_property
-    def _lookup(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The edges as the graph holds them (float32), each range's width and its log."""
+    def _lookup(self) -> tuple[np.ndarray, np.ndarray]:
+        """The edges as the graph holds them (float32) and each range's width."""
         with np.errstate(over="ignore"):  # beyond float32: ±inf, as in the graph
             edges = np.asarray(self.edges, np.float32)
-        widths = np.asarray(self.widths or (WIDE,) * len(self.scales), float)
-        return edges, widths, np.log(widths)
+        return edges, np.asarray(self.widths or (WIDE,) * len(self.scales), float)
 
     def range_of(self, by: np.ndarray) -> np.ndarray:
         """Each answer's range index (``by``'s shape, ints in [0, len(edges)]), found as the
@@ -235,20 +288,40 @@ class IntervalRecalibration:
             by = np.asarray(by, np.float32)
         return (by[..., None] >= self._lookup[0]).sum(-1)
 
-    def wide(self, by: np.ndarray) -> np.ndarray:
+    def wide(self, by: np.ndarray, outputs: dict[str, np.ndarray] | None = None
+             ) -> np.ndarray:
         """The 95 % interval's half-width in σ for answers ``by`` (any shape, ``(n,)``) of
-        output ``by``, in that shape: its range's width (:meth:`range_of`)."""
-        return self._lookup[1][self.range_of(by)]
+        output ``by``, in that shape: its range's width (:meth:`range_of`); with
+        ``classes``, at least the reach of the classes at or above ``thresholds_wide``
+        (:func:`class_reach`) over σ, from the graph's ``outputs`` by name (``(n,)`` each,
+        the probabilities ``(n, C)``).
 
-    def half_width(self, sigma: np.ndarray, by: np.ndarray) -> np.ndarray:
+        Raises:
+            ValueError: ``classes`` and no ``outputs``."""
+        width = self._lookup[1][self.range_of(by)]
+        if not self.classes:
+            return width
+        if outputs is None:
+            raise ValueError(f"the 95 % width of {self.sigma!r} needs the graph's outputs "
+                             f"{self.value!r}, {self.classes!r} and {self.sigma!r}")
+        sigma = np.asarray(outputs[self.sigma], float)
+        sigma = np.exp(sigma) if self.stored == "log_std" else sigma
+        reach = class_reach(outputs[self.value], outputs[self.classes], self.class_values,
+                            self.thresholds_wide, self.log_value)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.maximum(width, reach / sigma)
+
+    def half_width(self, sigma: np.ndarray, by: np.ndarray,
+                   outputs: dict[str, np.ndarray] | None = None) -> np.ndarray:
         """The 95 % interval's half-width ``(n,)`` in the σ output's own form and unit (a log
         std where ``stored`` is ``"log_std"``) from that output ``sigma`` and output ``by``,
-        each ``(n,)``: ``wide·σ``, or ``log σ + ln wide``. A few µs per call at batch 1
+        each ``(n,)`` (and, with ``classes``, the graph's ``outputs``: :meth:`wide`):
+        ``wide·σ``, or ``log σ + ln wide``. A few µs per call at batch 1
         (``wtml.runtime.predict.OnnxModel.half_widths`` calls it where answers are printed)."""
-        which = self.range_of(by)
+        wide = self.wide(by, outputs)
         if self.stored == "log_std":
-            return np.asarray(sigma, float) + self._lookup[2][which]
-        return np.asarray(sigma, float) * self._lookup[1][which]
+            return np.asarray(sigma, float) + np.log(wide)
+        return np.asarray(sigma, float) * wide
 
 
 @dataclass(frozen=True)
@@ -357,7 +430,7 @@ class GraphMetadata:
                         f"σ and probabilities were recalibrated (exported by a wtml before issue "
                         f"25); {REDO}")
         for k, r in enumerate(u.intervals):
-            for name in (r.sigma, r.value, r.by):
+            for name in (r.sigma, r.value, r.by, *([r.classes] if r.classes else [])):
                 if name not in self.outputs:
                     raise _fail(f"uncertainty.intervals[{k}]", f"{name!r} is not an output of "
                                 f"this graph ({list(self.outputs)})")

@@ -259,7 +259,8 @@ class OnnxModel:
         ``{"<σ output>_95": (n,)}`` in that σ's unit and form (the metadata's widths,
         :meth:`~wtml.runtime.metadata.IntervalRecalibration.half_width`); empty for a graph
         without recalibration (a classical path)."""
-        return {name: r.half_width(out[r.sigma], out[r.by]) for name, r in self.intervals.items()}
+        return {name: r.half_width(out[r.sigma], out[r.by], out)
+                for name, r in self.intervals.items()}
 
     def predict(self, ze: np.ndarray, reference: np.ndarray | None = None
                 ) -> dict[str, np.ndarray]:

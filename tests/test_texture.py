@@ -11,6 +11,7 @@ from tests.conftest import TEXTURE_SMALL, TEXTURE_SPREAD
 from wtml.decoders.texture import BandPowers, CalibratedT, WhiskFeatures, cholesky_solve
 from wtml.fidelity import format_texture, texture_fidelity
 from wtml.physics.twoport import flat_parts
+from wtml.runtime import metadata as md
 from wtml.scenes import load_scene
 from wtml.scenes.texture import TextureScene
 
@@ -438,6 +439,14 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     # the export recalibrates the net's probabilities (issue 25 §4)
     np.testing.assert_allclose(dec["probabilities"],
                                recalibrated(prob.numpy(), onnx.uncertainty), atol=2e-5)
+    # and its grain interval reaches each grade as likely as that grade's threshold, at least
+    rule = onnx.uncertainty.intervals[0]
+    assert rule.classes == "probabilities" and len(rule.thresholds) == 5
+    np.testing.assert_allclose(rule.class_values, np.array([15.3, 21.8, 35.0, 46.2, 52.2]) * 1e-6)
+    reach = md.class_reach(dec["grain"], dec["probabilities"], rule.class_values,
+                           rule.thresholds, True)
+    inside = np.isfinite(dec["log_sigma"])  # σ is NaN out of domain
+    assert inside.any() and np.all(np.exp(dec["log_sigma"][inside]) >= reach[inside] * (1 - 1e-6))
     np.testing.assert_allclose(dec["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
     assert OnnxModel(texture_export["model"] / "classical.onnx").metadata["kind"] == "classical"
 

@@ -407,7 +407,7 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     from wtml.baselines.texture_classical import ClassicalTexture
     from wtml.decoders.checkpoint import load_decoder
     from wtml.decoders.domain import Gated
-    from wtml.decoders.recalibration import recalibrated
+    from wtml.decoders.recalibration import Recalibrated, recalibrated
     from wtml.runtime.predict import OnnxModel
 
     module = load_decoder(texture_export["run"] / "checkpoints/last.ckpt")
@@ -443,10 +443,14 @@ def test_exported_graphs_match_torch_and_compute_the_features_once(texture_expor
     rule = onnx.uncertainty.intervals[0]
     assert rule.classes == "probabilities" and len(rule.thresholds) == 5
     np.testing.assert_allclose(rule.class_values, np.array([15.3, 21.8, 35.0, 46.2, 52.2]) * 1e-6)
-    reach = md.class_reach(dec["grain"], dec["probabilities"], rule.class_values,
-                           rule.thresholds, True)
-    inside = np.isfinite(dec["log_sigma"])  # σ is NaN out of domain
-    assert inside.any() and np.all(np.exp(dec["log_sigma"][inside]) >= reach[inside] * (1 - 1e-6))
+    with torch.no_grad():  # before the gate, which leaves σ NaN out of domain
+        mine = [x.numpy() for x in Recalibrated(module.net, scene.OUTPUTS, onnx.uncertainty)(
+            et, it, tr, ti)]
+    np.testing.assert_allclose(mine[0], dec["grain"], rtol=1e-5)
+    reach = md.class_reach(mine[0], mine[2], rule.class_values, rule.thresholds, True)
+    assert np.all(np.exp(mine[1]) >= reach * (1 - 1e-6))
+    inside = np.isfinite(dec["log_sigma"])
+    np.testing.assert_allclose(dec["log_sigma"][inside], mine[1][inside], atol=1e-5)
     np.testing.assert_allclose(dec["domain_score"], score.numpy(), rtol=1e-3, atol=1e-5)
     assert OnnxModel(texture_export["model"] / "classical.onnx").metadata["kind"] == "classical"
 

@@ -82,6 +82,14 @@ ECE_BINS = 15
 """Equal-width confidence bins of the expected calibration error."""
 
 
+def in_widths(err: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """``|err| / half`` ``(n,)``, 0 where both are 0 (an exact answer is inside any interval)
+    and inf where only ``half`` is."""
+    err = np.abs(err)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        return np.where(err == 0, 0.0, np.where(half > 0, err / half, np.inf))
+
+
 def coverage(err: np.ndarray, sigma: np.ndarray, wide: float | np.ndarray = WIDE
              ) -> tuple[float, float]:
     """The shares of ``|err| <= 1σ`` and ``|err| <= wide·σ`` over the rows where both are
@@ -92,7 +100,7 @@ def coverage(err: np.ndarray, sigma: np.ndarray, wide: float | np.ndarray = WIDE
     ok = np.isfinite(err) & np.isfinite(sigma)
     if not ok.any():
         return float("nan"), float("nan")
-    z = np.abs(err[ok]) / sigma[ok]
+    z = in_widths(err[ok], sigma[ok])
     return float(np.mean(z <= 1.0)), float(np.mean(z <= wide[ok]))
 
 
@@ -183,7 +191,8 @@ def class_thresholds(err: np.ndarray, base: np.ndarray, probabilities: np.ndarra
             others = np.where(np.arange(n_classes) == k, NEVER, tau)
             reach = np.max(np.where(probabilities[mine] >= others, distance[mine], 0.0), 1)
             covered = np.abs(err[mine]) <= np.maximum(base[mine], reach)
-            q = conformal_quantile(np.where(covered, 0.0, 1.0 - probabilities[mine, k]), level)
+            p_true = np.nan_to_num(probabilities[mine, k], nan=0.0)  # NaN reaches nothing
+            q = conformal_quantile(np.where(covered, 0.0, 1.0 - p_true), level)
             tau[k] = NEVER if q <= 0 else 1.0 - q
     return tau
 
@@ -208,7 +217,7 @@ def class_intervals(err: np.ndarray, sigma: np.ndarray, which: np.ndarray, scale
                 "thresholds_wide": np.full(n, NEVER)}
     fit = {}
     base = scales[which] * sigma
-    shrink = min(conformal_quantile(np.abs(err[labels == k]) / base[labels == k], NOMINAL[0])
+    shrink = min(conformal_quantile(in_widths(err[labels == k], base[labels == k]), NOMINAL[0])
                  for k in present)
     fit["scales"] = np.clip(scales * shrink, TINY, 1 / TINY)
     base = fit["scales"][which] * sigma
@@ -217,7 +226,7 @@ def class_intervals(err: np.ndarray, sigma: np.ndarray, which: np.ndarray, scale
     r68 = np.maximum(base, class_reach(value, probabilities, class_values, fit["thresholds"],
                                        log_value))
     base = widths[which] * r68
-    shrink = min(conformal_quantile(np.abs(err[labels == k]) / base[labels == k], NOMINAL[1])
+    shrink = min(conformal_quantile(in_widths(err[labels == k], base[labels == k]), NOMINAL[1])
                  for k in present)
     fit["widths"] = np.clip(np.nextafter(widths * shrink, np.inf), 1.0, MAX_WIDTH)
     fit["thresholds_wide"] = class_thresholds(err, fit["widths"][which] * r68, *args,
@@ -404,7 +413,8 @@ def interval(spec: dict, outputs: dict[str, np.ndarray], truth: np.ndarray, n_ra
             value, p, fitted.class_values, fitted.thresholds, fitted.log_value))
         r95 = np.maximum(np.asarray(fitted.widths)[which[used]] * r68, class_reach(
             value, p, fitted.class_values, fitted.thresholds_wide, fitted.log_value))
-        return dataclasses.replace(fitted, coverage_after=coverage(err[used], r68, r95 / r68))
+        return dataclasses.replace(fitted, coverage_after=coverage(
+            err[used], r68, in_widths(r95, r68)))
     return dataclasses.replace(fitted, coverage_after=coverage(
         err, sigma * scales[which], widths[which]))
 

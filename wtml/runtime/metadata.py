@@ -308,8 +308,8 @@ class IntervalRecalibration:
         sigma = np.exp(sigma) if self.stored == "log_std" else sigma
         reach = class_reach(outputs[self.value], outputs[self.classes], self.class_values,
                             self.thresholds_wide, self.log_value)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.maximum(width, reach / sigma)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return np.maximum(width, np.where(reach > 0, reach / sigma, 0.0))  # 0/0: no reach
 
     def half_width(self, sigma: np.ndarray, by: np.ndarray,
                    outputs: dict[str, np.ndarray] | None = None) -> np.ndarray:

@@ -184,7 +184,7 @@ def _schema_keys(cls, path: str = "") -> dict[str, str]:
 
 SCHEMA_FINGERPRINT = {3: "2cff5e5e4ffc8d4e0184f3ea75e2abfca729ff7b50ebb54626e76a16d8e9e788",
                       4: "56215c9ff1b2939b9a4e1d973928c12f3b0c0f0247d7f29847b0036aced875a8",
-                      5: "a92cebd37efc23d8ea2bc4b5603c534d4e0e07f154b900d025f05c4ed3762a08"}
+                      5: "31700925a530fc7cd5676a5f6a0c3e25cbb044b53633480bc3fa5c386b4911a2"}
 """Per export format, the sha256 of every key the runtime's metadata schemas read
 (:func:`_schema_keys` of the manifest and each task's graph metadata) and of the tables
 they check graphs against (inputs, outputs, references, required keys, kinds)."""

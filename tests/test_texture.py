@@ -565,6 +565,43 @@ def test_a_texture_export_with_edited_metadata_is_one_line(texture_export, scene
                       "--calibration", str(cal)], "classical.onnx: " + needle)
 
 
+@pytest.mark.parametrize("edit", ["classes of another output", "a class value short"])
+def test_a_texture_decoder_whose_grade_thresholds_are_edited_is_one_line(
+        texture_export, scene, tmp_path, capsys, edit):
+    """The grain interval's per-grade reach reads the recalibrated probabilities, one value per
+    class the graph names: an edit that breaks either is refused by name, not a numpy
+    broadcast error (or a silently wrong width at a batch of five)."""
+    import shutil
+
+    from tests.test_export_files import edit_metadata, one_line
+
+    folder = tmp_path / "export"
+    shutil.copytree(texture_export["model"], folder)
+    rec = scene.simulate(1, np.random.default_rng(8))
+    path, cal = tmp_path / "rec.npz", tmp_path / "cal.npz"
+    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
+    np.savez(cal, frequency_hz=scene.calibration_hz, t=rec["t"])
+    u = json.loads(onnx_metadata(folder / "model.onnx")["uncertainty"])
+    rule = u["intervals"][0]
+    if edit == "classes of another output":
+        rule["classes"], needle = "grain", "intervals[0].classes: must be the recalibrated"
+    else:
+        rule["class_values"] = rule["class_values"][:4]
+        rule["thresholds"], rule["thresholds_wide"] = (rule[k][:4] for k in (
+            "thresholds", "thresholds_wide"))
+        needle = "intervals[0].class_values: must hold one value per class (5), got 4"
+    edit_metadata(folder, "model.onnx", uncertainty=json.dumps(u))
+    one_line(capsys, ["predict", "--model", str(folder), "--input", str(path),
+                      "--calibration", str(cal)], "model.onnx: metadata uncertainty.", needle)
+
+
+def onnx_metadata(path) -> dict[str, str]:
+    """An ONNX file's metadata, ``{key: value}``."""
+    import onnx
+
+    return {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+
+
 def test_a_checkpoint_keeps_its_band_frame_and_high_branch_and_one_from_before_has_none():
     """The net's shape carries its band frame (samples) and its high branch's frequency, so a
     checkpoint is rebuilt as it was trained; one saved before the band powers existed (no

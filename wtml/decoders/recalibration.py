@@ -58,6 +58,7 @@ from torch import nn
 from torch.nn import functional as fn
 
 from wtml.runtime.metadata import (
+    CLASS_FLOOR,
     CLASS_MARGIN,
     NEVER,
     WIDE,
@@ -161,7 +162,7 @@ def fit_scales(err: np.ndarray, sigma: np.ndarray, by: np.ndarray, n_ranges: int
 
 def class_thresholds(err: np.ndarray, base: np.ndarray, probabilities: np.ndarray,
                      labels: np.ndarray, class_values, log_value: bool, level: float,
-                     value: np.ndarray, rounds: int = 3) -> np.ndarray:
+                     value: np.ndarray, rounds: int = 10) -> np.ndarray:
     """Per class the least probability ``τ_k`` at which an interval reaches class k
     (:func:`~wtml.runtime.metadata.class_reach`) so that the intervals ``max(base, reach)``
     cover at least ``level`` of the held-out answers of each class: the split-conformal
@@ -169,7 +170,7 @@ def class_thresholds(err: np.ndarray, base: np.ndarray, probabilities: np.ndarra
     0 for those covered already by ``base`` or by the other classes' reach; :data:`NEVER`
     where ``base`` covers enough (or the class has fewer than :data:`MIN_PER_RANGE`
     answers). A class's reach can cover another's answers, so the classes are fitted in turn,
-    ``rounds`` times over (each round starts from the last).
+    round after round (each from the last) until a round changes none, at most ``rounds``.
 
     Args:
         err, base: the errors and the half-widths without the classes, ``(n,)``, in σ's
@@ -184,6 +185,7 @@ def class_thresholds(err: np.ndarray, base: np.ndarray, probabilities: np.ndarra
     distance = class_distance(value, class_values, log_value).astype(float)
     tau = np.full(n_classes, NEVER)
     for _ in range(rounds):
+        before = tau.copy()
         for k in range(n_classes):
             mine = labels == k
             if mine.sum() < MIN_PER_RANGE:
@@ -194,6 +196,8 @@ def class_thresholds(err: np.ndarray, base: np.ndarray, probabilities: np.ndarra
             p_true = np.nan_to_num(probabilities[mine, k], nan=0.0)  # NaN reaches nothing
             q = conformal_quantile(np.where(covered, 0.0, 1.0 - p_true), level)
             tau[k] = NEVER if q <= 0 else 1.0 - q
+        if np.array_equal(tau, before):
+            break
     return tau
 
 
@@ -413,8 +417,9 @@ def interval(spec: dict, outputs: dict[str, np.ndarray], truth: np.ndarray, n_ra
             value, p, fitted.class_values, fitted.thresholds, fitted.log_value))
         r95 = np.maximum(np.asarray(fitted.widths)[which[used]] * r68, class_reach(
             value, p, fitted.class_values, fitted.thresholds_wide, fitted.log_value))
-        return dataclasses.replace(fitted, coverage_after=coverage(
-            err[used], r68, in_widths(r95, r68)))
+        inside = np.abs(err[used])
+        return dataclasses.replace(fitted, coverage_after=(
+            float(np.mean(inside <= r68)), float(np.mean(inside <= r95))))
     return dataclasses.replace(fitted, coverage_after=coverage(
         err, sigma * scales[which], widths[which]))
 
@@ -585,7 +590,9 @@ class Recalibrated(nn.Module):
         value = out[value_at]
         if log_value:
             value = torch.log(value.clamp_min(TINY))
-        distance = (value[:, None] - getattr(self, f"classes_{k}")).abs() * (1 + CLASS_MARGIN)
+        values = getattr(self, f"classes_{k}")
+        distance = ((value[:, None] - values).abs() * (1 + CLASS_MARGIN)
+                    + CLASS_FLOOR * torch.maximum(value[:, None].abs(), values.abs()))
         likely = out[classes_at] >= getattr(self, f"thresholds_{k}")
         return torch.where(likely, distance, torch.zeros_like(distance)).amax(-1)
 

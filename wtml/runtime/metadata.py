@@ -108,9 +108,18 @@ WIDE = 1.96
 """The 95 % interval's half-width in σ of a Gaussian error: an export's 95 % width where its
 metadata states none."""
 PLAIN = ("wtml_version", "task", "kind", "label", "scene_hash")
+"""Metadata keys stored as plain strings; every other key holds JSON."""
+
 CLASS_MARGIN = 1e-3
-"""A class's reach (:func:`class_reach`) is its distance from the answer times 1 + this, so
-that a window of that class is inside its interval in float32 too."""
+"""A class's reach (:func:`class_reach`) is its distance from the answer times 1 + this, plus
+:data:`CLASS_FLOOR` of the larger magnitude, so that a window of that class is inside its
+interval in float32 too."""
+CLASS_FLOOR = 1e-6
+"""About eight float32 steps: ``ln`` of a grain size (~ -11) carries an absolute error of
+~1e-6 in float32, which a relative margin alone does not cover for an answer at its class's
+value (a reach of 0 there)."""
+FLOAT32_MAX = 3e38
+"""The largest magnitude a class value may take (the graph holds them as float32)."""
 NEVER = 2.0
 """A class threshold above every probability: that class never widens an interval."""
 
@@ -118,11 +127,11 @@ NEVER = 2.0
 def class_reach(value: np.ndarray, probabilities: np.ndarray, class_values, thresholds,
                 log_value: bool) -> np.ndarray:
     """How far an interval about each answer must reach to hold every class whose probability
-    is at or above its threshold: ``max_k [p_k >= τ_k] · |f(value) - f(v_k)| · (1 +``
-    :data:`CLASS_MARGIN` ``)``, f = ln where ``log_value`` (else the identity), 0 where no
-    class is that likely; ``value`` ``(n,)``, ``probabilities`` ``(n, C)``, ``class_values``
-    and ``thresholds`` ``(C,)``. Compared and computed as the graph does (float32), returned
-    as float64 ``(n,)`` in σ's unit."""
+    is at or above its threshold: ``max_k [p_k >= τ_k] · d_k``, ``d_k`` the distance
+    ``|f(value) - f(v_k)|`` with its margins (:func:`class_distance`), f = ln where
+    ``log_value`` (else the identity), 0 where no class is that likely; ``value`` ``(n,)``,
+    ``probabilities`` ``(n, C)``, ``class_values`` and ``thresholds`` ``(C,)``. Compared and
+    computed as the graph does (float32), returned as float64 ``(n,)`` in σ's unit."""
     likely = np.asarray(probabilities, np.float32) >= np.asarray(thresholds, np.float32)
     distance = class_distance(value, class_values, log_value)
     return np.max(np.where(likely, distance, np.float32(0)), -1).astype(float)
@@ -130,14 +139,14 @@ def class_reach(value: np.ndarray, probabilities: np.ndarray, class_values, thre
 
 def class_distance(value: np.ndarray, class_values, log_value: bool) -> np.ndarray:
     """Each class value's distance from each answer ``value`` ``(n,)``, ``(n, C)`` float32,
-    in σ's unit and with :data:`CLASS_MARGIN` (:func:`class_reach`)."""
+    in σ's unit, with :data:`CLASS_MARGIN` and :data:`CLASS_FLOOR` (:func:`class_reach`)."""
     value = np.asarray(value, np.float32)
     values = np.asarray(class_values, np.float32)
     if log_value:
         with np.errstate(divide="ignore", invalid="ignore"):
             value, values = np.log(np.maximum(value, np.float32(1e-30))), np.log(values)
-    return np.abs(value[..., None] - values) * np.float32(1 + CLASS_MARGIN)
-"""Metadata keys stored as plain strings; every other key holds JSON."""
+    return (np.abs(value[..., None] - values) * np.float32(1 + CLASS_MARGIN)
+            + np.float32(CLASS_FLOOR) * np.maximum(np.abs(value[..., None]), np.abs(values)))
 
 _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
@@ -244,7 +253,7 @@ class IntervalRecalibration:
     coverage_before: tuple[float, ...] = bounded(0.0, 1.0, default=())
     coverage_after: tuple[float, ...] = bounded(0.0, 1.0, default=())
     classes: str = ""
-    class_values: tuple[float, ...] = bounded(-1e300, 1e300, default=())
+    class_values: tuple[float, ...] = bounded(-FLOAT32_MAX, FLOAT32_MAX, default=())
     thresholds: tuple[float, ...] = bounded(0.0, NEVER, default=())
     thresholds_wide: tuple[float, ...] = bounded(0.0, NEVER, default=())
 
@@ -257,9 +266,9 @@ class IntervalRecalibration:
             if len(getattr(self, name)) != n:
                 raise _fail(f"{path}.{name}", f"must hold one threshold per class value ({n}), "
                             f"got {len(getattr(self, name))}")
-        if self.log_value and any(v <= 0 for v in self.class_values):
-            raise _fail(f"{path}.class_values", f"must be > 0 for a value of ln, got "
-                        f"{list(self.class_values)}")
+        if self.log_value and any(v < 1e-37 for v in self.class_values):
+            raise _fail(f"{path}.class_values", f"must be >= 1e-37 (a float32's log) for a "
+                        f"value of ln, got {list(self.class_values)}")
         if len(self.scales) != len(self.edges) + 1:
             raise _fail(f"{path}.scales", f"must hold one scale per range, len(edges) + 1 = "
                         f"{len(self.edges) + 1}, got {len(self.scales)}")
@@ -316,12 +325,20 @@ class IntervalRecalibration:
         """The 95 % interval's half-width ``(n,)`` in the σ output's own form and unit (a log
         std where ``stored`` is ``"log_std"``) from that output ``sigma`` and output ``by``,
         each ``(n,)`` (and, with ``classes``, the graph's ``outputs``: :meth:`wide`):
-        ``wide·σ``, or ``log σ + ln wide``. A few µs per call at batch 1
+        ``max(width·σ, reach95)``, or its log for a log std. A few µs per call at batch 1
         (``wtml.runtime.predict.OnnxModel.half_widths`` calls it where answers are printed)."""
-        wide = self.wide(by, outputs)
-        if self.stored == "log_std":
-            return np.asarray(sigma, float) + np.log(wide)
-        return np.asarray(sigma, float) * wide
+        width = self._lookup[1][self.range_of(by)]
+        sigma = np.asarray(sigma, float)
+        half = sigma + np.log(width) if self.stored == "log_std" else sigma * width
+        if not self.classes:
+            return half
+        self.wide(by, outputs)  # the outputs it needs, or its error
+        reach = class_reach(outputs[self.value], outputs[self.classes], self.class_values,
+                            self.thresholds_wide, self.log_value)
+        if self.stored == "log_std":  # max(width·σ, reach) without σ·(reach/σ): σ may be 0
+            with np.errstate(divide="ignore"):
+                return np.maximum(half, np.log(reach))
+        return np.maximum(half, reach)
 
 
 @dataclass(frozen=True)
@@ -437,6 +454,10 @@ class GraphMetadata:
         if u.probabilities is not None and u.probabilities not in self.outputs:
             raise _fail("uncertainty.probabilities", f"{u.probabilities!r} is not an output of "
                         f"this graph")
+        for k, r in enumerate(u.intervals):
+            if r.classes and r.classes != u.probabilities:
+                raise _fail(f"uncertainty.intervals[{k}].classes", f"must be the recalibrated "
+                            f"probabilities {u.probabilities!r}, got {r.classes!r}")
 
 
 @dataclass(frozen=True)
@@ -537,6 +558,10 @@ class TextureMetadata(GraphMetadata):
                         f"{self.n_samples / self.sample_rate_hz:g} s, got {self.window_s:g}")
         if not self.calibration_hz:
             raise _fail("calibration_hz", "must list at least one frequency (Hz)")
+        for k, r in enumerate(self.uncertainty.intervals if self.uncertainty else ()):
+            if r.classes and len(r.class_values) != len(self.classes):
+                raise _fail(f"uncertainty.intervals[{k}].class_values", f"must hold one value "
+                            f"per class ({len(self.classes)}), got {len(r.class_values)}")
 
 
 SCHEMAS = {"fluid": FluidMetadata, "radial": RadialMetadata, "onset": OnsetMetadata,

@@ -544,14 +544,10 @@ TEXTURE_EDITS = {
 }
 
 
-@pytest.mark.parametrize("name", sorted(TEXTURE_EDITS))
-def test_a_texture_export_with_edited_metadata_is_one_line(texture_export, scene, tmp_path,
-                                                           capsys, name):
-    """Metadata edits made consistent with the manifest are refused by the schema: one line
-    naming the file and the key."""
+def export_copy(texture_export, scene, tmp_path):
+    """A copy of the texture flow's export under ``tmp_path`` to edit, a record of ``scene``
+    and its calibration to predict on: ``(folder, record .npz, calibration .npz)``."""
     import shutil
-
-    from tests.test_export_files import edit_metadata, one_line
 
     folder = tmp_path / "export"
     shutil.copytree(texture_export["model"], folder)
@@ -559,6 +555,17 @@ def test_a_texture_export_with_edited_metadata_is_one_line(texture_export, scene
     path, cal = tmp_path / "rec.npz", tmp_path / "cal.npz"
     np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
     np.savez(cal, frequency_hz=scene.calibration_hz, t=rec["t"])
+    return folder, path, cal
+
+
+@pytest.mark.parametrize("name", sorted(TEXTURE_EDITS))
+def test_a_texture_export_with_edited_metadata_is_one_line(texture_export, scene, tmp_path,
+                                                           capsys, name):
+    """Metadata edits made consistent with the manifest are refused by the schema: one line
+    naming the file and the key."""
+    from tests.test_export_files import edit_metadata, one_line
+
+    folder, path, cal = export_copy(texture_export, scene, tmp_path)
     change, needle = TEXTURE_EDITS[name]
     edit_metadata(folder, "classical.onnx", **change)
     one_line(capsys, ["predict", "--model", str(folder), "--input", str(path),
@@ -571,16 +578,9 @@ def test_a_texture_decoder_whose_grade_thresholds_are_edited_is_one_line(
     """The grain interval's per-grade reach reads the recalibrated probabilities, one value per
     class the graph names: an edit that breaks either is refused by name, not a numpy
     broadcast error (or a silently wrong width at a batch of five)."""
-    import shutil
-
     from tests.test_export_files import edit_metadata, one_line
 
-    folder = tmp_path / "export"
-    shutil.copytree(texture_export["model"], folder)
-    rec = scene.simulate(1, np.random.default_rng(8))
-    path, cal = tmp_path / "rec.npz", tmp_path / "cal.npz"
-    np.savez(path, e=rec["e"], i=rec["i"], sample_rate_hz=scene.acquisition.sample_rate_hz)
-    np.savez(cal, frequency_hz=scene.calibration_hz, t=rec["t"])
+    folder, path, cal = export_copy(texture_export, scene, tmp_path)
     u = json.loads(onnx_metadata(folder / "model.onnx")["uncertainty"])
     rule = u["intervals"][0]
     if edit == "classes of another output":

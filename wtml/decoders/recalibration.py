@@ -219,19 +219,21 @@ def class_intervals(err: np.ndarray, sigma: np.ndarray, which: np.ndarray, scale
         n = probabilities.shape[1]
         return {"scales": scales, "widths": widths, "thresholds": np.full(n, NEVER),
                 "thresholds_wide": np.full(n, NEVER)}
+
+    def least(base: np.ndarray, level: float) -> float:
+        """The least over the classes of the conformal quantile of ``|err| / base``."""
+        return min(conformal_quantile(in_widths(err[labels == k], base[labels == k]), level)
+                   for k in present)
+
     fit = {}
-    base = scales[which] * sigma
-    shrink = min(conformal_quantile(in_widths(err[labels == k], base[labels == k]), NOMINAL[0])
-                 for k in present)
+    shrink = least(scales[which] * sigma, NOMINAL[0])
     fit["scales"] = np.clip(scales * shrink, TINY, 1 / TINY)
     base = fit["scales"][which] * sigma
     args = (probabilities, labels, class_values, log_value)
     fit["thresholds"] = class_thresholds(err, base, *args, NOMINAL[0], value)
     r68 = np.maximum(base, class_reach(value, probabilities, class_values, fit["thresholds"],
                                        log_value))
-    base = widths[which] * r68
-    shrink = min(conformal_quantile(in_widths(err[labels == k], base[labels == k]), NOMINAL[1])
-                 for k in present)
+    shrink = least(widths[which] * r68, NOMINAL[1])
     fit["widths"] = np.clip(np.nextafter(widths * shrink, np.inf), 1.0, MAX_WIDTH)
     fit["thresholds_wide"] = class_thresholds(err, fit["widths"][which] * r68, *args,
                                               NOMINAL[1], value)

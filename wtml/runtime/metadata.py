@@ -310,15 +310,23 @@ class IntervalRecalibration:
         width = self._lookup[1][self.range_of(by)]
         if not self.classes:
             return width
+        reach = self._reach_wide(outputs)
+        sigma = np.asarray(outputs[self.sigma], float)
+        sigma = np.exp(sigma) if self.stored == "log_std" else sigma
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            return np.maximum(width, np.where(reach > 0, reach / sigma, 0.0))  # 0/0: no reach
+
+    def _reach_wide(self, outputs: dict[str, np.ndarray] | None) -> np.ndarray:
+        """The classes' reach at the 95 % thresholds (:func:`class_reach`) over the graph's
+        ``outputs``.
+
+        Raises:
+            ValueError: no ``outputs``."""
         if outputs is None:
             raise ValueError(f"the 95 % width of {self.sigma!r} needs the graph's outputs "
                              f"{self.value!r}, {self.classes!r} and {self.sigma!r}")
-        sigma = np.asarray(outputs[self.sigma], float)
-        sigma = np.exp(sigma) if self.stored == "log_std" else sigma
-        reach = class_reach(outputs[self.value], outputs[self.classes], self.class_values,
-                            self.thresholds_wide, self.log_value)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            return np.maximum(width, np.where(reach > 0, reach / sigma, 0.0))  # 0/0: no reach
+        return class_reach(outputs[self.value], outputs[self.classes], self.class_values,
+                           self.thresholds_wide, self.log_value)
 
     def half_width(self, sigma: np.ndarray, by: np.ndarray,
                    outputs: dict[str, np.ndarray] | None = None) -> np.ndarray:
@@ -332,9 +340,7 @@ class IntervalRecalibration:
         half = sigma + np.log(width) if self.stored == "log_std" else sigma * width
         if not self.classes:
             return half
-        self.wide(by, outputs)  # the outputs it needs, or its error
-        reach = class_reach(outputs[self.value], outputs[self.classes], self.class_values,
-                            self.thresholds_wide, self.log_value)
+        reach = self._reach_wide(outputs)
         if self.stored == "log_std":  # max(width·σ, reach) without σ·(reach/σ): σ may be 0
             with np.errstate(divide="ignore"):
                 return np.maximum(half, np.log(reach))

@@ -221,15 +221,27 @@ def test_wtml_stream_answers_a_longer_stream_record_by_record(onset_export, scen
     assert held[0].decided_s == held[1].end_s
 
 
-def test_the_whisk_cycles_agreement_is_their_weighted_distance_from_the_answer_in_sigma():
-    """touch_spread: two cycles of equal vote share at g ± d give d/σ; one cycle holding the
-    whole vote gives 0 whatever the other's (empty) sums; a record without a wall gives 0."""
-    g, sd, d = 5e-6, 0.2e-6, 0.3e-6
-    share = torch.tensor([[0.5, 0.5], [1.0, 0.0], [0.5, 0.5]])
-    sums = torch.tensor([[0.5 * (g - d), 0.5 * (g + d)], [g, 0.0], [0.5 * g, 0.5 * g]])
-    gap = torch.tensor([g, g, float("nan")])
-    out = touch_spread(share, sums, gap, torch.full((3,), sd))
-    np.testing.assert_allclose(out.numpy(), [d / sd, 0.0, 0.0], rtol=1e-5, atol=1e-6)
+def test_the_looks_agreement_is_their_weighted_distance_from_each_sides_mean_in_sigma():
+    """touch_spread over four looks (two whisk cycles' approach and retreat): cycles met at
+    g ± d give d/σ; cycles whose approach and retreat are swapped (each cycle's whole at g,
+    which the cycles' wholes alone cannot see) give d/σ too; a bias shared by every approach
+    and every retreat gives 0, as do one cycle holding the whole vote whatever the other's
+    (empty) sums, and a record without a wall."""
+    g, sd, d, b = 5e-6, 0.2e-6, 0.3e-6, 7e-6
+    quarter = [0.25] * 4
+    looks = [  # (shares, locations), looks ordered: cycle 1 approach, retreat, cycle 2 ...
+        (quarter, [g - d, g - d, g + d, g + d]),
+        (quarter, [g + d, g - d, g - d, g + d]),
+        (quarter, [g + b, g - b, g + b, g - b]),
+        ([0.6, 0.4, 0.0, 0.0], [g + b, g - b, 0.0, 0.0]),
+        (quarter, [g] * 4),
+    ]
+    share = torch.tensor([w for w, _ in looks], dtype=torch.float64)
+    sums = share * torch.tensor([x for _, x in looks], dtype=torch.float64)
+    gap = torch.tensor([g, g, g, g, float("nan")], dtype=torch.float64)
+    out = touch_spread(share, sums, gap, torch.full((5,), sd, dtype=torch.float64))
+    np.testing.assert_allclose(out.numpy(), [d / sd, d / sd, 0.0, 0.0, 0.0], rtol=1e-9,
+                               atol=1e-9)
 
 
 def _oracle(onset_export, uniform: bool = False):
@@ -257,16 +269,27 @@ def _oracle(onset_export, uniform: bool = False):
     return module
 
 
-def _spliced(scene) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+SPLICES = {"between cycles": (0, 0, 1, 1), "within cycles": (0, 1, 1, 0)}
+"""Which of the two records (walls at 0.25 and 0.75 of the whisking amplitude) each quarter
+of a spliced record comes from (:func:`_spliced`): its cycles' approaches and retreats."""
+
+
+def _spliced(scene, quarters: tuple[int, ...] = SPLICES["between cycles"]
+             ) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
     """Two records of walls at 0.25 and 0.75 of the whisking amplitude (the nominal device, no
-    calibration error), and one spliced from them at the far end of the whisk (t = 1 s, u_L =
-    -amp): its first cycle from the first wall, its second from the second."""
+    calibration error), and one spliced from them by quarters of the record (the whisk's far
+    end at t = 0, 1 and 2 s, its reach at its peak at 0.5 and 1.5 s, where both walls are in
+    contact): quarter q from record ``quarters[q]``. Between cycles: its first cycle from the
+    first wall, its second from the second; within cycles: each cycle's approach from one
+    wall and retreat from the other, the second cycle the other way round."""
     exact = dataclasses.replace(scene, calibration_error=0.0)
     amp = exact.whisk_amplitude_m()
     rec = exact.simulate(2, np.random.default_rng(3), gaps=np.array([0.25, 0.75]) * amp)
-    half = exact.n_samples // 2
+    edges = [exact.n_samples * q // 4 for q in range(5)]
     x = [torch.tensor(y) for y in record_inputs(rec)]
-    return x, [torch.cat([y[:1, :half], y[1:, half:]], 1) for y in x[:2]] + [y[:1] for y in x[2:]]
+    return x, [torch.cat([y[k:k + 1, a:b] for k, a, b in zip(quarters, edges[:-1], edges[1:],
+                                                              strict=True)], 1)
+               for y in x[:2]] + [y[:1] for y in x[2:]]
 
 
 def _streamed(stream, inputs: list[torch.Tensor]) -> tuple[torch.Tensor, ...]:
@@ -292,46 +315,67 @@ def _onnx(graph, path, outputs: tuple[str, ...], inputs: tuple[str, ...], widths
     return ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
 
 
-def test_the_whisk_cycle_of_a_frame_counts_from_the_records_start(onset_export):
+def test_the_look_of_a_frame_counts_from_the_records_start(onset_export, scene):
     """Frames 0-419 are the first whisk cycle (420 probe periods of the 1 Hz whisk), 420-839
-    the second; a frame past the record's cycles belongs to its last."""
+    the second; a cycle's first 210 frames are its approach (the tip's reach rises from its
+    far end to its peak at the cycle's middle), the rest its retreat; a frame past the
+    record's cycles is its last cycle's retreat."""
     module = _oracle(onset_export)
-    assert (module.net.cycle_frames, module.net.cycles) == (420, 2)
-    got = module.net.cycle_of(torch.tensor([0.0, 419.0, 420.0, 839.0, 900.0]))
-    np.testing.assert_array_equal(got.numpy(), [[1, 0], [1, 0], [0, 1], [0, 1], [0, 1]])
+    assert (module.net.cycle_frames, module.net.cycles, module.net.looks) == (420, 2, 4)
+    frames = [0.0, 209.0, 210.0, 419.0, 420.0, 629.0, 630.0, 839.0, 900.0]
+    got = module.net.look_of(torch.tensor(frames))
+    np.testing.assert_array_equal(got.argmax(-1).numpy(), [0, 0, 1, 1, 2, 2, 3, 3, 3])
+    assert got.sum(-1).eq(1).all()
+    # the reach of a record's frames peaks at each cycle's middle, where its looks change
+    x, _ = _spliced(scene)
+    with torch.no_grad():
+        reach = module.net.reach(module.net.frames(*x), module.net.reach_per_volt(x[2], x[3]))
+    assert set(reach[:, :420].argmax(-1).tolist()) <= {209, 210}
+    assert set(reach[:, 420:].argmax(-1).tolist()) <= {209, 210}
 
 
-def test_an_object_that_moves_between_whisk_cycles_is_flagged(onset_export, scene, tmp_path):
-    """The spliced record (:func:`_spliced`) through the oracle's heads (votes on the frames
-    in contact): the cycles' spread is the distance between their mean reaches in contact over
-    2σ, and the graph flags the record, its domain score the spread over the limit (0.5); the
-    records it was spliced from stay near 0. The streaming form, fed 56 frames at a time (the
-    cycles' edge, frame 420, inside a chunk), ends on the same score, and so do both as ONNX
-    graphs."""
+@pytest.mark.parametrize("splice", sorted(SPLICES))
+def test_an_object_that_moves_between_looks_is_flagged(onset_export, scene, tmp_path, splice):
+    """The spliced records (:func:`_spliced`) through the oracle's heads (votes on the frames
+    in contact): the looks' spread is, by hand from the frames, each look's mean reach in
+    contact from its side's (approach or retreat) over σ, and the graph flags the record, its
+    domain score the spread over the limit (0.5); the records it was spliced from stay near 0.
+    Spliced within cycles, each cycle holds both walls, and the cycles' wholes alone (the
+    check before the looks) read less than half the looks' spread; between cycles, as much.
+    The streaming form, fed 56 frames at a time (the looks' edges, frames 210, 420 and 630,
+    inside a chunk), ends on the same score, and so do both as ONNX graphs."""
     from wtml.decoders.domain import Gated
     from wtml.decoders.onset_stream import StreamingOnset
     from wtml.runtime.metadata import DECODER_OUTPUTS, ONSET_INPUTS, STREAM_INPUTS, STREAM_OUTPUTS
 
     module = _oracle(onset_export)
     net = module.net
-    x, spliced = _spliced(scene)
+    x, spliced = _spliced(scene, SPLICES[splice])
     graph = Gated(net, module.gate, (1,), check=0.5).eval()
     stream = StreamingOnset(net, module.gate, 56, check_limit=0.5).eval()
     with torch.no_grad():
         whole, moved = net(*x)[-1], net(*spliced)[-1]
         gated = graph(*spliced)
-        f = net.frames(*x)
+        f = net.frames(*spliced)
+        reach = net.reach(f, net.reach_per_volt(spliced[2], spliced[3]))[0].double()
     out = _streamed(stream, spliced)
     assert np.all(whole.numpy() < 0.1), whole
-    # each cycle's location: its own record's mean reach over its frames in contact
-    touching = f[..., 1:3].norm(dim=-1) > 2e-4
-    reach = net.reach(f, net.reach_per_volt(x[2], x[3]))
-    first = [reach[k][touching[k]][: int(touching[k].sum()) // 2].mean() for k in range(2)]
-    share = touching[0].sum() / 2 / (touching[0].sum() / 2 + touching[1].sum() / 2)
-    centre = share * first[0] + (1 - share) * first[1]
-    expect = torch.sqrt(share * (first[0] - centre) ** 2 + (1 - share) * (first[1] - centre) ** 2)
-    assert moved.item() == pytest.approx(expect.item() / 0.1e-6, rel=0.05)
+    touching = (f[0, :, 1:3].norm(dim=-1) > 2e-4).numpy()
+    frame = np.arange(len(touching))
+    look = 2 * (frame // 420) + (frame % 420 >= 210)
+    share = np.array([np.mean(touching & (look == k)) for k in range(4)]) / touching.mean()
+    at = np.array([reach.numpy()[touching & (look == k)].mean() for k in range(4)])
+    side = [(share[h::2] * at[h::2]).sum() / share[h::2].sum() for h in (0, 1)]
+    expect = np.sqrt(sum(share[k] * (at[k] - side[k % 2]) ** 2 for k in range(4))) / 0.1e-6
+    assert moved.item() == pytest.approx(expect, rel=1e-3)
     assert moved.item() > 10
+    # the cycles' wholes alone (the check before the looks): as much between cycles; within
+    # them (9σ apart against 24σ between) ~1/3 of the looks' spread
+    weight = share.reshape(2, 2).sum(1)
+    cycle = (share * at).reshape(2, 2).sum(1) / weight
+    alone = np.sqrt((weight * (cycle - (share * at).sum()) ** 2).sum()) / 0.1e-6
+    assert (alone < 0.5 * moved.item() if splice == "within cycles"
+            else alone == pytest.approx(moved.item(), rel=0.1))
     assert not gated[-2].item() and gated[-1].item() == pytest.approx(moved.item() / 0.5, rel=1e-5)
     assert not out[-2].item() and out[-1].item() == pytest.approx(gated[-1].item(), rel=1e-4)
     n = scene.n_samples
@@ -350,12 +394,13 @@ def test_an_object_that_moves_between_whisk_cycles_is_flagged(onset_export, scen
     assert not res[-2].item() and res[-1].item() == pytest.approx(gated[-1].item(), rel=1e-3)
 
 
-def test_the_streamed_cycles_are_the_offline_ones_where_every_frame_votes(onset_export, scene):
-    """With every frame voting alike, the spliced record's cycles differ by their share of
-    frames in contact (~0.2 µm), and a frame given to the wrong cycle would move that cycle's
-    estimate by ~30 nm (the reach at the cycles' edge is -12.6 µm): the streaming form, fed 56
-    frames at a time (the edge inside a chunk) and 60 (on a chunk's edge), ends on the offline
-    spread, read through a limit small enough that it alone makes the score."""
+def test_the_streamed_looks_are_the_offline_ones_where_every_frame_votes(onset_export, scene):
+    """With every frame voting alike, the spliced record's looks differ by their share of
+    frames in contact (~0.2 µm), and a frame given to the wrong look would move that look's
+    estimate by ~30 nm (the reach at the cycles' edge is -12.6 µm, at the looks' edge within
+    a cycle +12.6 µm): the streaming form, fed 56 frames at a time (the looks' edges inside a
+    chunk) and 60 (the cycles' edge on a chunk's edge), ends on the offline spread, read
+    through a limit small enough that it alone makes the score."""
     from wtml.decoders.onset_stream import StreamingOnset
 
     module = _oracle(onset_export, uniform=True)
@@ -877,7 +922,7 @@ def test_predict_names_the_whisk_cycles_check_when_it_flags(onset_export, spread
     decoder = [r for r in rows if r["method"] == "decoder"]
     classical = [r for r in rows if r["method"] == "classical"]
     assert decoder and not any(r["in_domain"] for r in decoder + classical)
-    hint = "whisk cycles' locations of the wall disagree"
+    hint = "whisk cycles' approaches and retreats locate the wall apart"
     # the decoder's graph holds the check where it answers a wall; the classical one has none
     assert all((hint in r["flags"]) == np.isfinite(r["gap (m)"]) for r in decoder)
     assert all(r["flags"] == "outside the trained domain" for r in classical)

@@ -7,15 +7,15 @@ Everything the offline graph computes over a whole record is causal or a running
 - u_L's and Zm's steps need the previous frame's u_L and Zm;
 - each causal convolution needs its last ``(kernel - 1) dilation`` inputs;
 - each softmax pooling is a running (max, Σ exp, Σ exp·x[, Σ exp·σ²]), merged chunk by chunk;
-  g's also per whisk cycle (Σ exp, Σ exp·x), for the cycles' agreement
-  (:func:`~wtml.decoders.onset.touch_spread`);
+  g's also per look at the wall (each whisk cycle's approach and retreat: Σ exp, Σ exp·x),
+  for the looks' agreement (:func:`~wtml.decoders.onset.touch_spread`);
 - the domain gate's record summary is running sums, a maximum and a minimum;
 - the mains lines' estimate (:class:`~wtml.decoders.onset.MainsLines`) is running sums;
 - a contact's confirmation (:func:`~wtml.decoders.onset.confirm`) needs the last few touches
   and whether one was confirmed before.
 
 So after the last chunk of a record, the running ``gap``, ``sigma``, levels and domain score
-(the gate's and the cycles' agreement over its limit) equal the offline graph's (to float32
+(the gate's and the looks' agreement over its limit) equal the offline graph's (to float32
 rounding), and the per-frame contact probabilities of the chunks, concatenated, equal the
 offline ones. The per-frame detachment margins use the
 level known so far (the offline graph uses the record's final level).
@@ -44,8 +44,9 @@ POOLS = (("vote", "est", "log_sd", 0), ("vote_off", "est_off", None, 4))
 """The two softmax poolings: vote, estimate, (for g) the log std, and where their running
 sums start in the pooled state (13 values: the poolings' (max, Σ exp, Σ exp·x[, Σ exp·σ²]),
 then the top contact probability, the frame count, Σ(|E_H| − level), max u_L, min u_L,
-Σ(|I_H| − level), the levels the gate's training means); after them g's Σ exp of each whisk
-cycle, then its Σ exp·x of each, on the same running max."""
+Σ(|I_H| − level), the levels the gate's training means); after them g's Σ exp of each look
+(:meth:`~wtml.decoders.onset.OnsetNet.look_of`), then its Σ exp·x of each, on the same running
+max."""
 
 
 class StreamingOnset(nn.Module):
@@ -59,7 +60,7 @@ class StreamingOnset(nn.Module):
         gate: its domain gate (features: :class:`~wtml.decoders.onset.RecordSummary`).
         chunk_frames: probe periods per chunk (the chunk is ``chunk_frames × period``
             samples of each channel).
-        check_limit: the limit of the whisk cycles' agreement
+        check_limit: the limit of the looks' agreement
             (:func:`~wtml.decoders.onset.touch_spread`, σ), as the offline graph's.
 
     Shapes: ``e``, ``i`` ``(batch, chunk_samples)`` V and A; ``state`` ``(batch,
@@ -78,7 +79,7 @@ class StreamingOnset(nn.Module):
         self.register_buffer("check_limit", torch.tensor(float(check_limit)))
         self.convs = [m for m in net.body if isinstance(m, CausalConv)]
         self.sizes = ([3] + [m.conv.in_channels * m.pad for m in self.convs]
-                      + [net.frames.state_size, CONFIRM_FRAMES + 1, 13, 2 * net.cycles])
+                      + [net.frames.state_size, CONFIRM_FRAMES + 1, 13, 2 * net.looks])
         self.state_size = sum(self.sizes)
         # the running sums of |E_H| and |I_H| add each frame's deviation from the training
         # records' mean level, so float32 rounding scales with the deviations, not the level
@@ -97,8 +98,8 @@ class StreamingOnset(nn.Module):
     def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor,
                 hue0: torch.Tensor, state: torch.Tensor) -> tuple[torch.Tensor, ...]:
         parts = torch.split(state, self.sizes, 1)
-        prev, buffers, mains, confirmed, pool, cycles = (parts[0], parts[1:-4], parts[-4],
-                                                         parts[-3], parts[-2], parts[-1])
+        prev, buffers, mains, confirmed, pool, looks = (parts[0], parts[1:-4], parts[-4],
+                                                        parts[-3], parts[-2], parts[-1])
         net = self.net
         # (batch, chunk_frames, 5), the mains lines' running sums from the frames so far
         f, mains = net.frames.running(e, i, t_re, t_im, hue0, pool[:, 8], mains)
@@ -135,14 +136,14 @@ class StreamingOnset(nn.Module):
                 s2 = run[:, 3] * scale + (w * torch.exp(2 * p[log_sd])).sum(-1)
                 sums.append(s2)
                 pooled += [mean, torch.sqrt(s2 / s0) * net.amp]
-                # per whisk cycle, on the same running max
+                # per look (each whisk cycle's approach and retreat), on the same running max
                 at_frame = pool[:, 8:9] + torch.arange(w.shape[1], dtype=w.dtype)
-                onehot = net.cycle_of(at_frame)  # (batch, chunk_frames, cycles)
-                c0 = (cycles[:, :net.cycles] * scale[:, None]
+                onehot = net.look_of(at_frame)  # (batch, chunk_frames, looks)
+                c0 = (looks[:, :net.looks] * scale[:, None]
                       + (w[..., None] * onehot).sum(1))
-                c1 = (cycles[:, net.cycles:] * scale[:, None]
+                c1 = (looks[:, net.looks:] * scale[:, None]
                       + ((w * p[est])[..., None] * onehot).sum(1))
-                share, cycle_sums = c0 / s0[:, None], c1 / s0[:, None]
+                share, look_sums = c0 / s0[:, None], c1 / s0[:, None]
             else:
                 pooled.append(mean)
             merged += sums
@@ -161,7 +162,7 @@ class StreamingOnset(nn.Module):
         # this chunk's margin uses the level so far and the contact seen so far
         gap, sd, off_margin = answer(*pooled[:2], top, p, pooled[2])
         score = torch.maximum(self.gate.score(summary),
-                              net.agreement(share, cycle_sums, gap, sd) / self.check_limit)
+                              net.agreement(share, look_sums, gap, sd) / self.check_limit)
         inside = (score <= 1.0) & self.gate.outputs_in_range((gap, sd))
         sd = torch.where(inside, sd, torch.full_like(sd, float("nan")))
         new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i], -1)

@@ -71,14 +71,15 @@ SPREAD_MIN_WALLS = 20
 """Fewer fresh records than this with a wall answered (a net trained a few epochs answers
 none): the limit is :data:`SPREAD_DEFAULT`."""
 SPREAD_DEFAULT = 1.0
-"""The limit (σ) without enough walls to fit it: cycles 2σ apart (the main job's decoder's
-fitted limit was 0.64σ)."""
+"""The limit (σ) without enough walls to fit it: two cycles' wholes 2σ apart, with equal shares
+and no approach–retreat disagreement (the main job's decoder's fitted limit is ~0.4σ)."""
 
 
 def spread_limit(spread: np.ndarray) -> float:
-    """The limit of the whisk cycles' disagreement (σ) from the fresh records with a wall
-    answered, ``(n,)``: their :data:`SPREAD_QUANTILE` (:data:`SPREAD_DEFAULT` with fewer
-    than :data:`SPREAD_MIN_WALLS`, or where they are all 0: records of one whisk cycle)."""
+    """The limit of the looks' disagreement (σ; :func:`~wtml.decoders.onset.touch_spread`)
+    from the fresh records with a wall answered, ``(n,)``: their :data:`SPREAD_QUANTILE`
+    (:data:`SPREAD_DEFAULT` with fewer than :data:`SPREAD_MIN_WALLS`, or where they are all
+    0: records of one whisk cycle)."""
     if not np.all(np.isfinite(spread)):
         raise ValueError(f"touch_spread: {int(np.sum(~np.isfinite(spread)))} of {len(spread)} "
                          "fresh answers with a wall are not finite")
@@ -219,9 +220,10 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
     domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
     checked = {"domain": json.dumps(domain | {
         "false_alarm_fresh": float((inside & (spread <= limit)).logical_not().float().mean()),
-        "self_check": "touch_spread: how far the whisk cycles' own locations of the wall lie "
-                      "from the record's, in its sigma (a still wall is met at one place in "
-                      f"every cycle); its limit is the {SPREAD_QUANTILE} quantile over the "
+        "self_check": "touch_spread: how far each whisk cycle's approach and retreat locate "
+                      "the wall from the record's approach and retreat, in its sigma (a still "
+                      "wall is met at one place in every look); its limit is the "
+                      f"{SPREAD_QUANTILE} quantile over the "
                       f"fresh records with a wall ({SPREAD_DEFAULT} with fewer than "
                       f"{SPREAD_MIN_WALLS}); the domain score is the larger of the gate's and it "
                       "over the limit", "self_check_limit": limit,

@@ -194,7 +194,7 @@ class OutputDomain:
 class Domain:
     """The trained domain as the metadata states it (``wtml.exporters.common.domain_metadata``);
     ``outputs`` maps output names to :class:`OutputDomain`. A graph that also checks its own
-    answer (the onset decoder's whisk cycles' agreement) says what in ``self_check`` and the
+    answer (the onset decoder's looks at the wall agreeing) says what in ``self_check`` and the
     limit at which its domain score reaches 1 in ``self_check_limit`` (empty and 0 without
     one). ``pieces_limit``: how far (σ) two pieces one after the other of a record of several
     times the graph's length may locate the wall apart (:func:`wtml.runtime.onset.combine_pieces`;

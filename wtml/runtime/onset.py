@@ -209,14 +209,15 @@ def predict_records(model_dir: str | Path, input_path: str | Path, *,
         onset, detach = (t + shift for t in (onset, detach))
         odd = impossible(model, pred)["gap"] & np.isfinite(pred["gap"])
         record = combine_pieces(pred, k, limit)
-        outside = ("outside the trained domain (its inputs, or its whisk cycles' locations of "
-                   "the wall disagree: an object that moves?)" if model.meta.domain.self_check
+        outside = ("outside the trained domain (its inputs, or its whisk cycles' approaches "
+                   "and retreats locate the wall apart: an object that moves?)"
+                   if model.meta.domain.self_check
                    else "outside the trained domain")
         for r in range(n):
             doubts: dict[str, list[int]] = {}  # each reason, the pieces it holds for
             for p in range(r * k, (r + 1) * k):
                 if not pred["in_domain"][p]:
-                    # the cycles' check speaks only where a wall was answered (else it is 0)
+                    # the looks' check speaks only where a wall was answered (else it is 0)
                     doubts.setdefault(("outside the trained domain" if np.isnan(pred["gap"][p])
                                        else outside) if pred["domain_score"][p] > 1
                                       else "answer outside the trained range", []).append(

@@ -226,7 +226,7 @@ def test_the_looks_agreement_is_their_weighted_distance_from_each_sides_mean_in_
     g ± d give d/σ; cycles whose approach and retreat are swapped (each cycle's whole at g,
     which the cycles' wholes alone cannot see) give d/σ too; a bias shared by every approach
     and every retreat gives 0, as do one cycle holding the whole vote whatever the other's
-    (empty) sums, and a record without a wall."""
+    (empty) sums, and a record without a wall (NaN gap) whatever its looks."""
     g, sd, d, b = 5e-6, 0.2e-6, 0.3e-6, 7e-6
     quarter = [0.25] * 4
     looks = [  # (shares, locations), looks ordered: cycle 1 approach, retreat, cycle 2 ...
@@ -234,7 +234,7 @@ def test_the_looks_agreement_is_their_weighted_distance_from_each_sides_mean_in_
         (quarter, [g + d, g - d, g - d, g + d]),
         (quarter, [g + b, g - b, g + b, g - b]),
         ([0.6, 0.4, 0.0, 0.0], [g + b, g - b, 0.0, 0.0]),
-        (quarter, [g] * 4),
+        (quarter, [g - d, g - d, g + d, g + d]),
     ]
     share = torch.tensor([w for w, _ in looks], dtype=torch.float64)
     sums = share * torch.tensor([x for _, x in looks], dtype=torch.float64)
@@ -242,6 +242,8 @@ def test_the_looks_agreement_is_their_weighted_distance_from_each_sides_mean_in_
     out = touch_spread(share, sums, gap, torch.full((5,), sd, dtype=torch.float64))
     np.testing.assert_allclose(out.numpy(), [d / sd, d / sd, 0.0, 0.0, 0.0], rtol=1e-9,
                                atol=1e-9)
+    with pytest.raises(ValueError, match=r"touch_spread: .*\(5, 3\)"):  # the cycles' old layout
+        touch_spread(share[:, :3], sums[:, :3], gap, torch.full((5,), sd))
 
 
 def _oracle(onset_export, uniform: bool = False):
@@ -397,10 +399,10 @@ def test_an_object_that_moves_between_looks_is_flagged(onset_export, scene, tmp_
 def test_the_streamed_looks_are_the_offline_ones_where_every_frame_votes(onset_export, scene):
     """With every frame voting alike, the spliced record's looks differ by their share of
     frames in contact (~0.2 µm), and a frame given to the wrong look would move that look's
-    estimate by ~30 nm (the reach at the cycles' edge is -12.6 µm, at the looks' edge within
-    a cycle +12.6 µm): the streaming form, fed 56 frames at a time (the looks' edges inside a
-    chunk) and 60 (the cycles' edge on a chunk's edge), ends on the offline spread, read
-    through a limit small enough that it alone makes the score."""
+    estimate by ~60 nm (210 frames a look; the reach at the cycles' edge is -12.6 µm, at the
+    looks' edge within a cycle +12.6 µm): the streaming form, fed 56 frames at a time (the
+    looks' edges inside a chunk) and 60 (the cycles' edge on a chunk's edge), ends on the
+    offline spread, read through a limit small enough that it alone makes the score."""
     from wtml.decoders.onset_stream import StreamingOnset
 
     module = _oracle(onset_export, uniform=True)
@@ -906,13 +908,13 @@ def test_a_decoder_trained_on_one_device_flags_the_others(onset_export, scene, s
     assert spread["domain_score"].min() > 100 * nominal["domain_score"].max()
 
 
-def test_predict_names_the_whisk_cycles_check_when_it_flags(onset_export, spread_scene,
-                                                            tmp_path):
+def test_predict_names_the_looks_check_when_it_flags(onset_export, spread_scene, tmp_path):
     """A record outside the domain is flagged by `wtml predict` with what the onset decoder's
-    domain score holds beside the gate's inputs where it answers a wall: the whisk cycles'
-    agreement (the export states its limit in the decoder's metadata; the classical graph,
-    without the check, states none and is flagged plainly). A row without a wall (the
-    fixture's net answers none) is flagged plainly too: the check is 0 there."""
+    domain score holds beside the gate's inputs where it answers a wall: its looks' agreement
+    (each whisk cycle's approach and retreat; the export states its limit in the decoder's
+    metadata; the classical graph, without the check, states none and is flagged plainly). A
+    row without a wall (the fixture's net answers none) is flagged plainly too: the check is
+    0 there."""
     rec = spread_scene.simulate(1, np.random.default_rng(14))  # another device: outside
     path = tmp_path / "rec.npz"
     np.savez(path, e=rec["e"][0], i=rec["i"][0],

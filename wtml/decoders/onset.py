@@ -600,6 +600,10 @@ def touch_spread(share: torch.Tensor, sums: torch.Tensor, gap: torch.Tensor, sd:
     96.0 % (the cycles' whole alone: 76.6 %), and no other row of the transfer table loses
     more than 0.4 % of its answers to it. A graph compares it with a limit fitted on fresh
     records of the trained scene (:class:`~wtml.decoders.domain.Gated`'s ``check``)."""
+    if share.shape[1] % 2 or sums.shape != share.shape:
+        raise ValueError(f"touch_spread: shares and sums of an approach and a retreat per whisk "
+                         f"cycle, (batch, 2·cycles) each, got {tuple(share.shape)} and "
+                         f"{tuple(sums.shape)}")
     share, sums = share.unflatten(1, (-1, 2)), sums.unflatten(1, (-1, 2))
     mean = sums / share.clamp_min(1e-30)
     side = sums.sum(1) / share.sum(1).clamp_min(1e-30)

@@ -72,7 +72,8 @@ SPREAD_MIN_WALLS = 20
 none): the limit is :data:`SPREAD_DEFAULT`."""
 SPREAD_DEFAULT = 1.0
 """The limit (σ) without enough walls to fit it: two cycles' wholes 2σ apart, with equal shares
-and no approach–retreat disagreement (the main job's decoder's fitted limit is ~0.4σ)."""
+and no approach–retreat disagreement (the main job's decoder's fitted limit was 0.47σ on
+1 Dec)."""
 
 
 def spread_limit(spread: np.ndarray) -> float:

@@ -7,6 +7,7 @@ and the device runtime state it."""
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import onnxruntime as ort
@@ -224,3 +225,30 @@ def test_any_held_out_answers_give_class_thresholds_the_metadata_accepts(seed, s
         if mine.sum() >= MIN_PER_RANGE:
             assert np.mean(err[mine] <= sigma[mine]) >= NOMINAL[0]
             assert np.mean(err[mine] <= half95[mine]) >= NOMINAL[1]
+
+
+def test_rows_without_an_answer_leave_the_fit_as_it_is_without_them(rng):
+    """Windows whose probabilities, answer and σ are NaN (NaN inputs, which the gate flags)
+    tell the fit nothing: the temperature, the top label's map, the ECE before and after, the
+    scales, widths and each grade's thresholds are those fitted without them."""
+    x, labels = confused(rng, 6000)
+    out = answers(x)
+    spec = SPEC | {"classes": "probabilities", "class_values": tuple(VALUES)}
+    truth = {"value": VALUES[labels]}
+    clean = fit_uncertainty(out, truth, [spec], 4, "synthetic", "probabilities", labels)
+    holes = rng.choice(len(labels), 300, replace=False)
+    gaps = {k: v.copy() for k, v in out.items()}
+    for v in gaps.values():
+        v[holes] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning from a NaN row either
+        got = fit_uncertainty(gaps, truth, [spec], 4, "synthetic", "probabilities", labels)
+    keep = np.setdiff1d(np.arange(len(labels)), holes)
+    want = fit_uncertainty({k: v[keep] for k, v in out.items()}, {"value": truth["value"][keep]},
+                           [spec], 4, "synthetic", "probabilities", labels[keep])
+    for name in ("temperature", "top_slope", "top_bias", "ece_before", "ece_after"):
+        assert getattr(got, name) == pytest.approx(getattr(want, name), rel=1e-9), name
+    assert got.temperature != pytest.approx(clean.temperature, rel=1e-12)  # the holes mattered
+    g, w = got.intervals[0], want.intervals[0]
+    for name in ("edges", "scales", "widths", "thresholds", "thresholds_wide"):
+        np.testing.assert_allclose(getattr(g, name), getattr(w, name), rtol=1e-9, err_msg=name)

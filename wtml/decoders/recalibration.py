@@ -443,10 +443,16 @@ def fit_uncertainty(outputs: dict[str, np.ndarray], truth: dict[str, np.ndarray]
             ``(n,)``: a temperature is fitted (:func:`fit_temperature`), then the top
             label's map on the tempered probabilities (:func:`fit_top_label`), first: a
             spec with ``classes`` (that output) is fitted on the recalibrated probabilities.
+            Rows whose probabilities are not finite are left out of every fit.
     """
     if probabilities is None:
         return Uncertainty(fitted_on=fitted_on, intervals=tuple(
             interval(s, outputs, truth[s["value"]], n_ranges) for s in specs))
+    # a window with NaN probabilities (NaN inputs, which the gate flags) tells the fit nothing
+    answered = np.isfinite(np.asarray(outputs[probabilities], float)).all(1)
+    outputs = {k: np.asarray(v)[answered] for k, v in outputs.items()}
+    truth = {k: np.asarray(v)[answered] for k, v in truth.items()}
+    labels = np.asarray(labels)[answered]
     p = np.asarray(outputs[probabilities], float)
     temperature = fit_temperature(p, labels)
     slope, bias = fit_top_label(tempered(p, temperature), labels)

@@ -230,7 +230,8 @@ def test_any_held_out_answers_give_class_thresholds_the_metadata_accepts(seed, s
 def test_rows_without_an_answer_leave_the_fit_as_it_is_without_them(rng):
     """Windows whose probabilities, answer and σ are NaN (NaN inputs, which the gate flags)
     tell the fit nothing: the temperature, the top label's map, the ECE before and after, the
-    scales, widths and each grade's thresholds are those fitted without them."""
+    scales, widths and each grade's thresholds are those fitted without them; a truth key no
+    spec reads is left alone, and rows all NaN are refused by name."""
     x, labels = confused(rng, 6000)
     out = answers(x)
     spec = SPEC | {"classes": "probabilities", "class_values": tuple(VALUES)}
@@ -243,6 +244,13 @@ def test_rows_without_an_answer_leave_the_fit_as_it_is_without_them(rng):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no RuntimeWarning from a NaN row either
         got = fit_uncertainty(gaps, truth, [spec], 4, "synthetic", "probabilities", labels)
+    # a key of the truth that no spec reads (another length) is not touched
+    got_more = fit_uncertainty(gaps, truth | {"frequency_hz": np.arange(7.0)}, [spec], 4,
+                               "synthetic", "probabilities", labels)
+    assert got_more.temperature == got.temperature
+    nothing = {k: np.full_like(v, np.nan) for k, v in out.items()}
+    with pytest.raises(ValueError, match="none of the 6000 rows of 'probabilities'"):
+        fit_uncertainty(nothing, truth, [spec], 4, "synthetic", "probabilities", labels)
     keep = np.setdiff1d(np.arange(len(labels)), holes)
     want = fit_uncertainty({k: v[keep] for k, v in out.items()}, {"value": truth["value"][keep]},
                            [spec], 4, "synthetic", "probabilities", labels[keep])

@@ -396,6 +396,39 @@ def test_an_object_that_moves_between_looks_is_flagged(onset_export, scene, tmp_
     assert not res[-2].item() and res[-1].item() == pytest.approx(gated[-1].item(), rel=1e-3)
 
 
+def test_an_export_of_several_ranges_scales_sigma_by_the_answers_range_in_both_graphs(
+        onset_export, scene, tmp_path, monkeypatch):
+    """The oracle's heads answer every wall with σ 0.1 µm (the fixture's own net answers
+    none, so its export keeps one range): exported on 384 fresh records, the decoder gets
+    GAP_RANGES ranges of the answered gap, its σ is 0.1 µm × the scale of the answer's range
+    for walls across them, and the streaming graph, whose running gap can cross the ranges'
+    edges mid-record, ends each record on the same σ and 95 % half-width."""
+    from wtml.exporters import onset as exporter
+    from wtml.runtime.onset import stream_record
+    from wtml.runtime.predict import OnnxModel
+
+    monkeypatch.setattr(exporter, "FRESH_RECORDS", 384)
+    monkeypatch.setattr(exporter, "PIECE_RECORDS", 32)
+    paths = exporter.export_onset(_oracle(onset_export), scene, tmp_path)
+    model, stream = OnnxModel(paths["decoder"]), OnnxModel(paths["stream"])
+    r = model.intervals["sigma_95"]
+    assert len(r.edges) == exporter.GAP_RANGES - 1 and np.ptp(r.scales) > 0.01, r
+    amp = scene.whisk_amplitude_m()
+    rec = scene.simulate(8, np.random.default_rng(11), gaps=np.linspace(0.1, 0.9, 8) * amp)
+    x = record_inputs(rec)
+    off = model.run(*x)
+    off |= model.half_widths(off)
+    walls = np.isfinite(off["gap"]) & off["in_domain"]  # σ NaN where flagged
+    assert walls.sum() >= 5
+    which = r.range_of(off["gap"][walls])
+    assert len(set(which.tolist())) == exporter.GAP_RANGES
+    np.testing.assert_allclose(off["sigma"][walls], 0.1e-6 * np.asarray(r.scales)[which],
+                               rtol=1e-4)
+    streamed = stream_record(stream, *x)
+    for key in ("gap", "sigma", "sigma_95"):
+        np.testing.assert_allclose(streamed[key], off[key], rtol=1e-4, err_msg=key)
+
+
 def test_the_streamed_looks_are_the_offline_ones_where_every_frame_votes(onset_export, scene):
     """With every frame voting alike, the spliced record's looks differ by their share of
     frames in contact (~0.2 µm), and a frame given to the wrong look would move that look's

@@ -450,8 +450,12 @@ def fit_uncertainty(outputs: dict[str, np.ndarray], truth: dict[str, np.ndarray]
             interval(s, outputs, truth[s["value"]], n_ranges) for s in specs))
     # a window with NaN probabilities (NaN inputs, which the gate flags) tells the fit nothing
     answered = np.isfinite(np.asarray(outputs[probabilities], float)).all(1)
+    if not answered.any():
+        raise ValueError(f"fit_uncertainty: none of the {len(answered)} rows of "
+                         f"{probabilities!r} is finite: nothing to fit a classifier's "
+                         "recalibration on")
     outputs = {k: np.asarray(v)[answered] for k, v in outputs.items()}
-    truth = {k: np.asarray(v)[answered] for k, v in truth.items()}
+    truth = {s["value"]: np.asarray(truth[s["value"]])[answered] for s in specs}
     labels = np.asarray(labels)[answered]
     p = np.asarray(outputs[probabilities], float)
     temperature = fit_temperature(p, labels)

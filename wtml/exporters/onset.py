@@ -56,10 +56,11 @@ FRESH_RECORDS = 1536
 """Fresh records of the scene (its own seed, not the training data) on which the exported
 decoder's false-alarm rate is measured, its σ recalibrated (:data:`GAP_RANGES` ranges: a scale
 and a 95 % width in each; ~1350 records with a wall; :mod:`wtml.decoders.recalibration`) and
-the looks' limit fitted (:func:`spread_limit`: the 0.999 quantile of ~1350, not the largest
-of ~450). On 128 (~115 with a wall) the 68 % interval's true coverage scattered by 4.2 points
-between draws, on 512 (one range, until 1 Dec) by 2.3; they are simulated
-:data:`FRESH_CHUNK` at a time (~1.5 s each on the main job's scene)."""
+the looks' limit fitted (:func:`spread_limit`: the 0.999 quantile of ~1350, not nearly the
+largest of ~450). On 128 (~115 with a wall) the 68 % interval's true coverage scattered by
+4.2 points between draws, on 512 (one range, until 1 Dec) by 2.3; they are simulated
+:data:`FRESH_CHUNK` at a time (~1 s each on the main job's scene: `wtml export` 40 s in all,
+27 s on 512)."""
 GAP_RANGES = 3
 """Equal-count ranges of the answered gap, each with its own σ scale and 95 % width. One range
 left the far walls short (the top fifth of the test shard's gaps, 8.8–11.2 µm, grazing
@@ -81,8 +82,8 @@ SPREAD_MIN_WALLS = 20
 none): the limit is :data:`SPREAD_DEFAULT`."""
 SPREAD_DEFAULT = 1.0
 """The limit (σ) without enough walls to fit it: two cycles' wholes 2σ apart, with equal shares
-and no approach–retreat disagreement (the main job's decoder's fitted limit was 0.47σ on
-1 Dec)."""
+and no approach–retreat disagreement (the main job's decoder's fitted limit was 0.56σ on
+1 Dec, on 1536 fresh records)."""
 
 
 def spread_limit(spread: np.ndarray) -> float:

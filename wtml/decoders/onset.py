@@ -590,8 +590,7 @@ def touch_spread(share: torch.Tensor, sums: torch.Tensor, gap: torch.Tensor, sd:
     retreat) alike cancels (the main job's decoder's approach frames read the wall 18–46σ
     beyond its retreat frames, and only their vote-weighted whole is g). ``gap`` (m) only
     marks a record without contact (NaN: 0 there); σ in m. For two cycles of equal shares it
-    is
-    ``sqrt((Δ_a² + Δ_r²) / 8) / σ`` with ``Δ_h = G_1h − G_2h``: the cycles' disagreement
+    is ``sqrt((Δ_a² + Δ_r²) / 8) / σ`` with ``Δ_h = G_1h − G_2h``: the cycles' disagreement
     ``|G_1 − G_2| / 2σ`` (``G_c`` the cycle's whole) and their approach-minus-retreat
     differences' disagreement over 4σ, in quadrature. A still wall is met at one place in
     every look. An object moving with the floor (0.8 µm rms at 5–20 Hz, physics.md §12) is

@@ -234,8 +234,8 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
         "self_check": "touch_spread: how far each whisk cycle's approach and retreat locate "
                       "the wall from the record's approach and retreat, in its sigma (a still "
                       "wall is met at one place in every look); its limit is the "
-                      f"{SPREAD_QUANTILE} quantile over the "
-                      f"fresh records with a wall ({SPREAD_DEFAULT} with fewer than "
+                      f"{SPREAD_QUANTILE} quantile over the fresh records with a wall "
+                      f"({SPREAD_DEFAULT} with fewer than "
                       f"{SPREAD_MIN_WALLS}); the domain score is the larger of the gate's and it "
                       "over the limit", "self_check_limit": limit,
         "pieces_limit": pieces, "pieces_false_alarm_fresh": pieces_flagged})}

@@ -336,6 +336,29 @@ def test_the_look_of_a_frame_counts_from_the_records_start(onset_export, scene):
     assert set(reach[:, 420:].argmax(-1).tolist()) <= {209, 210}
 
 
+def test_the_looks_keep_to_the_whisks_phase_when_its_cycle_is_not_whole_frames(scene):
+    """A 1.6 Hz whisk under the 420 Hz probe: 262.5 probe periods a cycle. Each frame's look
+    is where its middle falls in the whisk, over ten cycles: frame 2362 (its middle at
+    2362.5, cycle 9's start) begins cycle 9; a cycle of 262 frames (the ratio rounded) would
+    have begun it at frame 2358, four frames early, and kept drifting."""
+    from wtml.decoders.onset import OnsetDecoder
+
+    fast = dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, whisk_hz=1.6,
+                                                                cycles=10.0))
+    net = OnsetDecoder()._make(fast, torch.stack([torch.zeros(5), torch.ones(5)]))
+    assert (net.cycle_frames, net.cycles, net.looks) == (262.5, 10, 20)
+    frames = torch.arange(2 * 2625, dtype=torch.float32)
+    look = net.look_of(frames).argmax(-1)
+    middle = (frames + 0.5) / 262.5  # whisk cycles at each frame's middle
+    want = (2 * middle.floor() + (middle % 1 >= 0.5)).clamp(max=19)
+    np.testing.assert_array_equal(look.numpy(), want.numpy())
+    assert look[2361] == 17 and look[2362] == 18  # cycle 8's retreat, then cycle 9's approach
+    assert look[2358] == 17  # not 18, as a cycle of 262 frames would say
+    # every look of the ten cycles holds 131 or 132 frames (half of 262.5, on either side)
+    counts = torch.bincount(look[:2625], minlength=20)
+    assert set(counts.tolist()) <= {131, 132}
+
+
 @pytest.mark.parametrize("splice", sorted(SPLICES))
 def test_an_object_that_moves_between_looks_is_flagged(onset_export, scene, tmp_path, splice):
     """The spliced records (:func:`_spliced`) through the oracle's heads (votes on the frames

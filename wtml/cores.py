@@ -1,25 +1,87 @@
 """How many cores this process may compute on: the one answer every threaded part of wtml
-(the stepper's blocks, onnxruntime sessions, the peers' jobs) takes its default from."""
+(the stepper's blocks, onnxruntime sessions, the peers' jobs, the main job's lanes) takes its
+default from: the process's affinity, a container's CPU quota (Linux cgroups) and
+``$WTML_THREADS``, whichever is least."""
 
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 from collections.abc import Iterator
+from pathlib import Path
 
 THREADS_ENV = "WTML_THREADS"
 """An environment variable that caps :func:`available_cores` (the main job's lanes run
 one thread each: :func:`wtml.pipeline.run_all`)."""
 
 
+CGROUP_ROOT = Path("/sys/fs/cgroup")
+"""Where Linux mounts the control groups (v2: one tree; v1: a tree per controller)."""
+PROC_CGROUP = Path("/proc/self/cgroup")
+"""This process's control groups, one ``id:controllers:path`` line each."""
+
+
+def _quota(path: Path) -> float | None:
+    """The CPU quota (cores) a cgroup folder sets, or None where it sets none or cannot be
+    read: v2's ``cpu.max`` (``"<quota> <period>"`` or ``"max <period>"``), v1's
+    ``cpu.cfs_quota_us`` (-1: none) over ``cpu.cfs_period_us``."""
+    try:
+        if (path / "cpu.max").is_file():
+            quota, period = (path / "cpu.max").read_text().split()[:2]
+        else:
+            quota = (path / "cpu.cfs_quota_us").read_text().strip()
+            period = (path / "cpu.cfs_period_us").read_text().strip()
+        quota_us, period_us = float(quota), float(period)
+    except (OSError, ValueError):
+        return None  # "max", a missing file, an unreadable one: no quota here
+    return quota_us / period_us if quota_us > 0 and period_us > 0 else None
+
+
+def cgroup_cores(root: Path = CGROUP_ROOT, proc: Path = PROC_CGROUP) -> float | None:
+    """The CPU quota of this process's control group and every group above it, the least
+    (cores, fractional), or None where none is set or the files cannot be read (not Linux).
+    A container started with ``--cpus 2`` on a 64-core host has its affinity on all 64 and
+    this quota of 2: threads beyond it wait for the scheduler's next period instead of
+    computing. Both cgroup versions; a container's own group is mounted at the root (its
+    path in ``proc`` may still name the host's), so the root is read too."""
+    try:
+        lines = proc.read_text().splitlines()
+    except OSError:
+        return None
+    found = []
+    for line in lines:
+        _, controllers, where = (line.split(":", 2) + ["", ""])[:3]
+        names = controllers.split(",")
+        if controllers == "":  # v2's unified tree
+            base = root
+        elif "cpu" in names:  # v1's cpu controller, mounted as cpu or cpu,cpuacct
+            base = next((root / d for d in ("cpu", "cpu,cpuacct", "cpuacct,cpu")
+                         if (root / d).is_dir()), None)
+            if base is None:
+                continue
+        else:
+            continue
+        parts = [p for p in where.strip().split("/") if p and p != ".."]
+        for depth in range(len(parts) + 1):
+            quota = _quota(base.joinpath(*parts[:depth]))
+            if quota is not None:
+                found.append(quota)
+    return min(found) if found else None
+
+
 def available_cores() -> int:
-    """The cores this process may run on (its affinity), at most ``$WTML_THREADS`` where that
-    is set to a positive integer.
+    """The cores this process may run on: its affinity, at most its control group's CPU quota
+    rounded up (:func:`cgroup_cores`; loky and joblib round it alike) and at most
+    ``$WTML_THREADS`` where that is set to a positive integer.
 
     Raises:
         ValueError: ``$WTML_THREADS`` is set but not a positive integer.
     """
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    quota = cgroup_cores()
+    if quota is not None:
+        cores = max(1, min(cores, math.ceil(quota)))
     cap = os.environ.get(THREADS_ENV, "").strip()
     if not cap:
         return cores

@@ -59,6 +59,7 @@ from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.loggers import CSVLogger
 
 from wtml.bench.timing import duration
+from wtml.cores import available_cores
 from wtml.data.shards import DatasetError
 from wtml.decoders.base import ConfigError, DivergedError
 from wtml.decoders.checkpoint import CheckpointError, read_checkpoint, resume_checkpoint
@@ -493,6 +494,8 @@ def cli_main(args: list[str] | None = None, run: bool = True) -> WtmlCLI:
         "enable_model_summary": False,
     }
     given = list(sys.argv[1:] if args is None else args)
+    # torch's own default is the machine's cores, whatever a container's CPU quota allows
+    torch.set_num_threads(min(torch.get_num_threads(), available_cores()))
     configs = _config_files(given)
     try:
         for path in configs:

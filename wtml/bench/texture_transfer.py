@@ -154,8 +154,15 @@ def device_variants(scene) -> list[Variant]:
                        dataclasses.replace(spread_scene, device=device)))
     scenes.append(("whisker in 8 elements (modes 13-22 1.5-12 % high)", "off the spread",
                    dataclasses.replace(spread_scene, whisker_elements=8)))
-    return [Variant(label, kind, s.stepped_stably().simulate_independent)
-            for label, kind, s in scenes]
+    return [Variant(label, kind, _stepped_when_drawn(s)) for label, kind, s in scenes]
+
+
+def _stepped_when_drawn(scene) -> Callable[[int, np.random.Generator], dict]:
+    """``scene``'s :meth:`~wtml.scenes.texture.TextureScene.simulate_independent` on the scene
+    stepped as its friction needs, worked out at the row's first draw (a few seconds a
+    device: a row that ``--rows`` leaves out never pays it)."""
+    stepped = functools.cache(scene.stepped_stably)
+    return lambda n, rng: stepped().simulate_independent(n, rng)
 
 
 def scorer(methods: dict[str, Callable], windows: Callable[[dict], tuple]

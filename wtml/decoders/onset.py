@@ -393,7 +393,8 @@ class OnsetNet(nn.Module):
         probe_omega: ωH, rad/s (the free tip's probe amplitude per probe volt is
             ``1/(ωH |t12|)`` with each record's calibrated t12).
         channels, dilations, kernel: the temporal convolution.
-        cycle_frames: frames per whisk cycle (probe periods per whisking period).
+        cycle_frames: frames per whisk cycle (probe periods per whisking period: the
+            ratio of the two tones, which need not be whole).
         cycles: whisk cycles in a record (a frame past the last belongs to it).
     """
 
@@ -406,10 +407,10 @@ class OnsetNet(nn.Module):
                  dilations: tuple[int, ...], *, cycle_frames: int, cycles: int,
                  kernel: int = 3, t12: float = 0.0) -> None:
         super().__init__()
-        if cycle_frames < 1 or cycles < 1:
+        if not cycle_frames >= 1 or cycles < 1:
             raise ValueError(f"cycle_frames and cycles must be >= 1, got {cycle_frames}, "
                              f"{cycles}")
-        self.cycle_frames, self.cycles = int(cycle_frames), int(cycles)
+        self.cycle_frames, self.cycles = float(cycle_frames), int(cycles)
         # the nominal device's |t12| at the probe (0: steps not rescaled; see :meth:`scaled`)
         self.per_volt_ref = 1.0 / (float(probe_omega) * t12) if t12 > 0 else 0.0
         self.frames = frames
@@ -515,12 +516,15 @@ class OnsetNet(nn.Module):
 
     def look_of(self, frame: torch.Tensor) -> torch.Tensor:
         """One-hot look of each frame index (any shape ``s``, counted from the record's
-        start) -> ``(*s, looks)`` float: ``2c`` the approach of whisk cycle c (its first half
-        of frames), ``2c + 1`` its retreat; a frame past the record's cycles is its last
-        cycle's retreat."""
-        k = torch.div(frame, self.cycle_frames, rounding_mode="floor").clamp(max=self.cycles - 1)
-        retreat = (frame - k * self.cycle_frames >= self.cycle_frames / 2).to(k.dtype)
-        return ((2 * k + retreat)[..., None] == torch.arange(self.looks, dtype=k.dtype)).float()
+        start) -> ``(*s, looks)`` float: ``2c`` the approach of whisk cycle c (its first half),
+        ``2c + 1`` its retreat, by where the frame's middle falls in the whisk (frame f spans
+        probe periods f to f + 1, a cycle :attr:`cycle_frames` of them, whole or not, so the
+        looks keep to the whisk's phase over any number of cycles); a frame past the record's
+        cycles is its last cycle's retreat."""
+        at = (frame + 0.5) / self.cycle_frames  # whisk cycles from the record's start
+        k = torch.floor(at).clamp(max=self.cycles - 1)
+        look = 2 * k + (at - k >= 0.5).to(k.dtype)
+        return (look[..., None] == torch.arange(self.looks, dtype=k.dtype)).float()
 
     def per_look(self, w: torch.Tensor, est: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """g's vote share and Σ w·estimate (m) of each look (:meth:`look_of`), ``(batch,
@@ -784,7 +788,7 @@ class OnsetDecoder(DecoderModule):
                         torch.ones(2) if zm_step is None else zm_step, touch_step,
                         scene.whisk_amplitude_m(), 2 * np.pi * scene.drive.probe_hz,
                         h.channels, tuple(h.dilations),
-                        cycle_frames=max(1, round(scene.drive.probe_hz / scene.drive.whisk_hz)),
+                        cycle_frames=max(1.0, scene.drive.probe_hz / scene.drive.whisk_hz),
                         cycles=int(np.ceil(scene.drive.cycles - 1e-9)), t12=nominal_t12(scene))
 
     def build_net(self, scene, *tensors) -> nn.Module:

@@ -615,6 +615,16 @@ def test_the_main_job_summary_states_targets_times_and_places():
                    "with the whisker measured (its length, thickness and modulus nominal): "
                    "6.0 µm, 97 % within 2σ, 0.1 % flagged"):
         assert needle in text, needle
+    assert "1.1e+06/s at batch 4096 (targets ≤ 50 µs, ≥ 1e6/s: met, met)" in text  # unsaid
+    # timed on one thread beside the other lane: the summary says so, and the verdict stays
+    fluid |= {"decoder_onnx_throughput": 9.7e5,
+              "timing": {"threads": 1, "busy_elsewhere": 0.48, "cores": 2}}
+    text = summary({"fluid": fluid}, stages)
+    assert ("9.7e+05/s at batch 4096 on 1 thread, beside other work that kept 48 % of the 2 "
+            "cores busy (`wtml bench fluid` alone times it on a quiet machine) (targets ≤ 50 "
+            "µs, ≥ 1e6/s: met, MISSED)") in text
+    fluid["timing"] = {"threads": 2, "busy_elsewhere": 0.02, "cores": 2}
+    assert "9.7e+05/s at batch 4096 on 2 threads (targets" in summary({"fluid": fluid}, stages)
 
 
 # ---------------------------------------------------------------- 5. numbers that mean it

@@ -31,9 +31,9 @@ from wtml.baselines import ClassicalFluid
 from wtml.baselines.fluid_bayes import BayesFluid
 from wtml.bench.accuracy import by_decade, format_decades, relative_errors, sampled_errors
 from wtml.bench.bounds import fluid_crlb
-from wtml.bench.frontier import Method, Problem, open_graph
+from wtml.bench.frontier import Method, Problem, busy_lines, open_graph
 from wtml.bench.resampling import statistic_interval
-from wtml.bench.timing import latency_p50, throughput
+from wtml.bench.timing import busy_elsewhere, cpu_snapshot, latency_p50, throughput
 from wtml.data.datamodule import split_shards
 from wtml.data.shards import dataset_scene, load_shards, read_manifest
 from wtml.decoders.domain import QUANTILE
@@ -142,6 +142,7 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
     big = np.resize(ze, (4096, ze.shape[1]))
     big_t = np.resize(t, (4096, *t.shape[1:]))
     results = []
+    start = cpu_snapshot()
     for p in predictors:
         pred = p.predict(ze, t)
         if p is decoder_onnx:  # its graph's domain gate, on this in-domain test set
@@ -150,6 +151,9 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
         results.append({"name": p.name, "rows": by_decade(err, eta),
                         "latency": latency_p50(p, (ze[:1], t[:1]), latency_repeats),
                         "throughput": throughput(p, (big, big_t), throughput_repeats)})
+    end = cpu_snapshot()
+    timed = {"threads": threads, "busy_elsewhere": busy_elsewhere(start, end),
+             "cores": end[3] if end else None}
     bayes = BayesFluid(scene)
     start = time.perf_counter()
     best = bayes.predict(ze, t)
@@ -175,7 +179,7 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
         f"with {threads} threads; latency = p50 of up to {latency_repeats} calls at batch 1; "
         f"throughput = median of up to {throughput_repeats} calls at batch 4096 (each "
         "measurement stops after 3 s; the Bayes row: its pass over the whole set).",
-        "",
+        "", *busy_lines(timed),
         "| method | η median | η p95 | ρ median | ρ p95 | η, ρ median / Bayes | "
         "p50 latency, batch 1 | latency / closed form numpy | throughput |",
         "|---|---|---|---|---|---|---|---|---|",
@@ -231,7 +235,7 @@ def run_bench(data_dir: str | Path, checkpoint: str | Path, model_dir: str | Pat
                "crlb": {k: c[k] for k in ("eta_median", "rho_median")},
                "decoder_onnx_latency_s": results[3]["latency"],
                "decoder_onnx_throughput": results[3]["throughput"],
-               "false_alarm": false_alarm, "n_test": len(ze),
+               "timing": timed, "false_alarm": false_alarm, "n_test": len(ze),
                "device_spread": spread_rows, "device_records": device_records}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     _plot(results, out / "error_vs_latency.png")

@@ -65,3 +65,34 @@ def test_available_cores_is_the_least_of_affinity_quota_and_the_cap(monkeypatch)
     monkeypatch.setattr(cores, "cgroup_cores", lambda: 100.0)
     monkeypatch.setenv(THREADS_ENV, "1")
     assert available_cores() == 1
+
+
+def test_a_v1_mount_named_by_its_own_controllers_and_lines_that_are_not_groups(tmp_path):
+    proc, fs = tmp_path / "cgroup", tmp_path / "fs"
+    _write(proc, "garbage\n\n7:cpu,cpuacct,cpuset:/job\n")  # no v2 line: "garbage" is none
+    _write(fs / "cpu.max", "100000 100000\n")  # read only for a "0::" line
+    _write(fs / "cpu,cpuacct,cpuset" / "job" / "cpu.cfs_quota_us", "300000\n")
+    _write(fs / "cpu,cpuacct,cpuset" / "job" / "cpu.cfs_period_us", "100000\n")
+    assert cgroup_cores(fs, proc) == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("text", ["inf 100000", "1e400 100000", "nan 100000", "-5 100000"])
+def test_a_quota_that_is_no_number_of_cores_is_none(tmp_path, text):
+    proc = tmp_path / "cgroup"
+    _write(proc, "0::/\n")
+    _write(tmp_path / "fs" / "cpu.max", text)
+    assert cgroup_cores(tmp_path / "fs", proc) is None
+
+
+def test_files_that_cannot_be_read_or_decoded_are_no_quota(tmp_path, monkeypatch):
+    proc = tmp_path / "cgroup"
+    proc.write_bytes(b"0::/\xff\xfe\n")  # not UTF-8
+    _write(tmp_path / "fs" / "cpu.max", "100000 100000\n")
+    assert cgroup_cores(tmp_path / "fs", proc) is None
+    _write(proc, "3:cpu:/\n")
+
+    def refused(self):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(type(tmp_path), "is_dir", refused)  # a cgroup root we may not list
+    assert cgroup_cores(tmp_path / "fs", proc) is None

@@ -368,8 +368,12 @@ def test_bench_reports_every_method(flow, tmp_path):
     for row in ("nominal device", "trained spread", "issue 21 spread", "k ±3 % only",
                 "sphere_radius ±1 % only"):
         assert f"| {row} |" in report
-    rows = {r["device"]: r for r in json.loads((tmp_path / "summary.json").read_text())[
-        "device_spread"]}
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    timing = summary["timing"]  # how the times were taken: threads, the machine's other work
+    assert timing["threads"] == 2 and timing["cores"] >= 1
+    assert 0 <= timing["busy_elsewhere"] <= 1
+    assert "cores busy" in report.split("| method |")[0]
+    rows = {r["device"]: r for r in summary["device_spread"]}
     assert len(rows) == 3 + 7  # nominal, trained, issue 21's, and each parameter alone
     for r in rows.values():
         names = [m["name"] for m in r["methods"]]

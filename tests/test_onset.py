@@ -6,6 +6,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -336,11 +337,11 @@ def test_the_look_of_a_frame_counts_from_the_records_start(onset_export, scene):
     assert set(reach[:, 420:].argmax(-1).tolist()) <= {209, 210}
 
 
-def test_the_looks_keep_to_the_whisks_phase_when_its_cycle_is_not_whole_frames(scene):
+def test_the_looks_keep_to_the_whisks_phase_when_its_cycle_is_not_whole_frames(scene, tmp_path):
     """A 1.6 Hz whisk under the 420 Hz probe: 262.5 probe periods a cycle. Each frame's look
     is where its middle falls in the whisk, over ten cycles: frame 2362 (its middle at
     2362.5, cycle 9's start) begins cycle 9; a cycle of 262 frames (the ratio rounded) would
-    have begun it at frame 2358, four frames early, and kept drifting."""
+    have begun it at frame 2358, four frames early, and kept drifting. Its ONNX graph agrees."""
     from wtml.decoders.onset import OnsetDecoder
 
     fast = dataclasses.replace(scene, drive=dataclasses.replace(scene.drive, whisk_hz=1.6,
@@ -357,6 +358,26 @@ def test_the_looks_keep_to_the_whisks_phase_when_its_cycle_is_not_whole_frames(s
     # every look of the ten cycles holds 131 or 132 frames (half of 262.5, on either side)
     counts = torch.bincount(look[:2625], minlength=20)
     assert set(counts.tolist()) <= {131, 132}
+    # the graphs compute the same looks (the stream passes float frame indices, chunk by chunk)
+    import onnxruntime as ort
+
+    from wtml.exporters.graphs import OPSET
+
+    class Looks(torch.nn.Module):
+        def forward(self, start: torch.Tensor) -> torch.Tensor:
+            return net.look_of(start + torch.arange(64, dtype=start.dtype)).argmax(-1)
+
+    path = tmp_path / "looks.onnx"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the tracer's notes on the frozen arange
+        torch.onnx.export(Looks(), (torch.zeros(2, 1),), str(path), input_names=["start"],
+                          output_names=["look"], dynamo=False, opset_version=OPSET,
+                          dynamic_axes={"start": {0: "batch"}, "look": {0: "batch"}})
+    starts = torch.arange(0, 2625 + 64, 64, dtype=torch.float32)[:, None]
+    got = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(
+        None, {"start": starts.numpy()})[0]
+    np.testing.assert_array_equal(got, Looks()(starts).numpy())
+    np.testing.assert_array_equal(got.ravel()[:2625], want[:2625].numpy())
 
 
 @pytest.mark.parametrize("splice", sorted(SPLICES))

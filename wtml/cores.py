@@ -32,42 +32,49 @@ def _quota(path: Path) -> float | None:
         else:
             quota = (path / "cpu.cfs_quota_us").read_text().strip()
             period = (path / "cpu.cfs_period_us").read_text().strip()
-        quota_us, period_us = float(quota), float(period)
-    except (OSError, ValueError):
+        cores = float(quota) / float(period)
+    except (OSError, ValueError, ZeroDivisionError):
         return None  # "max", a missing file, an unreadable one: no quota here
-    return quota_us / period_us if quota_us > 0 and period_us > 0 else None
+    return cores if 0 < cores < math.inf and float(quota) > 0 else None
 
 
-def cgroup_cores(root: Path = CGROUP_ROOT, proc: Path = PROC_CGROUP) -> float | None:
-    """The CPU quota of this process's control group and every group above it, the least
-    (cores, fractional), or None where none is set or the files cannot be read (not Linux).
-    A container started with ``--cpus 2`` on a 64-core host has its affinity on all 64 and
-    this quota of 2: threads beyond it wait for the scheduler's next period instead of
-    computing. Both cgroup versions; a container's own group is mounted at the root (its
-    path in ``proc`` may still name the host's), so the root is read too."""
-    try:
-        lines = proc.read_text().splitlines()
-    except OSError:
-        return None
+def _groups(root: Path, proc: Path) -> list[Path]:
+    """The folders of this process's CPU control group and every group above it: v2's
+    unified tree (a line ``0::<path>``) and v1's cpu controller (``<id>:<controllers with
+    cpu>:<path>``, mounted under ``root`` by its controllers' names, e.g. ``cpu,cpuacct``)."""
     found = []
-    for line in lines:
-        _, controllers, where = (line.split(":", 2) + ["", ""])[:3]
-        names = controllers.split(",")
-        if controllers == "":  # v2's unified tree
+    for line in proc.read_text().splitlines():
+        fields = line.split(":", 2)
+        if len(fields) != 3:
+            continue
+        key, controllers, where = fields
+        if key == "0" and controllers == "":
             base = root
-        elif "cpu" in names:  # v1's cpu controller, mounted as cpu or cpu,cpuacct
-            base = next((root / d for d in ("cpu", "cpu,cpuacct", "cpuacct,cpu")
+        elif "cpu" in controllers.split(","):
+            base = next((root / d for d in (controllers, "cpu", "cpu,cpuacct", "cpuacct,cpu")
                          if (root / d).is_dir()), None)
             if base is None:
                 continue
         else:
             continue
         parts = [p for p in where.strip().split("/") if p and p != ".."]
-        for depth in range(len(parts) + 1):
-            quota = _quota(base.joinpath(*parts[:depth]))
-            if quota is not None:
-                found.append(quota)
-    return min(found) if found else None
+        found += [base.joinpath(*parts[:depth]) for depth in range(len(parts) + 1)]
+    return found
+
+
+def cgroup_cores(root: Path = CGROUP_ROOT, proc: Path = PROC_CGROUP) -> float | None:
+    """The CPU quota of this process's control group and every group above it, the least
+    (cores, fractional), or None where none is set or the files cannot be read (not Linux,
+    no permission, not text): never an error. A container started with ``--cpus 2`` on a
+    64-core host has its affinity on all 64 and this quota of 2: threads beyond it wait for
+    the scheduler's next period instead of computing. Both cgroup versions; a container's
+    own group is mounted at the root (its path in ``proc`` may still name the host's), so
+    the root is read too."""
+    try:
+        quotas = [q for q in map(_quota, _groups(root, proc)) if q is not None]
+    except (OSError, ValueError):  # an unreadable or undecodable file, a folder we may not see
+        return None
+    return min(quotas) if quotas else None
 
 
 def available_cores() -> int:

@@ -319,19 +319,19 @@ def _met(ok: bool) -> str:
     return "met" if ok else "MISSED"
 
 
-def _timed(timing: dict) -> str:
-    """How a bench's times were taken, for a summary line: its threads and, where other
-    processes kept more than :data:`~wtml.bench.timing.BUSY_SHARE` of the cores busy (the
-    other lane's stages), that share; empty where the bench did not say."""
-    if not timing:
-        return ""
-    threads, share = timing.get("threads"), timing.get("busy_elsewhere")
-    text = f"on {threads} thread{'s' if threads != 1 else ''}"
+def _timed(timing: dict) -> tuple[str, str]:
+    """How a bench's times were taken, for a summary line: ``", on N threads"`` (empty where
+    unsaid) and, where other processes kept more than
+    :data:`~wtml.bench.timing.BUSY_SHARE` of the cores busy (the other lane's stages), a
+    clause saying so for the line's parenthesis (else empty)."""
+    threads, share, cores = (timing.get(k) for k in ("threads", "busy_elsewhere", "cores"))
+    where = f", on {threads} thread{'s' if threads != 1 else ''}" if threads else ""
+    busy = ""
     if share is not None and share > BUSY_SHARE:
-        text += (f", beside other work that kept {100 * share:.0f} % of the "
-                 f"{timing.get('cores')} cores busy (`wtml bench fluid` alone times it on a "
-                 "quiet machine)")
-    return f"{text} "
+        busy = (f"; timed while other work kept {100 * share:.0f} % of the "
+                f"{f'{cores} ' if cores else ''}cores busy: `wtml bench fluid` alone times it "
+                "on a quiet machine")
+    return where, busy
 
 
 def _device_lines(fluid: dict) -> list[str]:
@@ -361,6 +361,7 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
         dec, bayes, closed = fluid["decoder_onnx"], fluid["bayes"], fluid["closed_form"]
         gain = {k: closed[f"{k}_median"] / dec[f"{k}_median"] for k in ("eta", "rho")}
         fast = fluid["decoder_onnx_latency_s"], fluid["decoder_onnx_throughput"]
+        where, busy = _timed(fluid.get("timing", {}))
         lines += [
             "fluid (test shard, decoder ONNX):",
             f"  η median {100 * dec['eta_median']:.2f} % "
@@ -372,10 +373,9 @@ def summary(results: dict[str, dict], stages: Stages) -> str:
             f"{_met(dec['rho_median'] <= 0.005)})",
             f"  against the thesis's closed form: {gain['eta']:.1f}× in η, {gain['rho']:.1f}× "
             f"in ρ (target ≥ 2×: {_met(min(gain.values()) >= 2)})",
-            f"  {1e6 * fast[0]:.0f} µs at batch 1, {fast[1]:.3g}/s at batch 4096 "
-            f"{_timed(fluid.get('timing', {}))}(targets ≤ 50 µs, ≥ 1e6/s: "
-            f"{_met(fast[0] <= 50e-6)}, {_met(fast[1] >= 1e6)}); in-domain "
-            f"test rows flagged: {100 * fluid['false_alarm']:.2f} %",
+            f"  {1e6 * fast[0]:.0f} µs at batch 1, {fast[1]:.3g}/s at batch 4096{where} "
+            f"(targets ≤ 50 µs, ≥ 1e6/s: {_met(fast[0] <= 50e-6)}, {_met(fast[1] >= 1e6)}"
+            f"{busy}); in-domain test rows flagged: {100 * fluid['false_alarm']:.2f} %",
             *_device_lines(fluid),
             "  report runs/fluid/bench/report.md, plot runs/fluid/bench/error_vs_latency.png",
             f"  time: {stages.line('fluid')}"]

@@ -494,8 +494,11 @@ def cli_main(args: list[str] | None = None, run: bool = True) -> WtmlCLI:
         "enable_model_summary": False,
     }
     given = list(sys.argv[1:] if args is None else args)
-    # torch's own default is the machine's cores, whatever a container's CPU quota allows
-    torch.set_num_threads(min(torch.get_num_threads(), available_cores()))
+    try:  # torch's own default is the machine's cores, whatever a container's quota allows
+        torch.set_num_threads(min(torch.get_num_threads(), available_cores()))
+    except ValueError as err:  # $WTML_THREADS not a positive integer
+        print(f"train.py: error: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
     configs = _config_files(given)
     try:
         for path in configs:

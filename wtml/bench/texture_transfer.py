@@ -159,8 +159,8 @@ def device_variants(scene) -> list[Variant]:
 
 def _stepped_when_drawn(scene) -> Callable[[int, np.random.Generator], dict]:
     """``scene``'s :meth:`~wtml.scenes.texture.TextureScene.simulate_independent` on the scene
-    stepped as its friction needs, worked out at the row's first draw (a few seconds a
-    device: a row that ``--rows`` leaves out never pays it)."""
+    stepped as its friction needs, worked out once, at the row's first draw (~0.1 s a
+    device, so building the rows costs nothing; the first draw's time includes it)."""
     stepped = functools.cache(scene.stepped_stably)
     return lambda n, rng: stepped().simulate_independent(n, rng)
 

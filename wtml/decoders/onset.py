@@ -404,7 +404,7 @@ class OnsetNet(nn.Module):
 
     def __init__(self, frames: ProbeFrames, scale: torch.Tensor, zm_step: torch.Tensor,
                  touch_step: float, amp: float, probe_omega: float, channels: int,
-                 dilations: tuple[int, ...], *, cycle_frames: int, cycles: int,
+                 dilations: tuple[int, ...], *, cycle_frames: float, cycles: int,
                  kernel: int = 3, t12: float = 0.0) -> None:
         super().__init__()
         if not cycle_frames >= 1 or cycles < 1:
@@ -519,8 +519,10 @@ class OnsetNet(nn.Module):
         start) -> ``(*s, looks)`` float: ``2c`` the approach of whisk cycle c (its first half),
         ``2c + 1`` its retreat, by where the frame's middle falls in the whisk (frame f spans
         probe periods f to f + 1, a cycle :attr:`cycle_frames` of them, whole or not, so the
-        looks keep to the whisk's phase over any number of cycles); a frame past the record's
-        cycles is its last cycle's retreat."""
+        looks keep to the whisk's phase over any number of cycles; a middle exactly at the
+        half-cycle is the retreat's, and with a whole, even count the looks are the integer
+        rule's, ``f mod cycle_frames < cycle_frames / 2`` the approach); a frame past the
+        record's cycles is its last cycle's retreat."""
         at = (frame + 0.5) / self.cycle_frames  # whisk cycles from the record's start
         k = torch.floor(at).clamp(max=self.cycles - 1)
         look = 2 * k + (at - k >= 0.5).to(k.dtype)

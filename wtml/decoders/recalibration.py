@@ -417,8 +417,13 @@ def interval(spec: dict, outputs: dict[str, np.ndarray], truth: np.ndarray, n_ra
         fitted = dataclasses.replace(fitted, **{k: tuple(map(float, v)) for k, v in fit.items()})
         r68 = np.maximum(np.asarray(fitted.scales)[which[used]] * sigma[used], class_reach(
             value, p, fitted.class_values, fitted.thresholds, fitted.log_value))
-        r95 = np.maximum(np.asarray(fitted.widths)[which[used]] * r68, class_reach(
-            value, p, fitted.class_values, fitted.thresholds_wide, fitted.log_value))
+        log_std = spec["stored"] == "log_std"
+        with np.errstate(divide="ignore"):  # a σ of 0 (no reach, no σ): its log is -inf
+            shown = np.log(r68) if log_std else r68  # the σ output as the graph gives it
+        half = fitted.half_width(shown, np.asarray(outputs[spec["by"]])[used],
+                                 {spec["value"]: value, spec["classes"]: p,
+                                  spec["sigma"]: shown})
+        r95 = np.exp(half) if log_std else half  # as the runtime reads the graph's answer
         inside = np.abs(err[used])
         return dataclasses.replace(fitted, coverage_after=(
             float(np.mean(inside <= r68)), float(np.mean(inside <= r95))))

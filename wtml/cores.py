@@ -32,10 +32,12 @@ def _quota(path: Path) -> float | None:
         else:
             quota = (path / "cpu.cfs_quota_us").read_text().strip()
             period = (path / "cpu.cfs_period_us").read_text().strip()
-        cores = float(quota) / float(period)
-    except (OSError, ValueError, ZeroDivisionError):
+        quota_us, period_us = float(quota), float(period)
+    except (OSError, ValueError):
         return None  # "max", a missing file, an unreadable one: no quota here
-    return cores if 0 < cores < math.inf and float(quota) > 0 else None
+    if not (0 < quota_us < math.inf and 0 < period_us < math.inf):
+        return None  # -1 (v1's "none"), 0, inf, nan
+    return quota_us / period_us
 
 
 def _groups(root: Path, proc: Path) -> list[Path]:

@@ -166,29 +166,30 @@ class Gated(nn.Module):
     Where the net's ``features`` is the gate's own module and the net answers from features
     (``net.from_features``), the graph computes them once for both.
 
-    Where ``check`` is given, the net's last output is a self-check of its answer (the onset
-    net's :func:`~wtml.decoders.onset.touch_spread`): it leaves the graph's outputs, and the
-    domain score is the larger of the gate's and that check over its limit, so an answer whose
-    check passes the limit is out of domain.
+    Where ``checks`` are given, the net's last ``len(checks)`` outputs are self-checks of its
+    answer (the onset net's wall-motion share and
+    :func:`~wtml.decoders.onset.touch_spread`): they leave the graph's outputs, and the domain
+    score is the largest of the gate's and each check over its limit, so an answer whose check
+    passes its limit is out of domain.
 
     Args:
         net: the exported net, returning a tuple of ``(batch,)`` tensors.
         gate: its fitted :class:`DomainGate`.
         uncertain: indices of the outputs that are predicted uncertainties.
-        check: the limit of the net's last output (score 1 there), or None (no self-check).
+        checks: the limits of the net's last outputs, in their order (score 1 there); empty:
+            no self-check.
     """
 
     def __init__(self, net: nn.Module, gate: DomainGate, uncertain: tuple[int, ...] = (),
-                 check: float | None = None) -> None:
+                 checks: tuple[float, ...] = ()) -> None:
         super().__init__()
         self.net, self.gate, self.uncertain = net, gate, tuple(uncertain)
         self.shared = (getattr(net, "features", None) is gate.features
                        and hasattr(net, "from_features"))
-        self.checked = check is not None
-        if self.checked:
-            if not check > 0:
-                raise ValueError(f"check must be a limit > 0, got {check!r}")
-            self.register_buffer("check_limit", torch.tensor(float(check)))
+        if not all(c > 0 for c in checks):
+            raise ValueError(f"checks must be limits > 0, got {checks!r}")
+        self.checks = len(checks)
+        self.register_buffer("check_limits", torch.tensor([float(c) for c in checks]))
 
     def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
         if self.shared:
@@ -196,9 +197,10 @@ class Gated(nn.Module):
             outputs, score = tuple(self.net.from_features(x)), self.gate.score(x)
         else:
             outputs, score = tuple(self.net(*inputs)), self.gate(*inputs)
-        if self.checked:
-            *outputs, check = outputs
-            score = torch.maximum(score, check / self.check_limit)
+        if self.checks:
+            outputs, checks = outputs[:-self.checks], outputs[-self.checks:]
+            for k, check in enumerate(checks):
+                score = torch.maximum(score, check / self.check_limits[k])
         inside = (score <= 1.0) & self.gate.outputs_in_range(outputs)
         nan = torch.tensor(float("nan"))  # a constant, broadcast (no Shape and Expand)
         outputs = tuple(torch.where(inside, y, nan) if k in self.uncertain else y

@@ -53,9 +53,12 @@ offsets only (a device's own amplitude differs by a few %, its offsets by as lit
 Outputs (each ``(batch,)`` unless said): ``gap`` and ``sigma`` (m, NaN in a record without
 contact: :func:`answer` decides wall and contacts together), ``contact`` (``(batch,
 n_frames)``, probability per frame), ``detach_margin`` (m, ``(batch, n_frames)``; -1 m in a
-record without contact), ``touch`` (``(batch, n_frames)``) and ``touch_spread`` (how far the
-whisk cycles' approaches and retreats locate the wall apart, in σ: :func:`touch_spread`; the
-exported graphs fold it into the domain score, over a limit fitted on fresh records).
+record without contact), ``touch`` (``(batch, n_frames)``), ``wall_motion`` (the wall's
+own motion, read from the whisk cycles' currents, as a share of the net's σ:
+:meth:`OnsetNet.widened`, :mod:`wtml.decoders.wall_motion`; σ holds that motion too) and
+``touch_spread`` (how far the whisk cycles' approaches and retreats locate the wall apart, in
+σ: :func:`touch_spread`). The exported graphs fold the last two into the domain score, over
+:data:`MOTION_LIMIT` and over a limit fitted on fresh records.
 Intervals come from these by :func:`wtml.runtime.contacts.contacts_from` plus the
 onset/detachment phases in the metadata (where in its frame a contact starts and ends,
 fitted on training labels).
@@ -71,6 +74,7 @@ from torch.nn import functional as fn
 from wtml.decoders.base import ConfigError, DecoderModule, check_positive
 from wtml.decoders.domain import RESOLUTION
 from wtml.decoders.layers import ZmFromEI
+from wtml.decoders.wall_motion import WallMotion, frame_means, series_stiffness
 
 CALIBRATION = ("t_re", "t_im", "hue0")
 """The graph's inputs after ``e, i``: the user's calibrated T at the probe frequency, real and
@@ -82,6 +86,16 @@ FRAME_CLIP = 30.0
 A contact's Zm is ~10 std; a frame in which a contact switches can read a nearly vanishing
 tip velocity and |Zm| ~1000 std (met over the device spread: 0.31 N·s/m), which drove the
 main job's training to NaN."""
+
+SELF_CHECKS = ("wall_motion", "touch_spread")
+"""The onset net's last outputs, in order: checks of its own answer, which the exported graphs
+fold into the domain score (:class:`~wtml.decoders.domain.Gated`'s ``checks``)."""
+
+MOTION_LIMIT = 1.0
+"""The largest share of the net's σ that the wall's own motion may take in an answer in
+domain (:meth:`OnsetNet.widened`): beyond it the answer is mostly where the wall happened to
+be at the looks, and σ mostly the motion read through the scene's nominal wall stiffness
+(±20 % over the trained walls), so the graph flags it rather than widen σ further."""
 
 LEVEL_SCALE = 0.001
 """The detachment level's loss is log cosh of its error in units of this fraction of the
@@ -381,7 +395,8 @@ class CausalConv(nn.Module):
 
 class OnsetNet(nn.Module):
     """Frames -> (gap m, sigma m, contact probability per frame, detachment margin per frame
-    m, touch per frame, the whisk cycles' looks' spread in σ); see the module docstring.
+    m, touch per frame, the wall's own motion's share of σ, the whisk cycles' looks' spread
+    in σ); see the module docstring.
 
     Args:
         frames: the feature layer.
@@ -396,6 +411,12 @@ class OnsetNet(nn.Module):
         cycle_frames: frames per whisk cycle (probe periods per whisking period: the
             ratio of the two tones, which need not be whole).
         cycles: whisk cycles in a record (a frame past the last belongs to it).
+        wall_stiffness: ``k_s`` (N/m) for reading the wall's own motion from the whisk
+            cycles' currents (:mod:`wtml.decoders.wall_motion`; its
+            :func:`~wtml.decoders.wall_motion.series_stiffness`); 0: not read (σ the net's
+            alone, and the motion's share 0).
+        mains_hz: the lab's mains frequency (the motion's read averaged over its period; 0:
+            not averaged).
     """
 
     HEADS = 6
@@ -405,7 +426,8 @@ class OnsetNet(nn.Module):
     def __init__(self, frames: ProbeFrames, scale: torch.Tensor, zm_step: torch.Tensor,
                  touch_step: float, amp: float, probe_omega: float, channels: int,
                  dilations: tuple[int, ...], *, cycle_frames: float, cycles: int,
-                 kernel: int = 3, t12: float = 0.0) -> None:
+                 kernel: int = 3, t12: float = 0.0, wall_stiffness: float = 0.0,
+                 mains_hz: float = 0.0) -> None:
         super().__init__()
         if not cycle_frames >= 1 or cycles < 1:
             raise ValueError(f"cycle_frames and cycles must be >= 1, got {cycle_frames}, "
@@ -426,6 +448,11 @@ class OnsetNet(nn.Module):
             c_in = channels
         self.body = nn.Sequential(*layers)
         self.head = nn.Conv1d(channels, self.HEADS, 1)
+        # the wall's own motion (no parameters: a checkpoint's state is the same without it)
+        frame_hz = self.probe_omega / (2 * np.pi)
+        self.motion = (WallMotion(cycle_frames, 1 / frame_hz, wall_stiffness,
+                                  frame_hz / mains_hz if mains_hz > 0 else 0.0)
+                       if wall_stiffness > 0 and self.cycles > 1 else None)
 
     @staticmethod
     def steps(f: torch.Tensor, previous: torch.Tensor) -> torch.Tensor:
@@ -464,10 +491,12 @@ class OnsetNet(nn.Module):
                   t_im: torch.Tensor, hue0: torch.Tensor) -> dict[str, torch.Tensor]:
         """Per frame, each ``(batch, n_frames)``: ``contact`` logit, ``vote``/``est``/
         ``log_sd`` of g (m), ``vote_off``/``est_off`` of the detachment level (m),
-        ``reach`` (m) and ``touch`` (Zm's step over :attr:`touch_step`: >= 1 on a touch)."""
+        ``reach`` (m), ``touch`` (Zm's step over :attr:`touch_step`: >= 1 on a touch) and
+        ``level`` (each frame's mean current, A: :func:`~wtml.decoders.wall_motion.frame_means`)."""
         f = self.frames(e, i, t_re, t_im, hue0)
         per_volt = self.reach_per_volt(t_re, t_im)
-        return self.split(f, self.scaled(self.steps(f, f[:, :1, :3]), per_volt), per_volt)
+        return self.split(f, self.scaled(self.steps(f, f[:, :1, :3]), per_volt),
+                          per_volt) | {"level": frame_means(i, self.frames.period)}
 
     def split(self, f: torch.Tensor, step: torch.Tensor, per_volt: torch.Tensor
               ) -> dict[str, torch.Tensor]:
@@ -545,7 +574,22 @@ class OnsetNet(nn.Module):
                              torch.zeros(n, CONFIRM_FRAMES), torch.zeros(n))
         gap, sd, off_margin = answer(g, sd, prob.amax(-1), p, off)
         spread = self.agreement(*self.per_look(w, p["est"]), gap, sd)
-        return gap, sd, prob, off_margin, p["touch"], spread
+        motion = (torch.zeros_like(hue0) if self.motion is None
+                  else self.motion(p["level"], prob, hue0))
+        sd, share = self.widened(gap, sd, motion)
+        return gap, sd, prob, off_margin, p["touch"], share, spread
+
+    def widened(self, gap: torch.Tensor, sd: torch.Tensor, motion: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """σ with the wall's own motion in it, and that motion's share of the net's σ, from
+        the wall's rms motion ``motion`` (m; :class:`~wtml.decoders.wall_motion.WallMotion`),
+        ``(batch,)`` each: each of the :attr:`looks` meets the wall where it then was, so
+        the answer, their pooled whole, is off by ``motion / √looks``; σ is the net's and
+        that in quadrature, the share ``motion / (√looks σ_net)`` (0 without a wall; the
+        exported graphs flag an answer whose share passes :data:`MOTION_LIMIT`)."""
+        part = motion / float(np.sqrt(self.looks))
+        share = torch.where(torch.isfinite(gap), part / sd, torch.zeros_like(part))
+        return torch.sqrt(sd * sd + part * part), share
 
     def agreement(self, share: torch.Tensor, sums: torch.Tensor, gap: torch.Tensor,
                   sd: torch.Tensor) -> torch.Tensor:
@@ -791,7 +835,9 @@ class OnsetDecoder(DecoderModule):
                         scene.whisk_amplitude_m(), 2 * np.pi * scene.drive.probe_hz,
                         h.channels, tuple(h.dilations),
                         cycle_frames=max(1.0, scene.drive.probe_hz / scene.drive.whisk_hz),
-                        cycles=int(np.ceil(scene.drive.cycles - 1e-9)), t12=nominal_t12(scene))
+                        cycles=int(np.ceil(scene.drive.cycles - 1e-9)), t12=nominal_t12(scene),
+                        wall_stiffness=series_stiffness(scene),
+                        mains_hz=scene.acquisition.effects.hum.mains_hz)
 
     def build_net(self, scene, *tensors) -> nn.Module:
         *inputs, targets = tensors

@@ -12,13 +12,15 @@ Everything the offline graph computes over a whole record is causal or a running
 - the domain gate's record summary is running sums, a maximum and a minimum;
 - the mains lines' estimate (:class:`~wtml.decoders.onset.MainsLines`) is running sums;
 - a contact's confirmation (:func:`~wtml.decoders.onset.confirm`) needs the last few touches
-  and whether one was confirmed before.
+  and whether one was confirmed before;
+- the wall's own motion (:class:`~wtml.decoders.wall_motion.WallMotion`) needs the last
+  whisk cycle's current levels and contact probabilities, and its running sums.
 
 So after the last chunk of a record, the running ``gap``, ``sigma``, levels and domain score
-(the gate's and the looks' agreement over its limit) equal the offline graph's (to float32
-rounding), and the per-frame contact probabilities of the chunks, concatenated, equal the
-offline ones. The per-frame detachment margins use the
-level known so far (the offline graph uses the record's final level).
+(the gate's, the looks' agreement over its limit and the wall's motion's share of σ over
+its limit) equal the offline graph's (to float32 rounding), and the per-frame contact
+probabilities of the chunks, concatenated, equal the offline ones. The per-frame detachment
+margins use the level known so far (the offline graph uses the record's final level).
 
 The state is one flat float32 tensor per record (``(batch, state_size)``); a device keeps it
 between calls and starts each record from zeros (the frame count in it is 0 before the first
@@ -33,12 +35,14 @@ from torch import nn
 from wtml.decoders.domain import DomainGate
 from wtml.decoders.onset import (
     CONFIRM_FRAMES,
+    MOTION_LIMIT,
     CausalConv,
     OnsetNet,
     RecordSummary,
     answer,
     confirm,
 )
+from wtml.decoders.wall_motion import frame_means
 
 POOLS = (("vote", "est", "log_sd", 0), ("vote_off", "est_off", None, 4))
 """The two softmax poolings: vote, estimate, (for g) the log std, and where their running
@@ -61,7 +65,9 @@ class StreamingOnset(nn.Module):
         chunk_frames: probe periods per chunk (the chunk is ``chunk_frames × period``
             samples of each channel).
         check_limit: the limit of the looks' agreement
-            (:func:`~wtml.decoders.onset.touch_spread`, σ), as the offline graph's.
+            (:func:`~wtml.decoders.onset.touch_spread`, σ), as the offline graph's (the
+            wall's own motion's share of σ is held to
+            :data:`~wtml.decoders.onset.MOTION_LIMIT`, as there).
 
     Shapes: ``e``, ``i`` ``(batch, chunk_samples)`` V and A; ``state`` ``(batch,
     state_size)``; ``contact``, the margin and ``touch`` ``(batch, chunk_frames)``; the rest
@@ -79,7 +85,8 @@ class StreamingOnset(nn.Module):
         self.register_buffer("check_limit", torch.tensor(float(check_limit)))
         self.convs = [m for m in net.body if isinstance(m, CausalConv)]
         self.sizes = ([3] + [m.conv.in_channels * m.pad for m in self.convs]
-                      + [net.frames.state_size, CONFIRM_FRAMES + 1, 13, 2 * net.looks])
+                      + [net.frames.state_size, CONFIRM_FRAMES + 1, 13, 2 * net.looks,
+                         0 if net.motion is None else net.motion.state_size])
         self.state_size = sum(self.sizes)
         # the running sums of |E_H| and |I_H| add each frame's deviation from the training
         # records' mean level, so float32 rounding scales with the deviations, not the level
@@ -98,8 +105,8 @@ class StreamingOnset(nn.Module):
     def forward(self, e: torch.Tensor, i: torch.Tensor, t_re: torch.Tensor, t_im: torch.Tensor,
                 hue0: torch.Tensor, state: torch.Tensor) -> tuple[torch.Tensor, ...]:
         parts = torch.split(state, self.sizes, 1)
-        prev, buffers, mains, confirmed, pool, looks = (parts[0], parts[1:-4], parts[-4],
-                                                        parts[-3], parts[-2], parts[-1])
+        prev, buffers, mains, confirmed, pool, looks, moved = (
+            parts[0], parts[1:-5], parts[-5], parts[-4], parts[-3], parts[-2], parts[-1])
         net = self.net
         # (batch, chunk_frames, 5), the mains lines' running sums from the frames so far
         f, mains = net.frames.running(e, i, t_re, t_im, hue0, pool[:, 8], mains)
@@ -161,11 +168,18 @@ class StreamingOnset(nn.Module):
                              RecordSummary.device(t_re, t_im, hue0)], -1)
         # this chunk's margin uses the level so far and the contact seen so far
         gap, sd, off_margin = answer(*pooled[:2], top, p, pooled[2])
-        score = torch.maximum(self.gate.score(summary),
-                              net.agreement(share, look_sums, gap, sd) / self.check_limit)
+        spread = net.agreement(share, look_sums, gap, sd)
+        if net.motion is None:
+            motion = torch.zeros_like(hue0)
+        else:
+            motion, moved = net.motion.running(frame_means(i, net.frames.period), prob, hue0,
+                                               pool[:, 8], moved)
+        sd, part = net.widened(gap, sd, motion)
+        score = torch.maximum(torch.maximum(self.gate.score(summary),
+                                            spread / self.check_limit), part / MOTION_LIMIT)
         inside = (score <= 1.0) & self.gate.outputs_in_range((gap, sd))
         sd = torch.where(inside, sd, torch.full_like(sd, float("nan")))
         new_pool = torch.stack(merged + [top, count, sum_e, u_max, u_min, sum_i], -1)
         carried += ([] if mains is None else [mains]) + [past, seen[:, None]]
-        next_state = torch.cat([f[:, -1, :3], *carried, new_pool, c0, c1], 1)
+        next_state = torch.cat([f[:, -1, :3], *carried, new_pool, c0, c1, moved], 1)
         return prob, off_margin, p["touch"], gap, sd, next_state, inside, score

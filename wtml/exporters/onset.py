@@ -19,7 +19,7 @@ import torch
 from wtml import __version__
 from wtml.baselines.onset_classical import ThesisOnset
 from wtml.decoders.domain import QUANTILE, Gated
-from wtml.decoders.onset import TOUCH_LOOKBACK, frame_period
+from wtml.decoders.onset import MOTION_LIMIT, SELF_CHECKS, TOUCH_LOOKBACK, frame_period
 from wtml.decoders.onset_stream import StreamingOnset
 from wtml.decoders.recalibration import Recalibrated, fit_uncertainty, metadata
 from wtml.exporters.graphs import domain_metadata, export_graph
@@ -214,30 +214,32 @@ def export_onset(module, scene, out: Path) -> dict[str, Path]:
                     for s in range(0, len(fresh["gap"]), 32)]
         truth.append(fresh["gap"])
         del fresh, inputs  # not beside the next chunk's simulation
-    gap, sigma, spread, inside = (torch.cat([a[k] for a in answers]) for k in (0, 1, 5, -2))
+    gap, sigma, motion, spread, inside = (torch.cat([a[k] for a in answers])
+                                          for k in (0, 1, 5, 6, -2))
     limit = spread_limit(spread[torch.isfinite(gap)].double().numpy())
     uncertainty = fit_uncertainty(
         {"gap": gap.double().numpy(), "sigma": sigma.double().numpy()},
         {"gap": np.concatenate(truth)}, [GAP_INTERVAL], GAP_RANGES,
         f"{FRESH_RECORDS} fresh records of the trained scene (seeds [{scene.seed}, 1000001, "
         f"k] for chunks from record k; not the training data)")
-    calibrated = Recalibrated(module.net, DECODER_OUTPUTS + ("touch_spread",), uncertainty)
-    if calibrated.outputs[-1] != "touch_spread":  # Gated takes the last output as the check
-        raise ValueError(f"the onset graph's last output must be touch_spread, got "
-                         f"{calibrated.outputs}")
-    decoder = Gated(calibrated, module.gate, (1,), check=limit).eval()
+    calibrated = Recalibrated(module.net, DECODER_OUTPUTS + SELF_CHECKS, uncertainty)
+    decoder = Gated(calibrated, module.gate, (1,), checks=(MOTION_LIMIT, limit)).eval()
     pieces, pieces_flagged = pieces_limit(decoder, scene)
     # the classical graph has the gate alone; the decoder's and the stream's also the check
     domain = domain_metadata(scene, float(1 - inside.float().mean()), FRESH_RECORDS)
     checked = {"domain": json.dumps(domain | {
-        "false_alarm_fresh": float((inside & (spread <= limit)).logical_not().float().mean()),
+        "false_alarm_fresh": float((inside & (spread <= limit) & (motion <= MOTION_LIMIT)
+                                    ).logical_not().float().mean()),
         "self_check": "touch_spread: how far each whisk cycle's approach and retreat locate "
                       "the wall from the record's approach and retreat, in its sigma (a still "
                       "wall is met at one place in every look); its limit is the "
                       f"{SPREAD_QUANTILE} quantile over the fresh records with a wall "
                       f"({SPREAD_DEFAULT} with fewer than "
-                      f"{SPREAD_MIN_WALLS}); the domain score is the larger of the gate's and it "
-                      "over the limit", "self_check_limit": limit,
+                      f"{SPREAD_MIN_WALLS}); and wall_motion: the wall's own motion read from "
+                      "the whisk cycles' currents (rms over sqrt(looks), in sigma with it in "
+                      f"quadrature) as a share of the net's sigma, its limit {MOTION_LIMIT:g}; "
+                      "the domain score is the largest of the gate's and each over its limit",
+        "self_check_limit": limit,
         "pieces_limit": pieces, "pieces_false_alarm_fresh": pieces_flagged})}
     rate = scene.acquisition.sample_rate_hz
     period = frame_period(scene)

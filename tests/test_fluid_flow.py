@@ -398,7 +398,8 @@ def test_crlb_scales_with_noise_and_grows_with_calibration_error():
 def test_a_session_s_first_run_is_one_row(flow, monkeypatch):
     """``OnnxModel`` runs its graph once on one row of zeros when it opens it, before any
     other call (a session whose first run was a large batch stays ~20 % slower at batch 1:
-    README, "Where batch 1's time goes"); a graph with a second dynamic axis is not run."""
+    docs/frontier.md, "Where batch 1's time goes"); a graph with a second dynamic axis is not
+    run."""
     from types import SimpleNamespace
 
     from wtml.runtime import predict

@@ -525,9 +525,9 @@ def test_the_worst_force_is_the_largest_force_at_rest_the_scene_draws():
 
 
 def test_the_scene_of_every_law_family_is_texture_yaml_but_for_its_friction():
-    """``configs/scenes/texture_laws.yaml`` (README "Trained across every law family") is the
-    shipped texture scene with every law in its mixture and a span of viscous friction, at
-    LuGre's oversampling, and nothing else changed: the two stay one scene apart."""
+    """``configs/scenes/texture_laws.yaml`` (docs/texture.md, "Trained across every law family")
+    is the shipped texture scene with every law in its mixture and a span of viscous friction,
+    at LuGre's oversampling, and nothing else changed: the two stay one scene apart."""
     from pathlib import Path
 
     import yaml

@@ -68,11 +68,11 @@ def _runtime_operations(path, tmp_path) -> list:
 
 
 def test_the_matrix_decoders_graphs_keep_their_few_operations(flow, radial_flow, tmp_path):
-    """At batch 1 onnxruntime pays ~0.25 µs per operation, whatever it computes (README,
-    "Where batch 1's time goes"): the radial decoder's graph computes ze/ref once (the coarse
-    stage reads its inputs unsliced, so the refiner's and the gate's ratio is the same
-    subexpression) and its table in a few products, 112 operations where it took 180 (114
-    with the 3-layer coarse stage before 30 Nov); the fluid one reads its device columns as
+    """At batch 1 onnxruntime pays ~0.25 µs per operation, whatever it computes
+    (docs/frontier.md, "Where batch 1's time goes"): the radial decoder's graph computes ze/ref
+    once (the coarse stage reads its inputs unsliced, so the refiner's and the gate's ratio is
+    the same subexpression) and its table in a few products, 112 operations where it took 180
+    (114 with the 3-layer coarse stage before 30 Nov); the fluid one reads its device columns as
     constants (no Shape of an input), 94 where 102."""
     radial = _runtime_operations(radial_flow / "export/radial/model.onnx", tmp_path)
     inputs = {"ze_re", "ze_im", "ref_re", "ref_im"}

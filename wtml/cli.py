@@ -815,7 +815,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="onnxruntime threads (default: every core this process may use, at "
                          "most $WTML_THREADS; N replaces that for this command); beside another "
                          "busy process, 1 keeps its speed where more wait on each other "
-                         "(README: two threads beside a busy process)")
+                         "(docs/frontier.md, 'Two threads beside a busy process')")
     rec = pr.add_argument_group(
         "recordings from instruments (onset, texture: .tdms, .wav, .csv)",
         "how to read an instrument's file: a YAML recording profile (--profile) with the keys "

@@ -49,7 +49,7 @@ class Task:
             order that starts onset and fluid before texture was tried on 29 Nov and not
             kept: texture's bench then ran beside radial's training, not beside radial's idle
             wait (3 min 15 s to 4 min 03 s against 3 min 19–24 s), and the pairs that met
-            peaked at 2.04–2.08 GB (README, the main job). Texture's are kept from then
+            peaked at 2.04–2.08 GB (docs/main-job.md). Texture's are kept from then
             though its export now takes ~27 s more and its bench ~55 s less (29 Nov night:
             271 s, bench 140 s, warm-up 68.5 s in all): on those the replay would start
             radial before fluid, 412 s against 418 s for this order, within the runs' drift,

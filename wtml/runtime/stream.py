@@ -54,7 +54,8 @@ class StreamEvent:
     the arrival of the read that held that frame to the event (the graph's work on the read's
     earlier chunks included). The wall's location is its record's (:class:`RecordAnswer`):
     the graph's running answer before a record's end is not one it was trained to give (at a
-    record's first detachment it lies many of its σ from the wall: README, "Streaming")."""
+    record's first detachment it lies many of its σ from the wall: docs/runtime.md, "Streams
+    read record by record")."""
 
     event: Event
     decided_s: float

@@ -145,3 +145,29 @@ def test_a_fluid_scene_simulates_a_fluid_outside_its_prior():
     assert np.max(np.abs(air["ze"] / drawn["ze"] - 1)) > 1e-3  # air is not glycerol-water
     with pytest.raises(ValueError, match=r"properties eta must be in \(0, inf\)"):
         scene.simulate(2, np.random.default_rng(1), properties=(-1.0, 1000.0))
+
+
+def test_texture_conditions_carry_t_at_the_exports_calibration_frequencies(texture_export,
+                                                                           monkeypatch):
+    """Every texture condition narrows a range of the trained scene, and the whisking range
+    moves the scene's own calibration frequencies: each must ask for T at the graph's
+    (its metadata's ``calibration_hz``), or the decoder reads T at the wrong frequencies."""
+    from wtml.bench.stability_suites import SUITES
+    from wtml.runtime.predict import load_export
+    from wtml.scenes.texture import TextureScene
+
+    asked = []
+
+    def simulate(self, n, rng, **kwargs):
+        asked.append((self.drive.whisk_hz, kwargs.get("calibration_hz")))
+        return {}
+
+    monkeypatch.setattr(TextureScene, "simulate", simulate)
+    suite = SUITES["texture"](texture_export["model"], 1)
+    for condition in suite.conditions:
+        condition.make(1, np.random.default_rng(0))
+    want = np.array(load_export(texture_export["model"])[0].meta.calibration_hz)
+    assert len(asked) == len(suite.conditions) >= 7
+    assert any(hz[1] - hz[0] < 1.0 for hz, _ in asked)  # narrowed: its own frequencies moved
+    for _, freq in asked:
+        np.testing.assert_array_equal(freq, want)

@@ -1,6 +1,7 @@
 """The texture scene and decoder: the in-graph feature layer against numpy, the scene's
 fidelity to the thesis (Table 4.10, Figures 4.28-4.31) and its kinetic signature."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -10,6 +11,7 @@ import torch
 from tests.conftest import TEXTURE_SMALL, TEXTURE_SPREAD
 from wtml.decoders.texture import BandPowers, CalibratedT, WhiskFeatures, cholesky_solve
 from wtml.fidelity import format_texture, texture_fidelity
+from wtml.physics.spread import DeviceSpread
 from wtml.physics.twoport import flat_parts
 from wtml.runtime import metadata as md
 from wtml.scenes import load_scene
@@ -629,3 +631,26 @@ def test_a_checkpoint_keeps_its_band_frame_and_high_branch_and_one_from_before_h
     start = new.net.features.bands.edges[new.net.high_columns[1] - WhiskFeatures.N_FEATURES]
     assert new.net.high is not None and 4000.0 <= start < 4000.0 * 2 ** (1 / 8)
     assert new.net_shape()["high_band_hz"] == 4000.0
+
+
+def test_records_carry_t_at_the_frequencies_a_decoder_was_calibrated_on(scene):
+    """A scene whose whisking range is narrowed (a bench's condition at one end of it) has
+    its own calibration frequencies, not the trained scene's: fed to a decoder trained on
+    the wide range, its records' T would be interpolated from the wrong frequencies (the
+    stability bench's texture rows until 2 Dec: 24 % of windows at 36.8-37 Hz flagged, their
+    Im Zm off by ~0.2 mN·s/m). ``calibration_hz`` gives T at the decoder's frequencies: the
+    device's own T there, and the whisk inside the narrowed range."""
+    narrow = dataclasses.replace(
+        scene, samples=1, spread=DeviceSpread(),
+        drive=dataclasses.replace(scene.drive, whisk_hz=(36.8, 37.0)))
+    assert np.abs(narrow.calibration_hz - scene.calibration_hz).max() > 0.5  # the trap
+    rec = narrow.simulate_independent(1, np.random.default_rng(0),
+                                      calibration_hz=scene.calibration_hz)
+    want = narrow.transducer().transduction_matrix(2 * np.pi * scene.calibration_hz)
+    np.testing.assert_allclose(rec["t"][0], want, rtol=1e-12)
+    assert 36.8 <= rec["whisk_hz"][0] <= 37.0
+    own = narrow.simulate_independent(1, np.random.default_rng(0))  # the scene's own, as before
+    np.testing.assert_allclose(
+        own["t"][0], narrow.transducer().transduction_matrix(2 * np.pi * narrow.calibration_hz),
+        rtol=1e-12)
+    np.testing.assert_array_equal(own["i"], rec["i"])  # T is read after the records are made

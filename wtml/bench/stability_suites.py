@@ -24,6 +24,7 @@ are the export's graphs beside the task's classical paths in float64.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -304,6 +305,8 @@ def texture(model_dir: Path, threads: int) -> Suite:
     decoder, classical = load_export(model_dir, threads=threads)
     scene = scene_from_dict(decoder.meta.scene)
     window = decoder.meta.n_samples
+    # a condition narrows the whisking range, and with it the scene's own calibration_hz
+    calibration_hz = np.array(decoder.meta.calibration_hz)
     d, c = scene.drive, scene.contact
     ranges = {"whisk_v": d.whisk_v, "whisk_hz": d.whisk_hz, "normal_force": c.normal_force}
     units = {"whisk_v": ("V", 1.0), "whisk_hz": ("Hz", 1.0), "normal_force": ("mN", 1e3)}
@@ -319,8 +322,8 @@ def texture(model_dir: Path, threads: int) -> Suite:
                                              whisk_hz=values["whisk_hz"]),
             contact=dataclasses.replace(c, normal_force=values["normal_force"]))
 
-    def make(s):  # every grade, each record its own specimen
-        return s.simulate_independent
+    def make(s):  # every grade, each record its own specimen; T at the graph's frequencies
+        return functools.partial(s.simulate_independent, calibration_hz=calibration_hz)
 
     def label(name: str, pair: tuple[float, float], where: str) -> str:
         unit, factor = units[name]

@@ -505,12 +505,14 @@ class TextureScene:
         pad = max(0.25 * (hi - lo), 0.005 * (hi + lo))
         return np.linspace(lo - pad, hi + pad, self.CALIBRATION_POINTS)
 
-    def calibrated_t(self, model: ModalTransducer) -> np.ndarray:
-        """``model``'s T at :attr:`calibration_hz`, complex ``(K, 2, 2)``: what its user's
-        calibration gives (the scene's ``calibration`` where it has one)."""
+    def calibrated_t(self, model: ModalTransducer, frequency_hz=None) -> np.ndarray:
+        """``model``'s T at ``frequency_hz`` (Hz, ``(K,)``; None: :attr:`calibration_hz`),
+        complex ``(K, 2, 2)``: what its user's calibration gives (the scene's ``calibration``
+        where it has one)."""
+        freq = self.calibration_hz if frequency_hz is None else np.asarray(frequency_hz, float)
         if self.calibration is not None:
-            return self.calibration.t_at(self.calibration_hz)
-        return model.transduction_matrix(2 * np.pi * self.calibration_hz)
+            return self.calibration.t_at(freq)
+        return model.transduction_matrix(2 * np.pi * freq)
 
     def devices(self, n: int, rng: np.random.Generator
                 ) -> tuple[list[ModalTransducer], np.ndarray]:
@@ -639,16 +641,20 @@ class TextureScene:
 
     def simulate(self, n: int, rng: np.random.Generator, *, batch: int = 8,
                  asperities: bool = True, mean_friction: bool = True,
-                 nominal: bool = False) -> dict[str, np.ndarray]:
+                 nominal: bool = False, calibration_hz=None) -> dict[str, np.ndarray]:
         """``n`` records spread evenly over this shard's specimens.
 
         ``asperities=False`` leaves the grains out; ``mean_friction=False`` gives every
         specimen the Coulomb coefficient of the law at the middle grade (the ablations of the
         bench); ``nominal`` fixes the set-up at the thesis's (10 V, 36 Hz, 3.3e-4 N, 10°, the
-        calibrated device, no specimen deviations).
+        calibrated device, no specimen deviations); ``calibration_hz`` (Hz, ``(K,)``) gives
+        ``t`` at those frequencies instead of this scene's :attr:`calibration_hz`, which
+        follow its whisking range: records of a narrower range, fed to a decoder trained on
+        a wider one, must carry T at the decoder's frequencies (its metadata's), or the graph
+        interpolates T from the wrong ones.
 
         Returns ``e``, ``i`` (see the module docstring), ``t`` (each record's device's
-        calibrated T at :attr:`calibration_hz`, complex ``(n, K, 2, 2)``), the labels and the
+        calibrated T at those frequencies, complex ``(n, K, 2, 2)``), the labels and the
         nuisance drawn. ``batch`` records are stepped at a time (every draw is made before,
         so the records do not depend on it): the oversampled run's arrays take ~8 MB a
         record, and 8 at a time steps as fast as 64 (40 records: 3.0 s against 3.5 s, peak
@@ -702,7 +708,7 @@ class TextureScene:
                     dst[rows] = self.decimate(x[:, n_lead - 64 * self.oversample:])[:, 64:]
         # the op-amp's e_n through Cp (fA): the first device's Cp stands for all of them
         e_rec, i_rec = a.record(volt, cur, models[0].capacitance, rng)
-        t = np.stack([self.calibrated_t(m) for m in models])[device]
+        t = np.stack([self.calibrated_t(m, calibration_hz) for m in models])[device]
         grade = spec["grade"][which] if self.grades == "thesis" else np.full(n, -1)
         return {"e": e_rec, "i": i_rec, "t": t,
                 "grade": grade, "grain_m": spec["grain_um"][which] * 1e-6,

@@ -5,7 +5,7 @@ scene (its devices drawn from the shipped spread, each record with its own calib
 trains ``configs/fluid.yaml`` as shipped, and checks on the test shard that the
 decoder's median ρ error is <= 0.5 %, that it is at least 2x better than the thesis's closed
 form in η and in ρ, and that it is within 1.3x of the best achievable, the Bayes posterior
-mean under the scene's prior, noise and calibration error (README: 1.13x in η, 1.21x in ρ).
+mean under the scene's prior, noise and calibration error (README: 1.12x in η, 1.22x in ρ).
 The 1 % η target is out of reach of any estimator here: the Bayes estimate itself has ~2.5 %.
 """
 

@@ -116,6 +116,24 @@ def test_the_unmeasured_sphere_scene_is_the_default_with_issue_21s_spread():
     assert dataclasses.replace(radius, name=default.name, spread=default.spread) == default
 
 
+def test_the_eta_range_ends_where_the_prior_does_and_hot_water_is_beyond_it():
+    """A decoder's η counts as in domain only a little beyond the prior's range (a factor
+    1.085 on the default scene): the prior's lowest η (water at its highest temperature)
+    and 7 % below it (the decoder's median error on the prior's lowest decade) are inside,
+    while water at 60 °C (0.47 mPa·s), below the prior, and 0.58 mPa·s (the main job's
+    decoder's 90th-percentile answer to water at 60–95 °C) are outside. With the 5 % margin
+    of the other ranges (a factor 1.5) both were inside, and 41 % of those records passed."""
+    from wtml.scenes import load_scene
+
+    scene = load_scene(ROOT / "configs/scenes/fluid.yaml")
+    r = scene.output_ranges()["eta"]
+    lo, hi = r.widened()
+    coolest_water = glycerol_water(0.0, scene.fluid.temperature_c[1])[0]
+    assert r.low == pytest.approx(float(coolest_water), rel=1e-12)
+    assert lo < 0.93 * r.low and hi > 1.07 * r.high
+    assert float(glycerol_water(0.0, 60.0)[0]) < 0.58e-3 < lo
+
+
 def test_zm_layer_with_the_nominal_t_reproduces_the_constant_t_graph():
     """Parity with the graph before T was an input: there the constants of the Möbius map
     (c = t11/t21, A = -t22/t21, B = -det T/t21²) were computed once in float64 and stored in

@@ -132,6 +132,31 @@ def test_the_eta_range_ends_where_the_prior_does_and_hot_water_is_beyond_it():
     assert r.low == pytest.approx(float(coolest_water), rel=1e-12)
     assert lo < 0.93 * r.low and hi > 1.07 * r.high
     assert float(glycerol_water(0.0, 60.0)[0]) < 0.58e-3 < lo
+    # the margin is in decades: a narrower prior (water with 0-30 % glycerol) keeps the factor
+    narrow = dataclasses.replace(scene, fluid=dataclasses.replace(scene.fluid,
+                                                                  volume_fraction=(0.0, 0.3)))
+    n = narrow.output_ranges()["eta"]
+    assert n.widened()[0] / n.low == pytest.approx(lo / r.low, rel=1e-9)
+
+
+def test_a_checkpoint_exports_the_ranges_this_version_states(flow):
+    """The outputs' trained ranges (the scene's, with this version's margins) replace those a
+    checkpoint saved: a checkpoint from before a margin changed exports what its metadata
+    states, not the old range."""
+    from wtml.scenes import scene_from_dict
+
+    path = flow[1]
+    module = load_decoder(path)
+    eta = scene_from_dict(module.scene).output_ranges()["eta"].widened()
+    want = (module.gate.low.clone(), module.gate.high.clone())
+    assert (float(want[0][0]), float(want[1][0])) == pytest.approx(eta, rel=1e-6)
+    checkpoint = read_checkpoint(path)
+    checkpoint["state_dict"]["gate.low"] = want[0] / 1.5  # as saved under another margin
+    checkpoint["state_dict"]["gate.high"] = want[1] * 1.5
+    module.on_load_checkpoint(checkpoint)
+    module.load_state_dict(checkpoint["state_dict"])
+    torch.testing.assert_close(module.gate.low, want[0], rtol=0, atol=0)
+    torch.testing.assert_close(module.gate.high, want[1], rtol=0, atol=0)
 
 
 def test_zm_layer_with_the_nominal_t_reproduces_the_constant_t_graph():

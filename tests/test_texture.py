@@ -637,7 +637,7 @@ def test_records_carry_t_at_the_frequencies_a_decoder_was_calibrated_on(scene):
     """A scene whose whisking range is narrowed (a bench's condition at one end of it) has
     its own calibration frequencies, not the trained scene's: fed to a decoder trained on
     the wide range, its records' T would be interpolated from the wrong frequencies (the
-    stability bench's texture rows until 2 Dec: 24 % of windows at 36.8-37 Hz flagged, their
+    stability bench's texture rows until 2 Dec: 26 % of windows at 36.8-37 Hz flagged, their
     Im Zm off by ~0.2 mN·s/m). ``calibration_hz`` gives T at the decoder's frequencies: the
     device's own T there, and the whisk inside the narrowed range."""
     narrow = dataclasses.replace(

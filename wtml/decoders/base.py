@@ -152,12 +152,22 @@ class DecoderModule(L.LightningModule, ABC):
                 "the data")
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
+        """Shapes from the checkpoint (its state dict, loaded next, brings the values), and
+        the outputs' trained ranges as this version states them for the checkpoint's scene:
+        a range is the scene's and its margin, not something training learns, so a
+        checkpoint saved before a margin changed exports the range its metadata states."""
         from wtml.scenes import scene_from_dict
 
         self.scene = checkpoint["wtml"]["scene"]
-        if self.net is None:  # shapes only: the state dict brings the values
+        scene = scene_from_dict(self.scene)
+        if self.net is None:
             self.build_from_checkpoint(checkpoint["wtml"]["shape"])
-            self.gate = self.make_gate(scene_from_dict(self.scene))
+            self.gate = self.make_gate(scene)
+        ranges = self.make_gate(scene)
+        state = checkpoint.get("state_dict", {})
+        for name in ("low", "high"):
+            if f"gate.{name}" in state:
+                state[f"gate.{name}"] = getattr(ranges, name).clone()
 
     def _step(self, batch, stage: str) -> torch.Tensor:
         loss = self.loss(batch)

@@ -21,7 +21,8 @@ transducer is drawn around the preset (``min(device.devices, n)`` devices per ca
 ``ModalTransducer.from_beam(build(preset, factors=...), n_modes)`` (its whisker in
 :attr:`TextureScene.whisker_elements` elements). The user calibrates their
 own device (physics.md §4), so each record carries its device's calibrated T at the
-calibration frequencies (:attr:`TextureScene.calibration_hz`) as ``t`` ``(n, K, 2, 2)``: the
+calibration frequencies (:attr:`TextureScene.calibration_hz`, or a decoder's where
+:meth:`TextureScene.simulate` is given them) as ``t`` ``(n, K, 2, 2)``: the
 decoder's input; the calibration error and the temperature drift stay on top of it. All widths
 zero (the default) draws nothing: the records are today's, bit for bit.
 
@@ -301,7 +302,8 @@ class TextureScene:
     def decoder_inputs(arrays: Mapping[str, np.ndarray]) -> tuple[np.ndarray, ...]:
         """What the decoder takes, from a dataset's (or :meth:`simulate`'s) arrays: ``e``
         (V), ``i`` (A), each ``(n, n_samples)``, and each record's calibrated T at the
-        scene's :attr:`calibration_hz` as ``t_re, t_im`` ``(n, n_cal, 4)`` float32 (t11, t12,
+        frequencies it was made with (the scene's :attr:`calibration_hz` unless
+        :meth:`simulate` was given others) as ``t_re, t_im`` ``(n, n_cal, 4)`` float32 (t11, t12,
         t21, t22)."""
         return arrays["e"], arrays["i"], *flat_parts(arrays["t"])
 
@@ -510,6 +512,9 @@ class TextureScene:
         complex ``(K, 2, 2)``: what its user's calibration gives (the scene's ``calibration``
         where it has one)."""
         freq = self.calibration_hz if frequency_hz is None else np.asarray(frequency_hz, float)
+        if freq.ndim != 1 or not len(freq):
+            raise ValueError(f"frequency_hz: the calibration frequencies (Hz), one axis, got "
+                             f"shape {freq.shape}")
         if self.calibration is not None:
             return self.calibration.t_at(freq)
         return model.transduction_matrix(2 * np.pi * freq)

@@ -118,7 +118,7 @@ def test_the_unmeasured_sphere_scene_is_the_default_with_issue_21s_spread():
 
 def test_the_eta_range_ends_where_the_prior_does_and_hot_water_is_beyond_it():
     """A decoder's η counts as in domain only a little beyond the prior's range (a factor
-    1.085 on the default scene): the prior's lowest η (water at its highest temperature)
+    1.084): the prior's lowest η (water at its highest temperature)
     and 7 % below it (the decoder's median error on the prior's lowest decade) are inside,
     while water at 60 °C (0.47 mPa·s), below the prior, and 0.58 mPa·s (the main job's
     decoder's 90th-percentile answer to water at 60–95 °C) are outside. With the 5 % margin

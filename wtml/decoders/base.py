@@ -159,15 +159,13 @@ class DecoderModule(L.LightningModule, ABC):
         from wtml.scenes import scene_from_dict
 
         self.scene = checkpoint["wtml"]["scene"]
-        scene = scene_from_dict(self.scene)
-        if self.net is None:
+        if self.net is None:  # resuming, setup has built both from the same scene
             self.build_from_checkpoint(checkpoint["wtml"]["shape"])
-            self.gate = self.make_gate(scene)
-        ranges = self.make_gate(scene)
+            self.gate = self.make_gate(scene_from_dict(self.scene))
         state = checkpoint.get("state_dict", {})
         for name in ("low", "high"):
             if f"gate.{name}" in state:
-                state[f"gate.{name}"] = getattr(ranges, name).clone()
+                state[f"gate.{name}"] = getattr(self.gate, name).clone()
 
     def _step(self, batch, stage: str) -> torch.Tensor:
         loss = self.loss(batch)
